@@ -1,0 +1,370 @@
+"""Linear-quadratic regulator and the LQR anchor of the desired closed loop.
+
+At the target x* the linearised matching problem of IDA-PBC always has an exact solution when the
+linearisation ``(A, B)`` is stabilisable (DESIGN §2, "Local exactness: an LQR anchor"): take the
+LQR closed loop ``A_cl = A - B K``, a matrix ``P ≻ 0`` with ``A_clᵀ P + P A_cl = -Q' ≺ 0`` and
+
+    Z = A_cl P⁻¹,   J = (Z - Zᵀ)/2 (skew),   R = -(Z + Zᵀ)/2 = ½ P⁻¹ Q' P⁻¹ ≻ 0,
+
+so that ``A_cl = (J - R) P`` exactly. Networks J_d, R_d, H_d taking the values J, R and Hessian P at
+x* (``networks.py``, anchored forms) have a closed loop ẋ = (J_d - R_d) ∇H_d whose linearisation
+at x* *is* the LQR loop; and since ``g⊥ B = 0``, ``g⊥ (A_cl - A) = -g⊥ B K = 0``, i.e. the
+mismatch Jacobian ∂μ/∂x(x*) vanishes exactly.
+
+Everything here is numpy float64 and free of the rest of the package.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import scipy.linalg as sla
+
+__all__ = [
+    "LinearAnchor",
+    "controllability_rank",
+    "is_stabilisable",
+    "lqr",
+    "lqr_anchor",
+    "uncontrollable_eigenvalues",
+]
+
+_RTOL = 1e-10
+"""Default relative tolerance of the controllability staircase (see :func:`controllability_rank`)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Validation helpers
+# --------------------------------------------------------------------------------------------
+def _as_matrix(name: str, M, shape: tuple[int | None, int | None]) -> np.ndarray:
+    """``M`` as a finite float64 2-D array of the given shape (``None`` = any size)."""
+    M = np.atleast_2d(np.asarray(M, dtype=np.float64))
+    if M.ndim != 2 or any(s is not None and s != t for s, t in zip(shape, M.shape)):
+        want = "×".join("?" if s is None else str(s) for s in shape)
+        raise ValueError(f"{name} must have shape ({want}), got {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise ValueError(f"{name} has non-finite entries")
+    return M
+
+
+def _check_system(A, B) -> tuple[np.ndarray, np.ndarray]:
+    A = _as_matrix("A", A, (None, None))
+    n = A.shape[0]
+    if A.shape != (n, n):
+        raise ValueError(f"A must be square, got {A.shape}")
+    B = np.asarray(B, dtype=np.float64)
+    if B.ndim == 1:
+        B = B[:, None]
+    B = _as_matrix("B", B, (n, None))
+    return A, B
+
+
+def _sym(M: np.ndarray) -> np.ndarray:
+    return 0.5 * (M + M.T)
+
+
+def _is_spd(M: np.ndarray, rtol: float = 0.0) -> bool:
+    """Symmetric M with λ_min(M) > rtol·λ_max(M) (and a Cholesky factor)."""
+    try:
+        np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        return False
+    lam = np.linalg.eigvalsh(M)
+    return bool(lam[0] > rtol * lam[-1])
+
+
+_PD_RTOL = 1e-12
+"""An anchor P or R with λ_min ≤ _PD_RTOL·λ_max is treated as singular."""
+
+
+# --------------------------------------------------------------------------------------------
+# Controllability
+# --------------------------------------------------------------------------------------------
+def _orth(W: np.ndarray, tol: float) -> np.ndarray:
+    """Orthonormal basis (columns) of the range of ``W``, singular values ≤ ``tol`` dropped."""
+    if W.shape[1] == 0:
+        return W
+    U, s, _ = np.linalg.svd(W, full_matrices=False)
+    return U[:, : int(np.sum(s > tol))]
+
+
+def _controllable_basis(A: np.ndarray, B: np.ndarray, rtol: float) -> np.ndarray:
+    """Orthonormal basis ``V`` (n, r) of the controllable subspace span{B, AB, A²B, …}.
+
+    Orthogonal staircase (block Arnoldi) reduction: each step maps only the directions found in the
+    previous step through A, re-orthogonalises twice against the basis so far, and keeps singular
+    values above ``rtol·‖A‖₂``. The first block is thresholded relative to ‖B‖₂, so the result is
+    invariant to the scaling of the inputs. Unlike the rank of the Krylov matrix [B, AB, …], whose
+    columns grow like ‖A‖ᵏ, every block here is of order one.
+    """
+    n = A.shape[0]
+    V = _orth(B, rtol * max(np.linalg.norm(B, 2), np.finfo(float).tiny))
+    tol_a = rtol * max(np.linalg.norm(A, 2), np.finfo(float).tiny)
+    new = V
+    while new.shape[1] > 0 and V.shape[1] < n:
+        W = A @ new
+        for _ in range(2):  # classical Gram-Schmidt, twice is enough
+            W = W - V @ (V.T @ W)
+        new = _orth(W, tol_a)
+        V = np.hstack([V, new])
+    return V[:, :n]
+
+
+def controllability_rank(A, B, rtol: float = _RTOL) -> int:
+    """Dimension of the controllable subspace of ``ẋ = A x + B u``.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    B : array_like, shape (n, m)
+    rtol : float
+        Relative tolerance: a new direction counts when its singular value exceeds ``rtol·‖A‖₂``
+        (``rtol·‖B‖₂`` for the first block). Couplings weaker than that are treated as absent.
+
+    Returns
+    -------
+    int
+        The rank of [B, AB, …, Aⁿ⁻¹B], computed by an orthogonal staircase reduction (robust
+        where the plain Krylov matrix is badly scaled). ``n`` means (A, B) is controllable.
+    """
+    A, B = _check_system(A, B)
+    return int(_controllable_basis(A, B, rtol).shape[1])
+
+
+def uncontrollable_eigenvalues(A, B, rtol: float = _RTOL) -> np.ndarray:
+    """Eigenvalues of A that no input can move (the uncontrollable modes).
+
+    With V an orthonormal basis of the (A-invariant) controllable subspace and W of its orthogonal
+    complement, ``[V W]ᵀ A [V W] = [[A_cc, A_cu], [0, A_uu]]``; the uncontrollable modes are
+    ``eig(A_uu)``.
+
+    Returns
+    -------
+    np.ndarray, shape (n - controllability_rank(A, B),), complex
+    """
+    A, B = _check_system(A, B)
+    V = _controllable_basis(A, B, rtol)
+    n, r = A.shape[0], V.shape[1]
+    if r == n:
+        return np.zeros(0, dtype=complex)
+    Qfull, _ = np.linalg.qr(np.hstack([V, np.eye(n)]))
+    W = Qfull[:, r:n]
+    W = W - V @ (V.T @ W)
+    W, _ = np.linalg.qr(W)
+    return np.linalg.eigvals(W.T @ A @ W).astype(complex)
+
+
+def is_stabilisable(A, B, rtol: float = _RTOL, margin: float = 0.0) -> bool:
+    """True when every uncontrollable mode of (A, B) has real part < ``-margin``."""
+    lam = uncontrollable_eigenvalues(A, B, rtol)
+    return bool(np.all(lam.real < -margin))
+
+
+# --------------------------------------------------------------------------------------------
+# LQR
+# --------------------------------------------------------------------------------------------
+def _fmt_eigs(lam: np.ndarray) -> str:
+    return ", ".join(f"{z.real:+.4g}{z.imag:+.4g}j" if abs(z.imag) > 0 else f"{z.real:+.4g}" for z in lam)
+
+
+def lqr(A, B, Q, R) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous-time infinite-horizon LQR: minimise ∫ xᵀQx + uᵀRu dt for ẋ = Ax + Bu.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    B : array_like, shape (n, m)
+    Q : array_like, shape (n, n)
+        State weight, symmetric positive semidefinite.
+    R : array_like, shape (m, m)
+        Input weight, symmetric positive definite.
+
+    Returns
+    -------
+    K : np.ndarray, shape (m, n)
+        Gain of u = -K x, ``K = R⁻¹ Bᵀ S``.
+    S : np.ndarray, shape (n, n)
+        Stabilising solution of ``AᵀS + SA - SBR⁻¹BᵀS + Q = 0`` (symmetric, ⪰ 0); it satisfies
+        ``A_clᵀS + S A_cl = -(Q + KᵀRK)`` with ``A_cl = A - BK`` Hurwitz.
+
+    Raises
+    ------
+    ValueError
+        If shapes are inconsistent, R is not positive definite, Q is not symmetric PSD, (A, B) is
+        not stabilisable (the message lists the unstable uncontrollable modes), or the Riccati
+        equation has no stabilising solution.
+    """
+    A, B = _check_system(A, B)
+    n, m = B.shape
+    Q = _as_matrix("Q", Q, (n, n))
+    R = _as_matrix("R", R, (m, m))
+    if not np.allclose(Q, Q.T, rtol=1e-10, atol=1e-12 * max(1.0, np.abs(Q).max())):
+        raise ValueError("Q must be symmetric")
+    if not np.allclose(R, R.T, rtol=1e-10, atol=1e-12 * max(1.0, np.abs(R).max())):
+        raise ValueError("R must be symmetric")
+    Q, R = _sym(Q), _sym(R)
+    if not _is_spd(R):
+        raise ValueError("R must be symmetric positive definite (every input must cost something)")
+    if np.linalg.eigvalsh(Q).min() < -1e-10 * max(1.0, np.abs(Q).max()):
+        raise ValueError("Q must be symmetric positive semidefinite")
+
+    bad = uncontrollable_eigenvalues(A, B)
+    bad = bad[bad.real >= 0.0]
+    if bad.size:
+        raise ValueError(
+            f"(A, B) is not stabilisable: the mode(s) {_fmt_eigs(bad)} of A are not in the "
+            f"stable half-plane and no input reaches them (controllable subspace has dimension "
+            f"{controllability_rank(A, B)} of {n}). Check the actuated joints (B) and the target "
+            f"state x*; no linear feedback, hence no IDA-PBC anchor, stabilises this target."
+        )
+    try:
+        S = sla.solve_continuous_are(A, B, Q, R)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise ValueError(
+            f"the Riccati equation has no stabilising solution ({exc}); (A, B) is stabilisable, "
+            f"so check that Q makes (Q, A) detectable (e.g. Q positive definite)"
+        ) from exc
+    S = _sym(S)
+    K = np.linalg.solve(R, B.T @ S)
+    lam = np.linalg.eigvals(A - B @ K)
+    if not (np.all(np.isfinite(S)) and np.all(lam.real < 0.0)):
+        raise ValueError(
+            f"LQR closed loop A - BK is not Hurwitz (eigenvalues {_fmt_eigs(lam)}): (A, B) is "
+            f"numerically close to unstabilisable, or (Q, A) has undetectable modes on the "
+            f"imaginary axis; use Q positive definite"
+        )
+    return K, S
+
+
+# --------------------------------------------------------------------------------------------
+# LQR anchor
+# --------------------------------------------------------------------------------------------
+def _readonly(M: np.ndarray) -> np.ndarray:
+    M = np.array(M, dtype=np.float64, copy=True)
+    M.setflags(write=False)
+    return M
+
+
+@dataclass(frozen=True)
+class LinearAnchor:
+    """Linear port-Hamiltonian form ``A_cl = (J - R) P`` of an LQR closed loop (read-only arrays).
+
+    Attributes
+    ----------
+    P : np.ndarray, shape (n, n)
+        Symmetric positive definite; the Hessian of H_d at x* (H_d ≈ ½ δᵀPδ, δ = x - x*).
+    J : np.ndarray, shape (n, n)
+        Skew-symmetric; J_d(x*).
+    R : np.ndarray, shape (n, n)
+        Symmetric positive definite; R_d(x*) (with ρ = 0).
+    K : np.ndarray, shape (m, n)
+        LQR gain, u = -K δ.
+    A_cl : np.ndarray, shape (n, n)
+        ``A - B K`` (Hurwitz), equal to ``(J - R) P`` up to rounding.
+    """
+
+    P: np.ndarray
+    J: np.ndarray
+    R: np.ndarray
+    K: np.ndarray
+    A_cl: np.ndarray
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return int(self.P.shape[0])
+
+    @property
+    def eigenvalues(self) -> np.ndarray:
+        """Closed-loop eigenvalues ``eig(A_cl)``, shape (n,), complex."""
+        return np.linalg.eigvals(self.A_cl)
+
+
+def lqr_anchor(
+    A,
+    B,
+    Q=None,
+    R_u=None,
+    P_mode: Literal["riccati", "lyapunov"] = "riccati",
+    scale: float | Literal["unit"] | None = None,
+) -> LinearAnchor:
+    """Exact pH anchor ``(P, J, R)`` of the LQR loop of the linearisation (A, B) at x*.
+
+    Steps: ``K, S = lqr(A, B, Q, R_u)``; ``A_cl = A - BK``; ``P`` with
+    ``A_clᵀP + PA_cl = -Q'``; ``Z = A_cl P⁻¹``, ``J = (Z - Zᵀ)/2``, ``R = -(Z + Zᵀ)/2``.
+    Then ``(J - R) P = Z P = A_cl`` and ``R = ½ P⁻¹Q'P⁻¹ ≻ 0`` when ``Q' ≻ 0``.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+        ∂f/∂x at x* (for x* an assignable equilibrium).
+    B : array_like, shape (n, m)
+        g(x*).
+    Q : array_like, shape (n, n), optional
+        LQR state weight; identity by default.
+    R_u : array_like, shape (m, m), optional
+        LQR input weight; identity by default.
+    P_mode : {"riccati", "lyapunov"}
+        ``"riccati"`` (default): ``P = S``, the Riccati solution, for which
+        ``Q' = Q + KᵀR_uK``. ``"lyapunov"``: P solves ``A_clᵀP + PA_cl = -Q`` (``Q' = Q``); it can be
+        badly conditioned (cartpole with Q = I: λ(P) from 0.11 to 565).
+    scale : float, "unit" or None
+        Rescales P (and hence divides J and R by the same factor; A_cl = (J - R)P is invariant, so is
+        the closed loop). A float c > 0 uses ``cP``; ``"unit"`` normalises ``λ_max(P) = 1`` so that
+        H_d ≈ ½δᵀPδ ≤ ½‖δ‖²; ``None`` keeps P as solved. H_d's scale is otherwise free (DESIGN §2,
+        lesson 3), so this only sets the units of H_d and of the energy levels ε.
+
+    Returns
+    -------
+    LinearAnchor
+
+    Raises
+    ------
+    ValueError
+        Unstabilisable (A, B) (see :func:`lqr`), a bad ``P_mode``/``scale``, or ``Q'`` not positive
+        definite (then P or R is only semidefinite and cannot anchor H_d / R_d).
+    """
+    A, B = _check_system(A, B)
+    n, m = B.shape
+    Q = np.eye(n) if Q is None else _as_matrix("Q", Q, (n, n))
+    R_u = np.eye(m) if R_u is None else _as_matrix("R_u", R_u, (m, m))
+    K, S = lqr(A, B, Q, R_u)
+    A_cl = A - B @ K
+
+    if P_mode == "riccati":
+        P = S
+    elif P_mode == "lyapunov":
+        # solve_continuous_lyapunov(a, q) solves a X + X aᴴ = q.
+        P = sla.solve_continuous_lyapunov(A_cl.T, -_sym(Q))
+    else:
+        raise ValueError(f"P_mode must be 'riccati' or 'lyapunov', got {P_mode!r}")
+    P = _sym(P)
+
+    if scale is not None:
+        if isinstance(scale, str):
+            if scale != "unit":
+                raise ValueError(f"scale must be a positive float, 'unit' or None, got {scale!r}")
+            c = 1.0 / np.linalg.eigvalsh(P).max()
+        else:
+            c = float(scale)
+            if not (np.isfinite(c) and c > 0.0):
+                raise ValueError(f"scale must be positive, got {scale!r}")
+        P = c * P
+
+    if not _is_spd(P, _PD_RTOL):
+        raise ValueError(
+            f"P is not positive definite (P_mode={P_mode!r}, λ_min = "
+            f"{np.linalg.eigvalsh(P).min():.3g}); use Q positive definite"
+        )
+    # Z = A_cl P⁻¹, computed as (P⁻¹ A_clᵀ)ᵀ with P symmetric.
+    Z = sla.solve(P, A_cl.T, assume_a="pos").T
+    J = 0.5 * (Z - Z.T)
+    R = -0.5 * (Z + Z.T)
+    if not _is_spd(R, _PD_RTOL):
+        raise ValueError(
+            f"R = ½P⁻¹Q'P⁻¹ is not positive definite (λ_min = {np.linalg.eigvalsh(R).min():.3g}); "
+            f"Q' = {'Q + KᵀR_uK' if P_mode == 'riccati' else 'Q'} must be positive definite"
+        )
+    return LinearAnchor(P=_readonly(P), J=_readonly(J), R=_readonly(R), K=_readonly(K), A_cl=_readonly(A_cl))

@@ -1,0 +1,133 @@
+"""Bad input gets one line naming the problem and the fix: from the API as `IdapbcError`, from the
+CLI as exit status 2 with no traceback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import idapbc_pin as ip
+from idapbc_pin.errors import NotAnEquilibriumError
+
+LINK = """  <link name="{name}">
+    <inertial><origin xyz="0 0 {com}"/><mass value="{mass}"/>
+      <inertia ixx="{I}" ixy="0" ixz="0" iyy="{I}" iyz="0" izz="{I}"/></inertial>
+  </link>"""
+JOINT = """  <joint name="{name}" type="{type}"><parent link="{parent}"/><child link="{child}"/>
+    <origin xyz="0 0 {z}"/><axis xyz="0 1 0"/><limit lower="-4" upper="4" effort="10" velocity="10"/></joint>"""
+
+
+def _pendulum(joint_type="revolute", mass2=0.5, inertia2=0.01, com2=0.25):
+    return "\n".join(
+        [
+            '<?xml version="1.0"?>',
+            '<robot name="test_pendulum">',
+            '  <link name="base"/>',
+            LINK.format(name="l1", com=0.25, mass=1.0, I=0.02),
+            LINK.format(name="l2", com=com2, mass=mass2, I=inertia2),
+            JOINT.format(name="j1", type=joint_type, parent="base", child="l1", z=0.0),
+            JOINT.format(name="j2", type="revolute", parent="l1", child="l2", z=0.5),
+            "</robot>",
+        ]
+    )
+
+
+@pytest.fixture
+def write(tmp_path):
+    def _write(text, name="robot.urdf"):
+        path = tmp_path / name
+        path.write_text(text)
+        return str(path)
+
+    return _write
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "idapbc_pin.cli", *args], capture_output=True, text=True, timeout=120)
+
+
+def test_good_pendulum_loads(write):
+    system = ip.load_system(write(_pendulum()), actuated=["j1"])
+    assert system.coordinate_names == ("j1", "j2") and system.m == 1
+
+
+CASES = {
+    "missing file": (lambda w: "no/such/robot.urdf", {"actuated": ["j1"]}, ["not found", "Fix"]),
+    "malformed xml": (lambda w: w(_pendulum().replace("</robot>", "")), {"actuated": ["j1"]}, ["malformed URDF XML", "line"]),
+    "floating base": (lambda w: w(_pendulum(joint_type="floating")), {"actuated": ["j1"]}, ["floating", "1-DoF"]),
+    "planar joint": (lambda w: w(_pendulum(joint_type="planar")), {"actuated": ["j1"]}, ["planar", "Fix"]),
+    "massless link": (lambda w: w(_pendulum(mass2=0.0, inertia2=0.0)), {"actuated": ["j1"]}, ["singular", "j2", "inertial"]),
+    "unknown actuated joint": (lambda w: w(_pendulum()), {"actuated": ["elbow"]}, ["unknown actuated joint 'elbow'", "j1, j2"]),
+    "no actuated joint": (lambda w: w(_pendulum()), {"actuated": []}, ["no actuated joint", "j1, j2"]),
+    "not an equilibrium": (lambda w: w(_pendulum()), {"actuated": ["j1"], "target": {"j2": 0.4}}, ["not an assignable equilibrium", "j2="]),
+    "unknown target joint": (lambda w: w(_pendulum()), {"actuated": ["j1"], "target": {"knee": 0.1}}, ["unknown target joint 'knee'"]),
+    "empty domain": (lambda w: w(_pendulum()), {"actuated": ["j1"], "domain": {"j1": (0.5, -0.5)}}, ["empty or infinite domain on j1"]),
+    "unknown name": (lambda w: "no_such_robot", {}, ["neither a URDF file nor a known name", "cartpole"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_bad_input_raises_a_one_line_error(case, write):
+    source, kwargs, fragments = CASES[case]
+    with pytest.raises(ip.IdapbcError) as info:
+        ip.load_system(source(write), **kwargs)
+    message = str(info.value)
+    assert "\n" not in message
+    for fragment in fragments:
+        assert fragment in message
+    assert "Fix" in message or "Valid" in message or "valid" in message
+
+
+def test_non_equilibrium_target_reports_the_residual_torque(write):
+    """Gravity torque on the unactuated elbow at j2 = 0.4 rad: m g l_c sin(0.4)."""
+    with pytest.raises(NotAnEquilibriumError) as info:
+        ip.load_system(write(_pendulum()), actuated=["j1"], target={"j2": 0.4})
+    expected = 0.5 * 9.81 * 0.25 * np.sin(0.4)  # ṗ₂ = −∂U/∂q₂, U₂ = m₂ g l_c cos(q₁ + q₂) drawn upright
+    assert info.value.residuals["j2"] == pytest.approx(expected, rel=1e-9)
+
+
+def test_hanging_target_is_an_equilibrium(write):
+    """Both links hanging (j1 = π) is an equilibrium for either actuation; a tilted first link is not."""
+    for actuated in (["j1"], ["j2"]):
+        system = ip.load_system(write(_pendulum()), actuated=actuated, target={"j1": np.pi})
+        assert system.x_star[0] == pytest.approx(np.pi)
+        assert system.domain[0][0] == pytest.approx(np.pi / 2) and system.domain[1][0] == pytest.approx(4.0)  # clipped to the limit
+    with pytest.raises(NotAnEquilibriumError):
+        ip.load_system(write(_pendulum()), actuated=["j2"], target={"j1": 1.0})
+
+
+@pytest.mark.parametrize("case", ["missing file", "malformed xml", "floating base", "massless link", "unknown actuated joint", "not an equilibrium"])
+def test_cli_exits_2_with_one_line_and_no_traceback(case, write):
+    source, kwargs, fragments = CASES[case]
+    args = ["inspect", source(write)]
+    for joint in kwargs.get("actuated", []):
+        args += ["--actuated", joint]
+    for joint, value in kwargs.get("target", {}).items():
+        args += ["--target", f"{joint}={value}"]
+    result = _cli(*args)
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert result.stderr.startswith("error: ") and result.stderr.count("\n") == 1
+    assert fragments[0] in result.stderr
+
+
+def test_cli_rejects_malformed_target_syntax():
+    result = _cli("inspect", "cartpole", "--target", "hinge")
+    assert result.returncode == 2 and "JOINT=VALUE" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_cli_inspect_reports_dimensions_equilibrium_and_controllability():
+    result = _cli("inspect", "acrobot")
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    for fragment in ["shoulder", "elbow", "underactuation degree: 1", "assignable equilibrium: yes", "controllability rank 4/4", "cond(M(q*))"]:
+        assert fragment in out
+
+
+def test_cli_inspect_lists_actuated_candidates_for_a_bare_urdf(write):
+    result = _cli("inspect", write(_pendulum()))
+    assert result.returncode == 0, result.stderr
+    assert "--actuated j1" in result.stdout and "--actuated j2" in result.stdout
