@@ -13,6 +13,12 @@ from .errors import IdapbcError
 __all__ = ["main"]
 
 
+def TrainConfig_fast_help() -> str:
+    from .config import TrainConfig
+
+    return TrainConfig.fast.__doc__.split(": ", 1)[-1]
+
+
 def _key_value(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
     if not sep or not name:
@@ -72,6 +78,62 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train(args: argparse.Namespace) -> int:
+    from .config import TrainConfig
+    from .system import load_system
+    from .train import train
+
+    overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth") if getattr(args, k) is not None}
+    if args.resume:
+        run = train(_resume_system(args.resume), TrainConfig(epochs=args.epochs) if args.epochs else None, resume=args.resume)
+    else:
+        if args.source is None:
+            raise_usage("train needs SOURCE (or --resume RUN)")
+        base = TrainConfig.from_file(args.config) if args.config else TrainConfig()
+        if args.fast:
+            base = TrainConfig.fast(**{k: v for k, v in base.to_dict().items() if v != getattr(TrainConfig(), k)})
+        config = base.replace(**overrides)
+        system = load_system(args.source, **system_kwargs(args))
+        run = train(system, config, out=args.out)
+    print(format_train_summary(run))
+    if run.summary.get("status") == "interrupted":
+        print(f"interrupted: resume with  idapbc-pin train --resume {run.path}")
+        return 130
+    if args.evaluate > 0:
+        from .evaluate import evaluate_run, format_evaluation
+
+        print(format_evaluation(evaluate_run(run, n=args.evaluate)))
+    return 0
+
+
+def raise_usage(message: str):
+    from .errors import IdapbcError
+
+    raise IdapbcError(f"{message}. Fix: see `idapbc-pin train --help`.")
+
+
+def _resume_system(run_dir):
+    from .train import load_run_system
+
+    return load_run_system(run_dir)
+
+
+def format_train_summary(run) -> str:
+    s = run.summary
+    eig = ", ".join(f"{re:.3g}" + (f"{im:+.3g}j" if abs(im) > 1e-12 else "") for re, im in s["eigenvalues_at_target"])
+    lines = [
+        f"run: {run.path}",
+        f"status: {s['status']} after {s['epochs_done']} epochs, {s['train_seconds']:.1f} s",
+        "final loss terms: " + ", ".join(f"{k} {v:.3g}" for k, v in s["final_terms"].items()),
+        f"closed-loop eigenvalues at x*: {eig}",
+    ]
+    if s["locally_exponentially_stable"]:
+        lines.append("x* is locally exponentially stable (all eigenvalues have negative real part)")
+    else:
+        lines.append("WARNING: x* is NOT locally exponentially stable under the learned controller (an eigenvalue has Re >= 0)")
+    return "\n".join(lines)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="idapbc-pin", description="Neural IDA-PBC for underactuated robots, from URDF with Pinocchio.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -79,6 +141,25 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("inspect", help="joints, dimensions, actuation, target equilibrium, controllability")
     add_system_arguments(p)
     p.set_defaults(func=_cmd_inspect)
+
+    from .config import FIELD_HELP
+
+    p = sub.add_parser("train", help="train Neural IDA-PBC; writes a run directory")
+    p.add_argument("source", metavar="SOURCE", nargs="?", help="URDF path, zoo name, built-in name or erd:<stem>")
+    p.add_argument("--actuated", nargs="+", action="extend", metavar="JOINT", help="actuated joint(s); default: the zoo entry's")
+    p.add_argument("--target", type=_key_value, action="append", metavar="JOINT=VALUE", help="target joint value, repeatable")
+    p.add_argument("--domain", type=_key_range, action="append", metavar="NAME=LO:HI", help="training-box bounds, repeatable")
+    p.add_argument("--config", metavar="FILE", help="TOML ([train] table) or JSON training config")
+    p.add_argument("--fast", action="store_true", help="fast preset: " + TrainConfig_fast_help())
+    p.add_argument("--out", metavar="DIR", help="parent of the run directory (default runs/<system>)")
+    p.add_argument("--resume", metavar="RUN", help="continue RUN from its last checkpoint (same result as uninterrupted)")
+    p.add_argument("--evaluate", type=int, default=100, metavar="N", help="closed-loop check vs LQR from N random states after training (0: skip)")
+    for name, kind in (("epochs", int), ("seed", int), ("lr", float), ("width", int), ("depth", int), ("rho", float), ("kappa", float)):
+        p.add_argument(f"--{name}", type=kind, help=FIELD_HELP[name])
+    p.add_argument("--device", help=FIELD_HELP["device"])
+    p.add_argument("--form", choices=["anchored", "free"], help=FIELD_HELP["form"])
+    p.add_argument("--damping", choices=["full", "actuated"], help=FIELD_HELP["damping"])
+    p.set_defaults(func=_cmd_train)
 
     p = sub.add_parser("list", help="zoo robots and built-in systems")
     p.set_defaults(func=_cmd_list)

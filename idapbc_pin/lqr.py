@@ -323,8 +323,8 @@ def lqr_anchor(
     Raises
     ------
     ValueError
-        Unstabilisable (A, B) (see :func:`lqr`), a bad ``P_mode``/``scale``, or ``Q'`` not positive
-        definite (then P or R is only semidefinite and cannot anchor H_d / R_d).
+        Unstabilisable (A, B) (see :func:`lqr`), a bad ``P_mode``/``scale``, or ``Q'`` singular
+        (λ_min ≤ 1e-12·λ_max: then R is only semidefinite and cannot anchor R_d).
     """
     A, B = _check_system(A, B)
     n, m = B.shape
@@ -334,12 +334,18 @@ def lqr_anchor(
     A_cl = A - B @ K
 
     if P_mode == "riccati":
-        P = S
+        P, Q_eff = S, Q + K.T @ R_u @ K
     elif P_mode == "lyapunov":
         # solve_continuous_lyapunov(a, q) solves a X + X aᴴ = q.
-        P = sla.solve_continuous_lyapunov(A_cl.T, -_sym(Q))
+        P, Q_eff = sla.solve_continuous_lyapunov(A_cl.T, -_sym(Q)), Q
     else:
         raise ValueError(f"P_mode must be 'riccati' or 'lyapunov', got {P_mode!r}")
+    if not _is_spd(_sym(Q_eff), _PD_RTOL):
+        name = "Q + KᵀR_uK" if P_mode == "riccati" else "Q"
+        raise ValueError(
+            f"Q' = {name} is singular (P_mode={P_mode!r}), so R = ½P⁻¹Q'P⁻¹ would not be positive "
+            f"definite; use Q positive definite"
+        )
     P = _sym(P)
 
     if scale is not None:
@@ -362,9 +368,10 @@ def lqr_anchor(
     Z = sla.solve(P, A_cl.T, assume_a="pos").T
     J = 0.5 * (Z - Z.T)
     R = -0.5 * (Z + Z.T)
-    if not _is_spd(R, _PD_RTOL):
+    if not _is_spd(R):
         raise ValueError(
-            f"R = ½P⁻¹Q'P⁻¹ is not positive definite (λ_min = {np.linalg.eigvalsh(R).min():.3g}); "
-            f"Q' = {'Q + KᵀR_uK' if P_mode == 'riccati' else 'Q'} must be positive definite"
+            f"R = ½P⁻¹Q'P⁻¹ is numerically not positive definite (λ_min = "
+            f"{np.linalg.eigvalsh(R).min():.3g}, cond(P) = {np.linalg.cond(P):.3g}); try "
+            f"P_mode='riccati' or a better scaled Q"
         )
     return LinearAnchor(P=_readonly(P), J=_readonly(J), R=_readonly(R), K=_readonly(K), A_cl=_readonly(A_cl))

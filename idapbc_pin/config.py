@@ -1,0 +1,137 @@
+"""Training configuration: a frozen dataclass whose field docstrings are the CLI's help.
+
+Defaults are the paper's (Table I: 2000 epochs, 512 fresh uniform samples per epoch, networks
+n×3×300, γ = 0.9999, α = 0.01, Adam), plus what DESIGN §2 adds on top (LQR anchor, decay term).
+`TrainConfig.fast()` is the `--fast` preset.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import tomllib
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+from .errors import IdapbcError
+
+__all__ = ["TrainConfig", "FIELD_HELP"]
+
+FIELD_HELP = {
+    "epochs": "number of epochs (paper: 2000); each epoch draws fresh uniform samples of the domain",
+    "samples": "uniform samples of the training box per epoch (paper: 512)",
+    "width": "hidden width of every network (paper: 300)",
+    "depth": "hidden layers of every network (paper: 3)",
+    "lr": "Adam learning rate",
+    "gamma": "adaptive-weight decay γ in r_i ← γ r_i + α f_i / max_j f_j (paper: 0.9999)",
+    "alpha": "adaptive-weight update rate α (paper: 0.01)",
+    "form": "'anchored': networks pinned to the exact LQR solution at x* (locally exponentially stable by "
+    "construction); 'free': the paper's free form (Bregman-shifted ICNN, skew NN, L Lᵀ + ρS)",
+    "damping": "where ρ injects damping: 'full' (ρI, the paper) or 'actuated' (only the actuated momentum rows)",
+    "rho": "ρ ≥ 0 added as ρS to R_d during training (free form; anchored keeps 0 so R_d(x*) is the LQR R); "
+    "raise it after training with `with_damping`",
+    "kappa": "κ > 0 of the robustness residuals f_sd1, f_sd2 (κ < ρ when ρ > 0)",
+    "epsilon": "level ε of H_ε (inside: matching; outside: dissipation); 0 = automatic, the "
+    "`inside_fraction` quantile of H_d over each batch (so ε keeps a meaning whatever H_d's scale)",
+    "inside_fraction": "share of the samples inside H_ε when epsilon = 0 (automatic)",
+    "decay_rate": "λ of the decay term Ḣ_d ≤ −λ H_d outside H_ε (1/s); < 0 = automatic "
+    "(half the LQR anchor's local rate, or 0.5 1/s in the free form); 0 disables the term",
+    "local_stability": "train the third-order term f_dm = ‖∂μ/∂x‖ on samples inside H_ε",
+    "dtype": "'float64' or 'float32' for the networks (plant data is always computed in float64)",
+    "device": "'cpu' or 'cuda' (or 'cuda:0' …)",
+    "seed": "random seed (weights and samples); same seed, same machine → same weights",
+    "threads": "torch CPU threads (1 is fastest on 2 cores when anything else runs)",
+    "checkpoint_every": "epochs between 'last' checkpoints",
+}
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Neural IDA-PBC training settings (see `FIELD_HELP` for each field)."""
+
+    epochs: int = 2000
+    samples: int = 512
+    width: int = 300
+    depth: int = 3
+    lr: float = 1e-3
+    gamma: float = 0.9999
+    alpha: float = 0.01
+    form: str = "anchored"
+    damping: str = "full"
+    rho: float = 0.0
+    kappa: float = 0.01
+    epsilon: float = 0.0
+    inside_fraction: float = 0.1
+    decay_rate: float = -1.0
+    local_stability: bool = True
+    dtype: str = "float64"
+    device: str = "cpu"
+    seed: int = 0
+    threads: int = 1
+    checkpoint_every: int = 50
+
+    def __post_init__(self):
+        checks = [
+            (self.epochs >= 1, "epochs must be ≥ 1"),
+            (self.samples >= 8, "samples must be ≥ 8"),
+            (self.width >= 1 and self.depth >= 1, "width and depth must be ≥ 1"),
+            (self.lr > 0, "lr must be > 0"),
+            (0 < self.gamma < 1, "gamma must be in (0, 1)"),
+            (self.alpha > 0, "alpha must be > 0"),
+            (self.form in ("anchored", "free"), "form must be 'anchored' or 'free'"),
+            (self.damping in ("full", "actuated"), "damping must be 'full' or 'actuated'"),
+            (self.rho >= 0, f"rho (ρ) must be ≥ 0, got {self.rho}"),
+            (self.kappa > 0, f"kappa (κ) must be > 0, got {self.kappa}"),
+            (self.rho == 0 or self.kappa < self.rho, f"kappa (κ = {self.kappa}) must be < rho (ρ = {self.rho}): the paper needs κ ∈ (0, ρ)"),
+            (self.epsilon >= 0, "epsilon must be ≥ 0 (0 = automatic)"),
+            (0 < self.inside_fraction < 1, "inside_fraction must be in (0, 1)"),
+            (self.dtype in ("float64", "float32"), "dtype must be 'float64' or 'float32'"),
+            (self.threads >= 1, "threads must be ≥ 1"),
+            (self.checkpoint_every >= 1, "checkpoint_every must be ≥ 1"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise IdapbcError(f"bad training config: {message}. Fix: change that value (CLI flag or config file).")
+
+    @classmethod
+    def fast(cls, **overrides) -> "TrainConfig":
+        """The `--fast` preset: width 64 × 2 layers, float32, 600 epochs (DESIGN §2 lesson 6)."""
+        base = {"width": 64, "depth": 2, "dtype": "float32", "epochs": 600}
+        return cls(**{**base, **overrides})
+
+    def replace(self, **changes) -> "TrainConfig":
+        """A copy with `changes` applied (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "TrainConfig":
+        """Build from a mapping; unknown keys are an error naming them."""
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise IdapbcError(f"unknown training config key(s) {', '.join(unknown)}. Valid keys: {', '.join(sorted(names))}.")
+        types = {f.name: f.type for f in fields(cls)}
+        clean = {}
+        for key, value in data.items():
+            kind = {"int": int, "float": float, "bool": bool, "str": str}[types[key]]
+            if kind is float and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+            if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+                raise IdapbcError(f"training config key '{key}' must be {kind.__name__}, got {value!r}.")
+            clean[key] = value
+        return cls(**clean)
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> "TrainConfig":
+        """Read a TOML (``[train]`` table or top level) or JSON config file."""
+        path = Path(path)
+        if not path.is_file():
+            raise IdapbcError(f"config file '{path}' not found. Fix: check the path.")
+        try:
+            data = tomllib.loads(path.read_text()) if path.suffix == ".toml" else json.loads(path.read_text())
+        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
+            raise IdapbcError(f"cannot parse config file '{path}': {exc}. Fix: repair its syntax.") from None
+        return cls.from_dict(data.get("train", data))

@@ -1,0 +1,220 @@
+"""The Neural IDA-PBC control law u = (gᵀg)⁻¹gᵀ(f̃_d − f) (paper eq. tilde_u) as an object.
+
+`IdaPbcNets` holds the three networks (H_d, J_d, R_d) and the constant input structure (g, g⊥,
+G⁻¹) in torch; `Controller` wraps them with the `System` for numpy, float64 use at run time:
+
+    ctrl(x) -> u (N, m);  ctrl.torque(q, v) -> τ (N, nv);  ctrl.with_damping(ρ) -> Controller
+    ctrl.H_d(x), ctrl.J_d(x), ctrl.R_d(x), ctrl.f_d(x), ctrl.mismatch(x)
+
+Desired closed loop (eq. CLPH): f̃_d = (J_d − R_d)∇H_d. Mismatch (eq. mismatch): μ = −g⊥(f − f̃_d);
+the closed loop is ẋ = f̃_d + ξ with ξ = G⁻¹(0; μ) (Proposition 1). g is constant for every system
+here (g = [0; B]), so gᵀg = BᵀB = I and u = gᵀ(f̃_d − f).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from .config import TrainConfig
+from .lqr import lqr_anchor
+from .networks import DampingNet, EnergyNet, InterconnectionNet
+from .system import System
+
+__all__ = ["Controller", "IdaPbcNets", "build_nets"]
+
+
+class IdaPbcNets(nn.Module):
+    """H_d, J_d, R_d and the system's constant input structure, in one torch module.
+
+    Buffers: g (n, m), g_perp (n − m, n), G_inv (n, n), x_star (n,), and the decay rate λ.
+    """
+
+    def __init__(self, H: EnergyNet, J: InterconnectionNet, R: DampingNet, g, g_perp, decay_rate: float):
+        super().__init__()
+        self.H, self.J, self.R = H, J, R
+        like = H.x_star
+        as_t = lambda a: torch.as_tensor(np.asarray(a, dtype=np.float64), dtype=like.dtype, device=like.device)  # noqa: E731
+        G = np.concatenate([np.asarray(g).T, np.asarray(g_perp)])
+        self.register_buffer("g", as_t(g))
+        self.register_buffer("g_perp", as_t(g_perp))
+        self.register_buffer("G_inv", as_t(np.linalg.inv(G)))
+        self.register_buffer("decay_rate", torch.tensor(float(decay_rate), dtype=like.dtype, device=like.device))
+
+    @property
+    def x_star(self) -> Tensor:
+        return self.H.x_star
+
+    @property
+    def m(self) -> int:
+        return self.g.shape[1]
+
+    def desired(self, x: Tensor, create_graph: bool = False) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """H_d (N,), ∇H_d (N, n), J_d (N, n, n), R_d (N, n, n), f̃_d = (J_d − R_d)∇H_d (N, n)."""
+        H, dH = self.H.value_and_grad(x, create_graph=create_graph)
+        J, R = self.J(x), self.R(x)
+        f_d = ((J - R) @ dH.unsqueeze(-1)).squeeze(-1)
+        return H, dH, J, R, f_d
+
+    def control(self, f: Tensor, f_d: Tensor) -> Tensor:
+        """u = (gᵀg)⁻¹gᵀ(f̃_d − f) with constant g: (N, n), (N, n) -> (N, m)."""
+        gtg = self.g.T @ self.g
+        return torch.linalg.solve(gtg, ((f_d - f) @ self.g).T).T
+
+    def mismatch(self, f: Tensor, f_d: Tensor) -> Tensor:
+        """μ = −g⊥(f − f̃_d): (N, n − m)."""
+        return (f_d - f) @ self.g_perp.T
+
+    def xi(self, mu: Tensor) -> Tensor:
+        """ξ = G⁻¹(0; μ): (N, n − m) -> (N, n)."""
+        return mu @ self.G_inv[:, self.m :].T
+
+
+def _anchor(system: System, config: TrainConfig):
+    A, Bx = system.linearization()
+    return lqr_anchor(A, Bx, P_mode="riccati", scale="unit")
+
+
+def build_nets(system: System, config: TrainConfig) -> IdaPbcNets:
+    """Fresh networks for `system` (weights from torch's current RNG state; seed it first)."""
+    dtype = getattr(torch, config.dtype)
+    device = torch.device(config.device)
+    x_star = torch.as_tensor(system.x_star, dtype=dtype, device=device)
+    lo, hi = system.domain
+    x_scale = torch.as_tensor(np.maximum(hi - system.x_star, system.x_star - lo), dtype=dtype, device=device)
+    actuated = torch.as_tensor(system.actuated_mask, device=device)
+    kw = dict(width=config.width, depth=config.depth, x_scale=x_scale)
+    if config.form == "anchored":
+        anchor = _anchor(system, config)
+        H = EnergyNet(x_star, P=anchor.P, eps=0.0, **kw)
+        J = InterconnectionNet(x_star, J0=anchor.J, out_scale=0.1, **kw)
+        R = DampingNet(x_star, R0=anchor.R, rho=config.rho, pattern=config.damping, actuated=actuated, out_scale=0.1, **kw)
+        decay = config.decay_rate if config.decay_rate >= 0 else 0.5 * _local_rate(anchor)
+    else:
+        H = EnergyNet(x_star, eps=1e-3, **kw)
+        J = InterconnectionNet(x_star, **kw)
+        R = DampingNet(x_star, rho=config.rho, pattern=config.damping, actuated=actuated, **kw)
+        decay = config.decay_rate if config.decay_rate >= 0 else 0.5
+    return IdaPbcNets(H, J, R, system.g(system.x_star), system.g_perp(system.x_star), decay)
+
+
+def _local_rate(anchor) -> float:
+    """Decay rate of ½δᵀPδ along the LQR loop: min over δ of −(d/dt δᵀPδ)/(δᵀPδ)."""
+    P, A_cl = anchor.P, anchor.A_cl
+    Qp = -(A_cl.T @ P + P @ A_cl)
+    L = np.linalg.cholesky(P)
+    Li = np.linalg.inv(L)
+    return float(np.linalg.eigvalsh(Li @ Qp @ Li.T).min())
+
+
+class Controller:
+    """Neural IDA-PBC controller for a `System`, numpy float64 in and out, batched.
+
+    Parameters
+    ----------
+    system : the plant (its f(x) enters the control law).
+    nets : trained `IdaPbcNets`.
+    """
+
+    def __init__(self, system: System, nets: IdaPbcNets):
+        self.system = system
+        self.nets = nets.eval()
+        self._dtype = nets.x_star.dtype
+        self._device = nets.x_star.device
+
+    def _t(self, x) -> Tensor:
+        return torch.as_tensor(np.asarray(x, dtype=np.float64), dtype=self._dtype, device=self._device)
+
+    @staticmethod
+    def _np(t: Tensor) -> np.ndarray:
+        return t.detach().to("cpu", torch.float64).numpy()
+
+    def _batch(self, x):
+        x = np.asarray(x, dtype=np.float64)
+        return (x[None], True) if x.ndim == 1 else (x, False)
+
+    def __call__(self, x) -> np.ndarray:
+        """u(x) = (gᵀg)⁻¹gᵀ(f̃_d(x) − f(x)): (N, n) -> (N, m) (N·m or N)."""
+        xb, single = self._batch(x)
+        f = self.system.f(xb)
+        _, _, _, _, f_d = self.nets.desired(self._t(xb))
+        u = self._np(self.nets.control(self._t(f), f_d.detach()))
+        return u[0] if single else u
+
+    def torque(self, q, v) -> np.ndarray:
+        """Joint torques τ = B u(x(q, v)) for measured (q, v): (N, nv) ×2 -> (N, nv)."""
+        q = np.asarray(q, dtype=np.float64)
+        single = q.ndim == 1
+        x = self.system.state_from(np.atleast_2d(q), np.atleast_2d(v))
+        tau = self(x) @ self.system.B.T
+        return tau[0] if single else tau
+
+    def H_d(self, x) -> np.ndarray:
+        """Desired energy H_d(x): (N, n) -> (N,)."""
+        xb, single = self._batch(x)
+        with torch.no_grad():
+            out = self._np(self.nets.H(self._t(xb)))
+        return out[0] if single else out
+
+    def grad_H_d(self, x) -> np.ndarray:
+        """∇H_d(x): (N, n) -> (N, n)."""
+        xb, single = self._batch(x)
+        out = self._np(self.nets.H.grad(self._t(xb)))
+        return out[0] if single else out
+
+    def J_d(self, x) -> np.ndarray:
+        """Desired interconnection J_d(x) (skew): (N, n) -> (N, n, n)."""
+        xb, single = self._batch(x)
+        with torch.no_grad():
+            out = self._np(self.nets.J(self._t(xb)))
+        return out[0] if single else out
+
+    def R_d(self, x) -> np.ndarray:
+        """Desired damping R_d(x) (positive definite): (N, n) -> (N, n, n)."""
+        xb, single = self._batch(x)
+        with torch.no_grad():
+            out = self._np(self.nets.R(self._t(xb)))
+        return out[0] if single else out
+
+    def f_d(self, x) -> np.ndarray:
+        """f̃_d(x) = (J_d − R_d)∇H_d: (N, n) -> (N, n)."""
+        xb, single = self._batch(x)
+        out = self._np(self.nets.desired(self._t(xb))[4])
+        return out[0] if single else out
+
+    def mismatch(self, x) -> np.ndarray:
+        """μ(x) = −g⊥(f − f̃_d): (N, n) -> (N, n − m)."""
+        xb, single = self._batch(x)
+        out = self.system.g_perp(xb) @ (self.f_d(xb) - self.system.f(xb))[..., None]
+        return out[0, :, 0] if single else out[..., 0]
+
+    def with_damping(self, rho: float) -> "Controller":
+        """Same networks, R_d = L Lᵀ + ρS with a new ρ ("extra damping", paper Fig. ii)."""
+        nets = IdaPbcNets.__new__(IdaPbcNets)
+        nn.Module.__init__(nets)
+        nets.H, nets.J, nets.R = self.nets.H, self.nets.J, self.nets.R.with_rho(rho)
+        for name, buf in self.nets.named_buffers(recurse=False):
+            nets.register_buffer(name, buf)
+        return Controller(self.system, nets)
+
+    @property
+    def rho(self) -> float:
+        return float(self.nets.R.rho)
+
+    def closed_loop_jacobian(self, x=None) -> np.ndarray:
+        """∂/∂x of the true closed loop f + g u at x (default x*): (n, n).
+
+        With u = gᵀ(f̃_d − f) and gᵀg = I: ẋ = (I − ggᵀ)f + ggᵀf̃_d.
+        """
+        x = self.system.x_star if x is None else np.asarray(x, dtype=np.float64)
+        A = self.system.df_dx(x)
+        xt = self._t(x)
+        Jfd = torch.autograd.functional.jacobian(lambda z: self.nets.desired(z[None], create_graph=True)[4][0], xt)
+        g = self.system.g(x)
+        Pg = g @ np.linalg.solve(g.T @ g, g.T)
+        return (np.eye(len(x)) - Pg) @ A + Pg @ self._np(Jfd)
+
+    def eigenvalues_at_target(self) -> np.ndarray:
+        """Eigenvalues of the closed-loop Jacobian at x*; all Re < 0 ⇔ x* locally exponentially stable."""
+        return np.linalg.eigvals(self.closed_loop_jacobian())

@@ -1,0 +1,113 @@
+"""The paper's residuals (§IV-B) as named terms, plus a decay-rate term, and the adaptive weights.
+
+For samples x (N, n), with d = 1 where H_d(x) ≥ ε (outside H_ε, the dissipation set D):
+
+* ``matching``        f_m   = (1 − d)‖μ‖                        (eq. switch_var)
+* ``dissipation``     f_sd1 = d·max(0, ‖ξ‖ − κ‖∇H_d‖)           (robustness residual)
+* ``damping_floor``   f_sd2 = d·max(0, κ − σ_min(R_d))
+* ``local_stability`` f_dm  = (1 − d)‖∂μ/∂x‖_F                  (Theorem 2, eq. mu_bound_les)
+* ``decay``           d·max(0, Ḣ_d/H_d + λ), Ḣ_d = ∇H_dᵀ(f̃_d + ξ) along the true closed loop
+  (DESIGN §2 lesson 1: nothing in the paper's loss rewards speed).
+
+Inside terms are averaged over the inside samples and outside terms over the outside ones
+(DESIGN lesson 3), so each term is a mean residual whatever ε is. ∂μ/∂x = g⊥(∂f̃_d/∂x − ∂f/∂x) is
+exact: autograd through the networks and the plant's ∂f/∂x, only on the inside samples (lesson 6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .controller import IdaPbcNets
+
+__all__ = ["TERMS", "AdaptiveWeights", "loss_terms"]
+
+TERMS = ("matching", "dissipation", "damping_floor", "local_stability", "decay")
+
+
+def _masked_mean(values: Tensor, mask: Tensor) -> Tensor:
+    return (values * mask).sum() / mask.sum().clamp(min=1)
+
+
+def _jacobian_rows(out: Tensor, x: Tensor) -> Tensor:
+    """∂out/∂x for out (K, n) built from x (K, n) row-wise: (K, n, n), graph kept."""
+    rows = [torch.autograd.grad(out[:, i].sum(), x, create_graph=True)[0] for i in range(out.shape[1])]
+    return torch.stack(rows, dim=1)
+
+
+def loss_terms(
+    nets: IdaPbcNets,
+    x: Tensor,
+    f: Tensor,
+    epsilon: Tensor,
+    kappa: float,
+    df_dx_inside: Tensor | None = None,
+    inside: Tensor | None = None,
+) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+    """Residual terms (scalars, differentiable w.r.t. the weights) and diagnostics.
+
+    Parameters
+    ----------
+    x : (N, n) samples; f : (N, n) plant drift f(x) (a constant w.r.t. the weights).
+    epsilon : scalar tensor, level of H_ε.
+    kappa : κ of f_sd1 and f_sd2.
+    df_dx_inside : (K, n, n) ∂f/∂x on the inside samples x[inside] (None: skip f_dm).
+    inside : (N,) bool, the samples with H_d < ε used for df_dx_inside (recomputed if None).
+    """
+    x = x.detach().requires_grad_(True)
+    H, dH, J, R, f_d = nets.desired(x, create_graph=True)
+    if inside is None:
+        inside = H.detach() < epsilon
+    d = (~inside).to(x.dtype)
+    mu = nets.mismatch(f, f_d)
+    xi = nets.xi(mu)
+    mu_norm = mu.norm(dim=-1)
+    grad_norm = dH.norm(dim=-1)
+    sigma_min = torch.linalg.eigvalsh(R)[:, 0]
+    H_dot = (dH * (f_d + xi)).sum(-1)
+    rate = H_dot / H.clamp(min=torch.finfo(x.dtype).tiny)
+
+    terms = {
+        "matching": _masked_mean(mu_norm, 1 - d),
+        "dissipation": _masked_mean(torch.relu(xi.norm(dim=-1) - kappa * grad_norm), d),
+        "damping_floor": _masked_mean(torch.relu(kappa - sigma_min), d),
+        "decay": _masked_mean(torch.relu(rate + nets.decay_rate), d) if float(nets.decay_rate) > 0 else x.new_zeros(()),
+        "local_stability": x.new_zeros(()),
+    }
+    if df_dx_inside is not None and int(inside.sum()) > 0:
+        xin = x.detach()[inside].requires_grad_(True)
+        f_d_in = nets.desired(xin, create_graph=True)[4]
+        dfd_dx = _jacobian_rows(f_d_in, xin)
+        dmu_dx = nets.g_perp @ (dfd_dx - df_dx_inside)
+        terms["local_stability"] = dmu_dx.flatten(1).norm(dim=-1).mean()
+    diagnostics = {
+        "inside_share": (1 - d).mean().detach(),
+        "dissipation_ok": _masked_mean(((dH.unsqueeze(-2) @ R @ dH.unsqueeze(-1)).squeeze() > (dH * xi).sum(-1)).to(x.dtype), d).detach(),
+        "max_mu": mu_norm.max().detach(),
+    }
+    return terms, diagnostics
+
+
+@dataclass
+class AdaptiveWeights:
+    """r_i ← γ r_i + α f_i / max_j f_j (paper §IV-B), one weight per named term, starting at 1."""
+
+    gamma: float
+    alpha: float
+    weights: dict[str, float]
+
+    @classmethod
+    def start(cls, gamma: float, alpha: float, names=TERMS) -> "AdaptiveWeights":
+        return cls(gamma, alpha, {name: 1.0 for name in names})
+
+    def total(self, terms: dict[str, Tensor]) -> Tensor:
+        """L = Σ r_i f_i."""
+        return sum(self.weights[k] * v for k, v in terms.items())
+
+    def update(self, values: dict[str, float]) -> None:
+        top = max(values.values())
+        for k, v in values.items():
+            self.weights[k] = self.gamma * self.weights[k] + (self.alpha * v / top if top > 0 else 0.0)
