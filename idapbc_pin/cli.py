@@ -163,6 +163,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("list", help="zoo robots and built-in systems")
     p.set_defaults(func=_cmd_list)
+
+    from .view import add_view_command
+
+    add_view_command(sub)
     return parser
 
 

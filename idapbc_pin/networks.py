@@ -1,7 +1,7 @@
 """Neural networks for the desired closed loop ẋ = (J_d(x) - R_d(x)) ∇H_d(x)  (paper §IV-A).
 
-Each function has its structure *by construction*, for every value of the weights (paper
-Proposition 3, conditions (i)–(iii)):
+Each function has its structure *by construction*, for every value of the weights (the structural
+conditions (i)–(iii) of the paper's Proposition 3, label ``prop:vanishing_mu``):
 
 * :class:`InterconnectionNet` — J_d(x) = skew(NN_J(u)) ∈ 𝔰𝔬(n): J_d + J_dᵀ = 0.
 * :class:`DampingNet` — R_d(x) = L(x)L(x)ᵀ + ρS with L lower triangular with a positive diagonal:
@@ -21,7 +21,8 @@ Conventions: states x have shape (N, n) (any leading batch shape works), x* has 
 inner networks see the normalised, centred input ``u = (x - x*) / x_scale`` (x_scale: (n,), e.g.
 the half-widths of the training box; ones by default). Every module takes its dtype and device
 from ``x_star``; all constants are registered buffers, so ``state_dict`` round-trips through
-``torch.save`` / ``torch.load(weights_only=True)``. Pure torch: no other package module is used.
+``torch.save`` / ``torch.load(weights_only=True)``. Only torch (and numpy for anchors given as
+arrays): no other module of the package is imported.
 """
 
 from __future__ import annotations
@@ -33,7 +34,6 @@ from typing import Literal
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
 
 __all__ = [
@@ -143,22 +143,40 @@ class _Softplus(torch.autograd.Function):
     ``F.softplus`` switches to the identity above ``threshold=20``: a jump of 2·10⁻⁹ in value and
     slope there, which breaks convexity and the exactness of ∇H_d(x*) at the 10⁻⁹ level.
     Forward: relu(x) + log1p(e^{-|x|}) (no overflow); backward: g·sigmoid(x), itself made of
-    differentiable ops, so double and triple backward work.
+    differentiable ops, so double and triple backward work; forward mode and ``torch.func``
+    transforms (grad, jacrev, jacfwd, hessian, vmap) work too.
     """
 
+    generate_vmap_rule = True
+
     @staticmethod
-    def forward(ctx, x: Tensor) -> Tensor:
-        ctx.save_for_backward(x)
+    def forward(x: Tensor) -> Tensor:
         return torch.relu(x) + torch.log1p(torch.exp(-x.abs()))
+
+    @staticmethod
+    def setup_context(ctx, inputs, output) -> None:
+        ctx.save_for_backward(inputs[0])
+        ctx.save_for_forward(inputs[0])
 
     @staticmethod
     def backward(ctx, g: Tensor) -> Tensor:
         (x,) = ctx.saved_tensors
         return g * torch.sigmoid(x)
 
+    @staticmethod
+    def jvp(ctx, t: Tensor) -> Tensor:
+        (x,) = ctx.saved_tensors
+        return t * torch.sigmoid(x)
+
 
 def softplus(x: Tensor) -> Tensor:
-    """Smooth softplus log(1 + eˣ), derivative sigmoid(x), for any x (see :class:`_Softplus`)."""
+    """Smooth softplus log(1 + eˣ), derivative sigmoid(x), for any x (see :class:`_Softplus`).
+
+    Without autograd (inference) the same formula runs directly: `autograd.Function.apply` costs
+    ~0.5 ms per call in Python overhead, which dominated the run-time controller.
+    """
+    if not (torch.is_grad_enabled() and x.requires_grad) and not torch._C._functorch.is_functorch_wrapped_tensor(x):
+        return torch.relu(x) + torch.log1p(torch.exp(-x.abs()))
     return _Softplus.apply(x)
 
 
@@ -304,11 +322,27 @@ class ICNN(nn.Module):
         w = torch.empty(shape, **fk).uniform_(0.2, 1.8) / self.width
         return _inv_softplus(w)
 
+    def _positive(self, k: int | None) -> Tensor:
+        """W⁺ = softplus(Ŵ) of z-layer k (None: the output weights).
+
+        Without autograd the result is cached until the raw weight changes (its version counter):
+        softplus of a width × width matrix per call dominated the run-time controller.
+        """
+        raw = self.out_raw if k is None else self.z_raw[k]
+        if torch.is_grad_enabled() and raw.requires_grad:
+            return softplus(raw)
+        cache = self.__dict__.setdefault("_pos_cache", {})
+        key = (k, raw._version, raw.data_ptr())
+        if key not in cache:
+            cache.clear() if len(cache) > 4 * (self.depth + 1) else None
+            cache[key] = softplus(raw.detach())
+        return cache[key]
+
     def _pre(self, u: Tensor) -> list[Tensor]:
         """Pre-activations a_k(u), k = 0 … depth-1, each (..., width)."""
         pre = [self.x_layers[0](u)]
         for k in range(1, self.depth):
-            pre.append(softplus(pre[-1]) @ softplus(self.z_raw[k - 1]).T + self.x_layers[k](u))
+            pre.append(softplus(pre[-1]) @ self._positive(k - 1).T + self.x_layers[k](u))
         return pre
 
     def _affine(self, u: Tensor) -> Tensor | float:
@@ -316,18 +350,18 @@ class ICNN(nn.Module):
 
     def _grad(self, pre: list[Tensor]) -> Tensor:
         """∇_uĤ from the pre-activations by an explicit backward pass, (..., n)."""
-        delta = softplus(self.out_raw)  # ∂Ĥ/∂z_depth, (width,)
+        delta = self._positive(None)  # ∂Ĥ/∂z_depth, (width,)
         g = 0.0 if self.out_x is None else self.out_x.weight[0]
         for k in range(self.depth - 1, -1, -1):
             s = delta * torch.sigmoid(pre[k])  # ∂Ĥ/∂a_k, (..., width)
             g = g + s @ self.x_layers[k].weight
             if k > 0:
-                delta = s @ softplus(self.z_raw[k - 1])
+                delta = s @ self._positive(k - 1)
         return g
 
     def forward(self, u: Tensor) -> Tensor:
         """Ĥ(u): (..., n) → (...)."""
-        return softplus(self._pre(u)[-1]) @ softplus(self.out_raw) + self._affine(u)
+        return softplus(self._pre(u)[-1]) @ self._positive(None) + self._affine(u)
 
     def value_and_grad(self, u: Tensor) -> tuple[Tensor, Tensor]:
         """Ĥ(u) (...) and ∇Ĥ(u) (..., n), the gradient by an explicit backward pass.
@@ -337,7 +371,7 @@ class ICNN(nn.Module):
         ``torch.no_grad``.
         """
         pre = self._pre(u)
-        return softplus(pre[-1]) @ softplus(self.out_raw) + self._affine(u), self._grad(pre)
+        return softplus(pre[-1]) @ self._positive(None) + self._affine(u), self._grad(pre)
 
     def bregman(self, u: Tensor) -> Tensor:
         """Bregman divergence at 0: D(u) = Ĥ(u) - Ĥ(0) - ∇Ĥ(0)ᵀu ≥ 0, shape (...).
@@ -354,10 +388,10 @@ class ICNN(nn.Module):
         for k in range(self.depth):
             da = u @ self.x_layers[k].weight.T
             if k > 0:
-                da = da + dz @ softplus(self.z_raw[k - 1]).T
+                da = da + dz @ self._positive(k - 1).T
             dz = softplus(pre0[k] + da) - softplus(pre0[k])
         lin = 0.0 if self.out_x is None else u @ self.out_x.weight[0]
-        return dz @ softplus(self.out_raw) + lin - u @ g0
+        return dz @ self._positive(None) + lin - u @ g0
 
 
 # --------------------------------------------------------------------------------------------
@@ -446,6 +480,27 @@ class EnergyNet(_StateNet):
             return s
         return 0.5 * ((delta @ self.P) * delta).sum(-1) + psi(s)
 
+    def value_and_grad_explicit(self, x: Tensor, at_target: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
+        """H_d(x) (N,) and ∇H_d(x) (N, n) with no autograd: the ICNN's explicit backward pass.
+
+        ∇D = (∇_uĤ(u) − ∇_uĤ(0)) / x_scale; free form ∇H_d = ∇D + 2εδ; anchored
+        ∇H_d = Pδ + ψ'(s)(∇D + 2εδ) with ψ'(s) = s/(1 + s). The fast path of the run-time
+        controller (one state per control period); equal to `value_and_grad` to rounding.
+        ``at_target`` = (Ĥ(0), ∇Ĥ(0)) if the caller has them cached.
+        """
+        u = self._u(x)
+        h0, g0 = self.icnn.value_and_grad(u.new_zeros(self.n)) if at_target is None else at_target
+        h, g = self.icnn.value_and_grad(u)
+        delta = x - self.x_star
+        D = h - h0 - u @ g0  # rounding-level error near x* (the exact form is `bregman`)
+        dD = (g - g0) / self.x_scale
+        s = D + self.eps * (delta * delta).sum(-1)
+        ds = dD + 2 * self.eps * delta
+        if self.P is None:
+            return s, ds
+        H = 0.5 * ((delta @ self.P) * delta).sum(-1) + psi(s)
+        return H, delta @ self.P + (s / (1 + s)).unsqueeze(-1) * ds
+
     def value_and_grad(self, x: Tensor, create_graph: bool = False) -> tuple[Tensor, Tensor]:
         """H_d(x) (N,) and ∇H_d(x) (N, n) via ``torch.autograd.grad`` of the sum.
 
@@ -520,12 +575,12 @@ class InterconnectionNet(_StateNet):
     def form(self) -> Literal["free", "anchored"]:
         return "free" if self.J0 is None else "anchored"
 
-    def forward(self, x: Tensor) -> Tensor:
-        """J_d(x): (N, n) → (N, n, n), skew-symmetric."""
+    def forward(self, x: Tensor, v0: Tensor | None = None) -> Tensor:
+        """J_d(x): (N, n) → (N, n, n), skew-symmetric. ``v0``: the MLP at x*, if cached."""
         v = self.net(self._u(x))
         if self.J0 is None:
             return skew(v, self.n)
-        v0 = self.net(torch.zeros_like(self.x_star))
+        v0 = self.net(torch.zeros_like(self.x_star)) if v0 is None else v0
         return self.J0 + skew(v - v0, self.n)
 
 
@@ -630,15 +685,18 @@ class DampingNet(_StateNet):
     def form(self) -> Literal["free", "anchored"]:
         return "free" if self.L0 is None else "anchored"
 
-    def cholesky_factor(self, x: Tensor) -> Tensor:
-        """L(x): (N, n) → (N, n, n), lower triangular with a positive diagonal."""
+    def cholesky_factor(self, x: Tensor, out0: Tensor | None = None) -> Tensor:
+        """L(x): (N, n) → (N, n, n), lower triangular with a positive diagonal.
+
+        ``out0`` = the MLP at x* (anchored form), if the caller has it cached.
+        """
         n = self.n
         out = self.net(self._u(x))
         r_d, r_o = out[..., :n], out[..., n:]
         if self.L0 is None:
             diag, low = softplus(r_d), r_o
         else:
-            out0 = self.net(torch.zeros_like(self.x_star))
+            out0 = self.net(torch.zeros_like(self.x_star)) if out0 is None else out0
             diag = torch.exp(self.log_d0 + r_d - out0[:n])
             low = self.L0 + r_o - out0[n:]
         return lower_tri(torch.cat([diag, low], dim=-1), n)
