@@ -9,6 +9,7 @@ Format (``pipelines/*.toml``)::
     train = { seed = 0 }       # TrainConfig overrides on top of the preset
     evaluate = { n = 200, T = 20.0, seed = 0 }   # ROA: states per box, horizon (s), seed
     certify = { n = 20000, settle = 4, T = 20.0 }  # certify(): domain samples, settling runs, horizon (s)
+    figure = { n = 4, T = 20.0 }  # report.figure(): trajectories from the half box, seconds each
     view = { n = 3, T = 10.0 } # HTML replay: rollouts from the half box, seconds each
 
     [[job]]
@@ -38,21 +39,23 @@ from .config import TrainConfig
 from .errors import IdapbcError
 from .system import load_system
 
-__all__ = ["Job", "Pipeline", "PipelineError", "load_pipeline", "SMOKE_TRAIN", "SMOKE_EVALUATE", "SMOKE_CERTIFY", "SMOKE_VIEW"]
+__all__ = ["Job", "Pipeline", "PipelineError", "load_pipeline", "SMOKE_TRAIN", "SMOKE_EVALUATE", "SMOKE_CERTIFY", "SMOKE_FIGURE", "SMOKE_VIEW"]
 
 PRESETS = ("paper", "fast")
 TOP_KEYS = ("description", "defaults", "job")
-JOB_KEYS = ("name", "source", "actuated", "target", "domain", "preset", "train", "evaluate", "certify", "view", "description")
+JOB_KEYS = ("name", "source", "actuated", "target", "domain", "preset", "train", "evaluate", "certify", "figure", "view", "description")
 EVALUATE_DEFAULTS = {"n": 200, "T": 20.0, "seed": 0}
 CERTIFY_DEFAULTS = {"n": 20000, "settle": 4, "T": 20.0}
+FIGURE_DEFAULTS = {"n": 4, "T": 20.0}
 VIEW_DEFAULTS = {"n": 3, "T": 10.0}
-_SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int}, "certify": {"n": int, "settle": int, "T": float}, "view": {"n": int, "T": float}}
+_SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int}, "certify": {"n": int, "settle": int, "T": float}, "figure": {"n": int, "T": float}, "view": {"n": int, "T": float}}
 
 #: What ``--smoke`` does to every job: a few epochs of tiny networks, a small ROA and certificate,
 #: one short replay (values are upper bounds: a job already smaller keeps its own).
 SMOKE_TRAIN = {"epochs": 20, "width": 16, "depth": 1, "samples": 64, "checkpoint_every": 10}
 SMOKE_EVALUATE = {"n": 12, "T": 5.0}
-SMOKE_CERTIFY = {"n": 256, "settle": 1, "T": 5.0}
+SMOKE_CERTIFY = {"n": 256, "settle": 0, "T": 5.0}
+SMOKE_FIGURE = {"n": 1, "T": 3.0}
 SMOKE_VIEW = {"n": 1, "T": 3.0}
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -81,7 +84,7 @@ class Job:
     preset : ``"paper"`` or ``"fast"``; `train` the overrides as written; `config` the resolved
         `TrainConfig` as a dict (smoke shrinking included).
     evaluate : {"n", "T", "seed"} of the ROA; certify : {"n", "settle", "T"} of `certify`;
-    view : {"n", "T"} of the HTML replay.
+    figure : {"n", "T"} of `report.figure`; view : {"n", "T"} of the HTML replay.
     smoke : shrunk by ``--smoke``.
     line : line of the job's ``[[job]]`` header in the pipeline file (None if not found).
     system_name, actuated_resolved : from loading the system during validation.
@@ -98,6 +101,7 @@ class Job:
     config: dict
     evaluate: dict
     certify: dict
+    figure: dict
     view: dict
     smoke: bool = False
     line: int | None = None
@@ -118,6 +122,7 @@ class Job:
             "config": self.config,
             "evaluate": self.evaluate,
             "certify": self.certify,
+            "figure": self.figure,
             "view": self.view,
             "smoke": self.smoke,
         }
@@ -224,7 +229,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
         raise IdapbcError(f"preset must be one of {', '.join(repr(p) for p in PRESETS)}, got {preset!r}")
     train = dict(_check_type(raw.get("train", {}), dict, "'train'"))
     tables = {}
-    for key, defaults in (("evaluate", EVALUATE_DEFAULTS), ("certify", CERTIFY_DEFAULTS), ("view", VIEW_DEFAULTS)):
+    for key, defaults in (("evaluate", EVALUATE_DEFAULTS), ("certify", CERTIFY_DEFAULTS), ("figure", FIGURE_DEFAULTS), ("view", VIEW_DEFAULTS)):
         table = _check_type(raw.get(key, {}), dict, f"'{key}'")
         _check_keys(table, tuple(_SUBTABLE_TYPES[key]), f"'{key}'")
         table = {**defaults, **{k: _check_type(v, _SUBTABLE_TYPES[key][k], f"{key}.{k}") for k, v in table.items()}}
@@ -239,7 +244,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
     config = TrainConfig.from_dict({**base_config, **train})
     if smoke:
         config = config.replace(**{k: min(getattr(config, k), v) for k, v in SMOKE_TRAIN.items()})
-        for key, small in (("evaluate", SMOKE_EVALUATE), ("certify", SMOKE_CERTIFY), ("view", SMOKE_VIEW)):
+        for key, small in (("evaluate", SMOKE_EVALUATE), ("certify", SMOKE_CERTIFY), ("figure", SMOKE_FIGURE), ("view", SMOKE_VIEW)):
             tables[key] = {**tables[key], **{k: min(tables[key][k], v) for k, v in small.items()}}
 
     # the system itself: unknown source, joints, target, domain
@@ -262,6 +267,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
         config=config.to_dict(),
         evaluate=tables["evaluate"],
         certify=tables["certify"],
+        figure=tables["figure"],
         view=tables["view"],
         smoke=smoke,
         line=line,
@@ -281,7 +287,7 @@ def load_pipeline(path: str | Path, smoke: bool = False) -> Pipeline:
     Parameters
     ----------
     path : the TOML file.
-    smoke : shrink every job (`SMOKE_TRAIN`, `SMOKE_EVALUATE`, `SMOKE_CERTIFY`, `SMOKE_VIEW`) for a quick end-to-end check.
+    smoke : shrink every job (`SMOKE_TRAIN`, `SMOKE_EVALUATE`, `SMOKE_CERTIFY`, `SMOKE_FIGURE`, `SMOKE_VIEW`) for a quick end-to-end check.
 
     Raises
     ------

@@ -167,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .view import add_view_command
 
     add_view_command(sub)
+
+    from .report import add_eval_commands
+
+    add_eval_commands(sub)
     return parser
 
 

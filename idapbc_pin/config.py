@@ -27,6 +27,10 @@ FIELD_HELP = {
     "alpha": "adaptive-weight update rate α (paper: 0.01)",
     "form": "'anchored': networks pinned to the exact LQR solution at x* (locally exponentially stable by "
     "construction); 'free': the paper's free form (Bregman-shifted ICNN, skew NN, L Lᵀ + ρS)",
+    "anchor_q": "state weight of the LQR anchor, Q = anchor_q·I (R = I); 1 gives the same local loop as the LQR "
+    "baseline, larger values a faster one (anchored form only)",
+    "anchor_p": "Hessian P of H_d at x* (anchored form): 'box' solves A_clᵀP + PA_cl = −diag(1/half-width²) of the "
+    "training box (well conditioned in box units), 'lyapunov' the same with −I, 'riccati' takes the Riccati solution",
     "damping": "where ρ injects damping: 'full' (ρI, the paper) or 'actuated' (only the actuated momentum rows)",
     "rho": "ρ ≥ 0 added as ρS to R_d during training (free form; anchored keeps 0 so R_d(x*) is the LQR R); "
     "raise it after training with `with_damping`",
@@ -57,6 +61,8 @@ class TrainConfig:
     gamma: float = 0.9999
     alpha: float = 0.01
     form: str = "anchored"
+    anchor_q: float = 10.0
+    anchor_p: str = "riccati"
     damping: str = "full"
     rho: float = 0.0
     kappa: float = 0.01
@@ -80,6 +86,8 @@ class TrainConfig:
             (self.alpha > 0, "alpha must be > 0"),
             (self.form in ("anchored", "free"), "form must be 'anchored' or 'free'"),
             (self.damping in ("full", "actuated"), "damping must be 'full' or 'actuated'"),
+            (self.anchor_q > 0, f"anchor_q must be > 0, got {self.anchor_q}"),
+            (self.anchor_p in ("box", "lyapunov", "riccati"), "anchor_p must be 'box', 'lyapunov' or 'riccati'"),
             (self.rho >= 0, f"rho (ρ) must be ≥ 0, got {self.rho}"),
             (self.kappa > 0, f"kappa (κ) must be > 0, got {self.kappa}"),
             (self.rho == 0 or self.kappa < self.rho, f"kappa (κ = {self.kappa}) must be < rho (ρ = {self.rho}): the paper needs κ ∈ (0, ρ)"),

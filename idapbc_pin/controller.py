@@ -64,7 +64,8 @@ class IdaPbcNets(nn.Module):
         The networks' values at x* are cached while the weights are unchanged (keyed on the
         parameters' version counters), so a control step runs each network once.
         """
-        key = tuple(p._version for p in self.parameters()) + (float(self.R.rho),)
+        params = self.__dict__.get("_params") or self.__dict__.setdefault("_params", list(self.parameters()))
+        key = tuple(p._version for p in params)
         if getattr(self, "_cache_key", None) != key:
             zero = torch.zeros_like(self.x_star)
             self._cache = (
@@ -89,13 +90,24 @@ class IdaPbcNets(nn.Module):
         return (f_d - f) @ self.g_perp.T
 
     def xi(self, mu: Tensor) -> Tensor:
-        """ξ = G⁻¹(0; μ): (N, n − m) -> (N, n)."""
-        return mu @ self.G_inv[:, self.m :].T
+        """ξ = −G⁻¹(0; μ): (N, n − m) -> (N, n), so that the true closed loop is ẋ = f̃_d + ξ.
+
+        Sign: with μ = −g⊥(f − f̃_d) (eq. mismatch), g⊥ẋ = g⊥f = g⊥f̃_d − μ, hence ξ = −G⁻¹(0; μ).
+        The paper's proof of Proposition 1 writes +G⁻¹(0; μ); only ‖ξ‖ enters f_sd1, but Ḣ_d and the
+        dissipation inequality need the sign that matches the plant (checked in tests).
+        """
+        return -mu @ self.G_inv[:, self.m :].T
 
 
 def _anchor(system: System, config: TrainConfig):
     A, Bx = system.linearization()
-    return lqr_anchor(A, Bx, P_mode="riccati", scale="unit")
+    Q = config.anchor_q * np.eye(system.n)
+    if config.anchor_p == "riccati":
+        return lqr_anchor(A, Bx, Q=Q, P_mode="riccati", scale="unit")
+    lo, hi = system.domain
+    half = np.maximum(hi - system.x_star, system.x_star - lo)
+    Q_lyap = np.diag(1.0 / half**2) if config.anchor_p == "box" else None
+    return lqr_anchor(A, Bx, Q=Q, P_mode="lyapunov", scale="unit", Q_lyap=Q_lyap)
 
 
 def build_nets(system: System, config: TrainConfig) -> IdaPbcNets:

@@ -289,6 +289,7 @@ def lqr_anchor(
     R_u=None,
     P_mode: Literal["riccati", "lyapunov"] = "riccati",
     scale: float | Literal["unit"] | None = None,
+    Q_lyap=None,
 ) -> LinearAnchor:
     """Exact pH anchor ``(P, J, R)`` of the LQR loop of the linearisation (A, B) at x*.
 
@@ -316,6 +317,11 @@ def lqr_anchor(
         H_d ≈ ½δᵀPδ ≤ ½‖δ‖²; ``None`` keeps P as solved. H_d's scale is otherwise free (DESIGN §2,
         lesson 3), so this only sets the units of H_d and of the energy levels ε.
 
+    Q_lyap : array_like, shape (n, n), optional
+        ``P_mode="lyapunov"`` only: the Q' of the Lyapunov equation, decoupled from the LQR weight Q
+        (the loop A_cl is the same; only the shape of H_d ≈ ½δᵀPδ changes). E.g. diag(1/half-width²)
+        of the training box gives a P better conditioned in box units than Q' = I.
+
     Returns
     -------
     LinearAnchor
@@ -337,7 +343,8 @@ def lqr_anchor(
         P, Q_eff = S, Q + K.T @ R_u @ K
     elif P_mode == "lyapunov":
         # solve_continuous_lyapunov(a, q) solves a X + X aᴴ = q.
-        P, Q_eff = sla.solve_continuous_lyapunov(A_cl.T, -_sym(Q)), Q
+        Q_eff = Q if Q_lyap is None else _as_matrix("Q_lyap", Q_lyap, (n, n))
+        P = sla.solve_continuous_lyapunov(A_cl.T, -_sym(Q_eff))
     else:
         raise ValueError(f"P_mode must be 'riccati' or 'lyapunov', got {P_mode!r}")
     if not _is_spd(_sym(Q_eff), _PD_RTOL):

@@ -158,3 +158,17 @@ def test_run_time_path_equals_the_training_path(form):
     x = torch.as_tensor(system.x_star + np.random.default_rng(1).normal(scale=0.5, size=(30, system.n)))
     fd_autograd = nets.desired(x)[4]
     torch.testing.assert_close(nets.desired_fast(x), fd_autograd, rtol=1e-12, atol=1e-12)
+
+
+def test_true_closed_loop_is_desired_dynamics_plus_xi():
+    """Proposition 1: under u, ẋ = f + g u equals f̃_d + ξ exactly (our sign of ξ = −G⁻¹(0; μ))."""
+    system = ip.load_system("cartpole")
+    torch.manual_seed(3)
+    nets = build_nets(system, TrainConfig(width=16, depth=2))
+    x = system.x_star + np.random.default_rng(3).normal(scale=0.4, size=(25, system.n))
+    xt = torch.as_tensor(x)
+    f = torch.as_tensor(system.f(x))
+    f_d = nets.desired(xt)[4]
+    u = nets.control(f, f_d)
+    closed_loop = f + u @ nets.g.T
+    torch.testing.assert_close(closed_loop, f_d + nets.xi(nets.mismatch(f, f_d)), rtol=1e-10, atol=1e-10)

@@ -1,0 +1,46 @@
+"""Goal: training time per paper benchmark, paper setting vs the `--fast` preset.
+
+Trains each system for `--epochs` epochs (default 40) with both configurations, prints the time per
+epoch and the extrapolated time of a full training (2000 epochs paper, 600 fast) and the speed-up.
+Issue #3 target: the fast preset trains ≥ 5× faster. Pass --full to time complete trainings instead.
+Run: python benchmarks/bench_training.py [--epochs 40] [--full] [names ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+
+import idapbc_pin as ip
+from idapbc_pin.config import TrainConfig
+from idapbc_pin.train import train
+
+
+def seconds_per_epoch(system, config: TrainConfig, out: str) -> float:
+    t0 = time.perf_counter()
+    train(system, config, out=out, progress=False)
+    return (time.perf_counter() - t0) / config.epochs
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("names", nargs="*", default=["paper_double_pendulum", "paper_cartpole", "paper_mass_spring_damper"])
+    parser.add_argument("--epochs", type=int, default=40)
+    parser.add_argument("--full", action="store_true", help="time complete trainings (slow)")
+    args = parser.parse_args()
+    paper, fast = TrainConfig(), TrainConfig.fast()
+    print(f"{'system':<26}{'paper s/ep':>11}{'fast s/ep':>11}{'paper full s':>14}{'fast full s':>13}{'speed-up':>10}")
+    with tempfile.TemporaryDirectory() as out:
+        for name in args.names:
+            system = ip.load_system(name)
+            if args.full:
+                p, f = (seconds_per_epoch(system, c, out) for c in (paper, fast))
+            else:
+                p, f = (seconds_per_epoch(system, c.replace(epochs=args.epochs), out) for c in (paper, fast))
+            tp, tf = p * paper.epochs, f * fast.epochs
+            print(f"{name:<26}{p:>11.3f}{f:>11.3f}{tp:>14.0f}{tf:>13.0f}{tp / tf:>9.1f}x")
+
+
+if __name__ == "__main__":
+    main()

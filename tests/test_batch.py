@@ -1,0 +1,304 @@
+"""Batch runs over pipeline files (issue 6): validation before anything runs, local workers, failing
+jobs that do not stop the batch, resume after a kill, Ray giving the local executor's rows, and the
+README zoo table kept in step with the committed summary.
+
+The end-to-end runs use pipelines/smoke.toml (two robots, 15 epochs of width-16 networks, 8 ROA
+states): their numbers say nothing about control quality, only that every stage ran.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from idapbc_pin.batch import (
+    SUMMARY_COLUMNS,
+    VOLATILE_COLUMNS,
+    _train_or_resume,
+    add_batch_command,
+    read_summary,
+    readme_zoo_block,
+    replace_zoo_table,
+    run_batch,
+    zoo_table_markdown,
+)
+from idapbc_pin._pipeline import PipelineError, load_pipeline
+from idapbc_pin.errors import IdapbcError
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKE = ROOT / "pipelines" / "smoke.toml"
+SMOKE_DEFAULTS = SMOKE.read_text().split("[[job]]")[0]
+#: Columns that may be empty in a complete row: the error of a job that is done, and a median
+#: settling time where no state succeeded (checked against the success rate below).
+MAY_BE_EMPTY = {"error"}
+
+
+def _pipeline(tmp_path: Path, jobs: str, name: str = "p.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(SMOKE_DEFAULTS + jobs)
+    return path
+
+
+def _cli(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="idapbc-pin")
+    add_batch_command(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def _stable(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in row.items() if k not in VOLATILE_COLUMNS} for row in rows]
+
+
+def _optional_module(name: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(f"idapbc_pin.{name}") is not None
+
+
+# ---------------------------------------------------------------------------------------- validation
+def test_committed_pipelines_are_valid():
+    from idapbc_pin.analytic import ANALYTIC
+    from idapbc_pin.zoo import zoo_names
+
+    zoo = load_pipeline(ROOT / "pipelines" / "zoo.toml")
+    assert sorted(job.source for job in zoo.jobs) == zoo_names()
+    paper = load_pipeline(ROOT / "pipelines" / "paper.toml")
+    assert sorted((job.source, job.preset) for job in paper.jobs) == sorted((nm, p) for nm in ANALYTIC for p in ("paper", "fast"))
+    for job in paper.jobs:  # the paper's Table I settings, or the fast preset on top of them
+        assert (job.config["epochs"], job.config["samples"], job.config["width"], job.config["depth"]) == (
+            (2000, 512, 300, 3) if job.preset == "paper" else (600, 512, 64, 2)
+        )
+    smoke = load_pipeline(SMOKE)
+    assert len(smoke.jobs) == 2
+
+
+def test_smoke_flag_shrinks_every_job_and_changes_its_fingerprint():
+    full = load_pipeline(ROOT / "pipelines" / "zoo.toml")
+    small = load_pipeline(ROOT / "pipelines" / "zoo.toml", smoke=True)
+    for a, b in zip(full.jobs, small.jobs):
+        assert b.config["epochs"] <= 20 and b.config["width"] <= 16 and b.evaluate["n"] <= 12
+        assert a.fingerprint() != b.fingerprint()
+
+
+BAD_JOBS = [
+    ('name = "typo"\nsource = "acrobot"\nepochs = 5\n', "unknown key 'epochs'"),
+    ('name = "joint"\nsource = "acrobot"\nactuated = ["knee"]\n', "unknown actuated joint 'knee'"),
+    ('name = "where"\nsource = "no_such_robot"\n', "no_such_robot"),
+    ('name = "missing"\nsource = "robots/gone.urdf"\n', "gone.urdf"),
+    ('name = "kind"\nsource = "acrobot"\nactuated = "elbow"\n', "'actuated' must be an array"),
+    ('name = "value"\nsource = "acrobot"\ntrain = { kappa = -1.0 }\n', "kappa"),
+    ('name = "unknown"\nsource = "acrobot"\ntrain = { epoch = 3 }\n', "unknown training config key"),
+    ('name = "preset"\nsource = "acrobot"\npreset = "quick"\n', "preset must be one of"),
+    ('name = "box"\nsource = "acrobot"\ndomain = { elbow = [1.0] }\n', "domain.elbow must be [lo, hi]"),
+    ('name = "target"\nsource = "acrobot"\ntarget = { elbow = 0.5 }\n', "not an assignable equilibrium"),
+    ('name = "roa"\nsource = "acrobot"\nevaluate = { n = 0 }\n', "evaluate.n"),
+]
+
+
+@pytest.mark.parametrize("entry,message", BAD_JOBS, ids=[m.split()[0].strip("'") + str(i) for i, (_, m) in enumerate(BAD_JOBS)])
+def test_a_bad_entry_is_refused_before_anything_runs_naming_the_job_and_its_line(tmp_path, entry, message):
+    path = _pipeline(tmp_path, '[[job]]\nname = "good"\nsource = "furuta"\n\n# the bad one:\n[[job]]\n' + entry)
+    bad_line = path.read_text().splitlines().index("# the bad one:") + 2
+    out = tmp_path / "out"
+    with pytest.raises(PipelineError) as err:
+        run_batch(path, workers=1, out=out, progress=False)
+    name = entry.split('"')[1]
+    assert [(nm, line) for nm, line, _ in err.value.problems] == [(name, bad_line)]
+    assert f"job '{name}' (line {bad_line})" in str(err.value) and message in str(err.value)
+    assert not out.exists()  # nothing ran, nothing was written
+
+
+def test_every_bad_entry_is_reported_at_once_and_duplicates_are_caught(tmp_path):
+    path = _pipeline(tmp_path, '[[job]]\nname = "a"\nsource = "acrobot"\n\n[[job]]\nname = "a"\nsource = "furuta"\n\n[[job]]\nname = "b"\nsource = "x"\n')
+    with pytest.raises(PipelineError) as err:
+        load_pipeline(path)
+    lines = [ln for ln, text in enumerate(path.read_text().splitlines(), 1) if text == "[[job]]"]
+    assert [(nm, ln) for nm, ln, _ in err.value.problems] == [("a", lines[1]), ("b", lines[2])]
+    assert "duplicate name" in err.value.problems[0][2]
+
+
+def test_toml_syntax_errors_and_unknown_job_names_are_user_errors(tmp_path):
+    path = tmp_path / "broken.toml"
+    path.write_text('[[job]]\nname = "a"\nsource = acrobot\n')
+    with pytest.raises(IdapbcError, match="line 3"):
+        load_pipeline(path)
+    with pytest.raises(IdapbcError, match="Valid job names: furuta, reaction_wheel"):
+        run_batch(SMOKE, only=["nope"], out=tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_ray_is_a_clear_error_before_anything_runs(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if not installed
+    with pytest.raises(IdapbcError, match=r"Ray is not installed\. Fix: pip install 'idapbc-pin\[ray\]'"):
+        run_batch(SMOKE, ray="auto", out=tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_arguments():
+    parser = argparse.ArgumentParser(prog="idapbc-pin")
+    add_batch_command(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["batch", "p.toml", "--workers", "3", "--ray", "auto", "--only", "a", "b", "--smoke", "--out", "d"])
+    assert (args.pipeline, args.workers, args.ray, args.only, args.smoke, args.out) == ("p.toml", 3, "auto", ["a", "b"], True, "d")
+
+
+# ---------------------------------------------------------------------------------------- end to end
+@pytest.fixture(scope="module")
+def smoke_batch(tmp_path_factory):
+    """The smoke pipeline on 2 local worker processes."""
+    return run_batch(SMOKE, workers=2, out=tmp_path_factory.mktemp("smoke") / "batch", progress=False)
+
+
+def test_smoke_pipeline_on_two_workers_gives_a_complete_summary(smoke_batch):
+    result = smoke_batch
+    assert result.ok and result.ran == ["furuta", "reaction_wheel"] and result.skipped == []
+    rows = read_summary(result.summary_csv)
+    assert rows == result.rows and [r["name"] for r in rows] == ["furuta", "reaction_wheel"]
+    assert list(rows[0]) == list(SUMMARY_COLUMNS)
+    for row in rows:
+        assert row["status"] == "done"
+        for ctrl in ("nida", "lqr"):
+            for box in ("domain", "half"):
+                assert 0.0 <= float(row[f"{ctrl}_success_{box}"]) <= 1.0
+                # a median settling time exists exactly when some state succeeded
+                assert (row[f"{ctrl}_settle_{box}"] != "") == (float(row[f"{ctrl}_success_{box}"]) > 0)
+        settle = {c for c in row if c.endswith(tuple(f"settle_{b}" for b in ("domain", "half")))}
+        empty = {c for c, v in row.items() if v == ""} - MAY_BE_EMPTY - settle
+        if not _optional_module("certify"):
+            empty -= {"dissipation_fraction", "sublevel_coverage", "certified"}
+        assert not empty, f"{row['name']}: empty columns {sorted(empty)}"
+        assert row["les"] in ("yes", "no") and int(row["roa_n"]) == 8
+    md = result.summary_md.read_text()
+    assert "NIDA-PBC / LQR" in md and "furuta" in md and "reaction_wheel" in md
+    for name, record in result.records.items():
+        run_dir = result.path / name / record["run_dir"]
+        assert record["status"] == "done" and record["error"] is None
+        assert {"load", "train", "evaluate", "certify", "figure", "html", "total"} <= set(record["timings"])
+        assert (run_dir / "evaluation.json").is_file() and (run_dir / "replay.html").is_file()
+        assert (run_dir / "certificate.json").is_file() == _optional_module("certify")
+        assert (run_dir / "figure.png").is_file() == _optional_module("report")
+        assert json.loads((result.path / name / "job.json").read_text())["row"]["status"] == "done"
+
+
+def test_zoo_table_renders_from_a_summary(smoke_batch):
+    table = zoo_table_markdown(smoke_batch.summary_csv)
+    assert table.startswith("| robot | actuated | success, domain: NIDA-PBC / LQR")
+    assert "`furuta`" in table and "`reaction_wheel`" in table
+    assert zoo_table_markdown(smoke_batch.summary_csv) == table  # deterministic
+    readme = "intro\n<!-- zoo-table:start -->\nold\n<!-- zoo-table:end -->\nrest\n"
+    assert readme_zoo_block(replace_zoo_table(readme, table)) == table.strip()
+
+
+def test_a_job_failing_at_run_time_is_recorded_and_the_others_finish(tmp_path):
+    # "broken" passes validation (a device is a property of the machine the job lands on) and fails
+    # as soon as it trains, in its worker process
+    path = _pipeline(tmp_path, '[[job]]\nname = "broken"\nsource = "reaction_wheel"\ntrain = { device = "cuda:99" }\n\n'
+                               '[[job]]\nname = "reaction_wheel"\nsource = "reaction_wheel"\n')  # fmt: skip
+    out = tmp_path / "out"
+    assert _cli(["batch", str(path), "--workers", "2", "--out", str(out), "--no-progress"]) == 1
+    rows = {r["name"]: r for r in read_summary(out / "summary.csv")}
+    assert rows["reaction_wheel"]["status"] == "done" and rows["reaction_wheel"]["lqr_success_domain"] != ""
+    assert rows["broken"]["status"] == "failed" and rows["broken"]["error"].startswith("train: ")
+    assert "cuda" in rows["broken"]["error"]
+    record = json.loads((out / "broken" / "job.json").read_text())
+    assert record["stage"] == "train" and "Traceback" in record["traceback"]
+    assert "broken" in (out / "summary.md").read_text().split("## Errors")[1]
+
+
+@pytest.mark.slow
+def test_a_killed_batch_resumes_with_only_the_remaining_jobs(tmp_path):
+    out = tmp_path / "batch"
+    code = "import sys; from idapbc_pin.batch import run_batch; run_batch(sys.argv[1], workers=1, out=sys.argv[2], progress=False)"
+    proc = subprocess.Popen([sys.executable, "-c", code, str(SMOKE), str(out)], cwd=tmp_path, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    first = out / "furuta" / "job.json"
+    try:
+        deadline = time.monotonic() + 300
+        while not first.is_file() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert first.is_file(), "the first job never finished"
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the whole batch, mid-way through its second job
+        proc.wait()
+    assert not (out / "reaction_wheel" / "job.json").is_file()
+    assert (out / ".lock").is_file()  # left behind by the killed process
+    stamp = first.stat().st_mtime_ns
+
+    result = run_batch(SMOKE, workers=1, out=out, progress=False)
+    assert result.skipped == ["furuta"] and result.ran == ["reaction_wheel"] and result.ok
+    assert first.stat().st_mtime_ns == stamp  # not re-run
+    assert "skipped furuta: done in a previous run" in (out / "batch.log").read_text()
+    assert [r["status"] for r in read_summary(out / "summary.csv")] == ["done", "done"]
+    # a third run has nothing left to do
+    again = run_batch(SMOKE, workers=1, out=out, progress=False)
+    assert again.ran == [] and again.skipped == ["furuta", "reaction_wheel"]
+
+
+def test_a_job_killed_during_training_resumes_from_its_last_checkpoint(tmp_path):
+    from idapbc_pin.system import load_system
+    from idapbc_pin.train import train
+
+    job = load_pipeline(SMOKE).jobs[1]
+    config = job.train_config().replace(epochs=10, checkpoint_every=5)
+    system = load_system(job.source_path)
+    reference = train(system, config, out=tmp_path / "reference", progress=False)
+    # what a kill at epoch 7 leaves: the 10-epoch config, a last checkpoint at epoch 5, no summary
+    killed = train(system, config.replace(epochs=5), out=tmp_path / "job", progress=False)
+    (killed.path / "config.json").write_text(json.dumps(config.to_dict()))
+    (killed.path / "summary.json").unlink()
+    run, how = _train_or_resume(system, config, tmp_path / "job")
+    assert how == "resumed from epoch 5" and run.path == killed.path
+    assert run.summary["final_terms"] == reference.summary["final_terms"]
+    run, how = _train_or_resume(system, config, tmp_path / "job")  # finished: reused, not retrained
+    assert how == "reused" and run.summary["final_terms"] == reference.summary["final_terms"]
+    run, how = _train_or_resume(system, config.replace(seed=1), tmp_path / "job")  # other settings: fresh
+    assert how is None and run.config.seed == 1
+    assert [p.parent for p in (tmp_path / "job").glob("*/config.json")] == [run.path]  # the stale run is gone
+
+
+def test_a_worker_that_cannot_see_the_batch_directory_ships_its_files_back(tmp_path):
+    # a Ray node without the shared filesystem: the batch token is not there, so the job runs in a
+    # temporary folder and returns it as an archive, which the driver unpacks into the job dir
+    from idapbc_pin.batch import _unpack, run_job
+
+    path = _pipeline(tmp_path, '[[job]]\nname = "far"\nsource = "furuta"\ntrain = { device = "cuda:99" }\n')
+    job = load_pipeline(path).jobs[0]
+    (tmp_path / "batch").mkdir()
+    (tmp_path / "batch" / "batch.json").write_text(json.dumps({"token": "the driver's"}))
+    record = run_job(job, tmp_path / "batch" / "far", batch_token="another batch's")
+    assert not (tmp_path / "batch" / "far").exists() and record["status"] == "failed"
+    _unpack(record.pop("_archive"), tmp_path / "batch" / "far")
+    assert json.loads((tmp_path / "batch" / "far" / "job.json").read_text()) == json.loads(json.dumps(record))
+    assert "cuda" in (tmp_path / "batch" / "far" / "job.log").read_text()
+
+
+@pytest.mark.slow
+def test_ray_local_instance_gives_the_local_executors_rows(smoke_batch, tmp_path):
+    pytest.importorskip("ray", reason="Ray is an optional extra (pip install 'idapbc-pin[ray]'): not installed here")
+    result = run_batch(SMOKE, ray="auto", workers=2, out=tmp_path / "ray", progress=False)
+    assert result.ok and result.ran == ["furuta", "reaction_wheel"]
+    assert _stable(read_summary(result.summary_csv)) == _stable(read_summary(smoke_batch.summary_csv))
+
+
+# ---------------------------------------------------------------------------------------- README
+def test_readme_zoo_table_matches_the_committed_zoo_summary():
+    readme = (ROOT / "README.md").read_text()
+    block = readme_zoo_block(readme)
+    if block is None:
+        pytest.skip("README.md has no <!-- zoo-table:start --> … <!-- zoo-table:end --> markers yet")
+    summary = ROOT / "pipelines" / "results" / "zoo-summary.csv"
+    if not summary.is_file():
+        pytest.skip("pipelines/results/zoo-summary.csv is not committed yet (copy a zoo batch's summary.csv there)")
+    assert block == zoo_table_markdown(summary).strip(), (
+        "README's zoo table is out of step with pipelines/results/zoo-summary.csv. Fix: "
+        "python -c \"from pathlib import Path; from idapbc_pin.batch import replace_zoo_table, zoo_table_markdown; "
+        "p = Path('README.md'); p.write_text(replace_zoo_table(p.read_text(), zoo_table_markdown('pipelines/results/zoo-summary.csv')))\""
+    )
