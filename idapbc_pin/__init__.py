@@ -32,6 +32,7 @@ _LAZY = {
     "report": "report",
     "robustness_table": "robustness",
     "perturbed_system": "robustness",
+    "run_batch": "batch",
     "view": "view",
     "write_html": "view",
 }

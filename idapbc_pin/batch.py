@@ -509,10 +509,18 @@ def _run_ray(jobs: list[Job], batch_dir: Path, tracker: _Tracker, address: str, 
     ray = _import_ray()
     started_here = not ray.is_initialized()
     if started_here:
-        if address == "auto" and not os.environ.get("RAY_ADDRESS"):
-            ray.init(address="local", num_cpus=workers or _cpu_count(), include_dashboard=False, log_to_driver=False)
-        else:  # a cluster: the given address, or $RAY_ADDRESS (set by `ray job submit`) for "auto"
-            ray.init(address=None if address == "auto" else address, log_to_driver=False)
+        try:
+            if address == "auto" and not os.environ.get("RAY_ADDRESS"):
+                ray.init(address="local", num_cpus=workers or _cpu_count(), include_dashboard=False, log_to_driver=False)
+            else:  # a cluster: the given address, or $RAY_ADDRESS (set by `ray job submit`) for "auto"
+                ray.init(address=None if address == "auto" else address, log_to_driver=False)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise IdapbcError(
+                f"cannot start or join Ray at '{address}': {first}. Fix: check the address with `ray status` on the head node "
+                "(HOST:6379 from a node, ray://HOST:10001 from outside); a cluster with token authentication (the default of recent "
+                "`ray start`) also needs RAY_AUTH_MODE=token and its token on this machine."
+            ) from None
     try:
         limit = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         remote = ray.remote(num_cpus=1, max_retries=0)(run_job)

@@ -171,6 +171,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .report import add_eval_commands
 
     add_eval_commands(sub)
+
+    from .batch import add_batch_command
+
+    add_batch_command(sub)
     return parser
 
 

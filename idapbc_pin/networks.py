@@ -652,10 +652,11 @@ class DampingNet(_StateNet):
             self.register_buffer("log_d0", None)
             self.register_buffer("L0", None)
         else:
-            R0 = _as_buffer("R0", R0, x_star, (n, n))
-            C, info = torch.linalg.cholesky_ex(0.5 * (R0 + R0.T))
+            R0 = _as_buffer("R0", R0, x_star.double(), (n, n))  # factor in float64, then cast:
+            C, info = torch.linalg.cholesky_ex(0.5 * (R0 + R0.T))  # an ill-conditioned R0 can fail in float32
             if info != 0:
                 raise ValueError("R0 must be symmetric positive definite")
+            C = C.to(x_star.dtype)
             self.register_buffer("log_d0", torch.log(torch.diagonal(C)).clone())
             i, j = torch.tril_indices(n, n, offset=-1, device=C.device)
             self.register_buffer("L0", C[i, j].clone())

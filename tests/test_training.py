@@ -172,3 +172,17 @@ def test_true_closed_loop_is_desired_dynamics_plus_xi():
     u = nets.control(f, f_d)
     closed_loop = f + u @ nets.g.T
     torch.testing.assert_close(closed_loop, f_d + nets.xi(nets.mismatch(f, f_d)), rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.parametrize("name", sorted(__import__("idapbc_pin.zoo", fromlist=["ZOO"]).ZOO))
+def test_fast_preset_networks_build_on_every_zoo_robot(name):
+    """float32 networks anchored on each robot's LQR loop (the anchor is factored in float64)."""
+    from idapbc_pin.controller import Controller, _anchor
+
+    system = ip.load_system(name)
+    torch.manual_seed(0)
+    config = TrainConfig.fast()
+    ctrl = Controller(system, build_nets(system, config))
+    A_cl = _anchor(system, config).A_cl
+    assert np.abs(ctrl.closed_loop_jacobian() - A_cl).max() <= 1e-2 * max(1.0, np.abs(A_cl).max())
+    assert np.all(ctrl.eigenvalues_at_target().real < 0)
