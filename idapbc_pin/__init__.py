@@ -6,47 +6,44 @@ Public API (DESIGN §6)::
     sys = ip.load_system("cartpole")                    # zoo name, built-in name, URDF path, erd:<stem>
     sys.f(x); sys.df_dx(x); sys.g(x); sys.g_perp(x)     # batched over a leading dimension
     run = ip.train(sys, ip.TrainConfig.fast(), out="runs/cartpole")
-    ctrl = run.controller; ip.simulate(sys, ctrl, x0, T=20.0); ip.view(run)
+    ctrl = run.controller; ip.simulate(sys, ctrl, x0, T=20.0); ip.certify(run); ip.view(run)
 
-The torch- and meshcat-based parts load on first use, so `idapbc-pin inspect` starts quickly.
+Imported eagerly: several public functions share their module's name (train, simulate, certify,
+report, view), and a lazy attribute would be shadowed by the submodule once it is imported.
 """
 
-from importlib import import_module
-
+from .batch import run_batch
+from .certify import certify
+from .config import TrainConfig
 from .errors import IdapbcError
+from .evaluate import evaluate_run
+from .report import figure, report
+from .robustness import perturbed_system, robustness_table
+from .simulate import LQRController, roa, simulate
 from .system import System, load_system
+from .train import Run, load_run, train
+from .view import view, write_html
 
 __version__ = "0.1.0"
 
-_LAZY = {
-    "TrainConfig": "config",
-    "Run": "train",
-    "train": "train",
-    "load_run": "train",
-    "LQRController": "simulate",
-    "simulate": "simulate",
-    "roa": "simulate",
-    "evaluate_run": "evaluate",
-    "certify": "certify",
-    "figure": "report",
-    "report": "report",
-    "robustness_table": "robustness",
-    "perturbed_system": "robustness",
-    "run_batch": "batch",
-    "view": "view",
-    "write_html": "view",
-}
-
-__all__ = ["IdapbcError", "System", "load_system", *_LAZY]
-
-
-def __getattr__(name):
-    if name in _LAZY:
-        value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'idapbc_pin' has no attribute '{name}'")
-
-
-def __dir__():
-    return sorted(__all__)
+__all__ = [
+    "IdapbcError",
+    "LQRController",
+    "Run",
+    "System",
+    "TrainConfig",
+    "certify",
+    "evaluate_run",
+    "figure",
+    "load_run",
+    "load_system",
+    "perturbed_system",
+    "report",
+    "robustness_table",
+    "roa",
+    "run_batch",
+    "simulate",
+    "train",
+    "view",
+    "write_html",
+]

@@ -41,16 +41,15 @@ central differences of the closed loop at x*).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ._io import write_json
 from .errors import IdapbcError
 
 __all__ = [
@@ -393,21 +392,7 @@ def _clean(obj):
 
 def write_json_atomic(path: Path, obj) -> Path:
     """Write `obj` as JSON to `path` atomically (temp file in the same folder + os.replace)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(obj, fh, indent=2, sort_keys=False, allow_nan=False)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_json(path, obj, sort_keys=False, allow_nan=False)
 
 
 # ====================================================================== pieces

@@ -7,7 +7,6 @@ and writes ``evaluation.json`` into the run directory.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 

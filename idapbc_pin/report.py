@@ -21,15 +21,16 @@ meshcat replay (``replay.html``) of the figure's trajectories. `add_eval_command
 from __future__ import annotations
 
 import argparse
+import io
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from ._io import atomic_write_bytes
 from .certify import closed_loop_terms, resolve_controller, write_json_atomic
 from .errors import IdapbcError
 
@@ -336,20 +337,9 @@ def plot(rows: Sequence[FigureData]):
 
 
 def _save_png(fig, path: Path, dpi: int = 100) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=dpi)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return atomic_write_bytes(path, buf.getvalue())
 
 
 def extra_damping_rho(ctrl, n: int = 2000, seed: int = 0) -> float:

@@ -398,7 +398,6 @@ def _perp_row_names(system: System) -> list[str]:
 
 
 def _default_domain(joints, q_star: np.ndarray, M_star: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    nq = len(joints)
     half_q = np.array([DEFAULT_ANGLE_HALF_WIDTH if j.is_angle else DEFAULT_LINEAR_HALF_WIDTH for j in joints])
     lo_q = np.maximum(q_star - half_q, [j.lower for j in joints])
     hi_q = np.minimum(q_star + half_q, [j.upper for j in joints])

@@ -16,7 +16,6 @@ import hashlib
 import io
 import json
 import math
-import os
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -26,6 +25,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from ._io import atomic_write_bytes, write_json
 from .config import TrainConfig
 from .controller import Controller, IdaPbcNets, build_nets
 from .errors import IdapbcError
@@ -40,17 +40,8 @@ class TrainingDiverged(IdapbcError):
 
 
 # ---------------------------------------------------------------------------------------- files
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
-def _write_json(path: Path, obj) -> None:
-    _atomic_write_bytes(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode())
+_atomic_write_bytes = atomic_write_bytes
+_write_json = write_json
 
 
 def _save_checkpoint(path: Path, state: dict) -> None:

@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import select
 import subprocess
 import sys
@@ -970,21 +969,9 @@ class Viewer:
 
     def write_html(self, path) -> Path:
         """Write `replay_html` to `path` atomically (temp file + rename); returns the path."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        data = self.replay_html().encode("utf-8")
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        return path
+        from ._io import atomic_write_bytes
+
+        return atomic_write_bytes(path, self.replay_html().encode("utf-8"))
 
     def serve(self, port: int | None = None) -> str:
         """Start meshcat's server on 127.0.0.1 (see `MeshcatServer`), send it the scene; returns the URL."""
