@@ -68,7 +68,7 @@ def test_f_equals_pinocchio_forward_dynamics(name):
 @pytest.mark.parametrize("name", URDF_SYSTEMS + analytic_names())
 def test_df_dx_matches_central_differences(name):
     system = _load(name)
-    x = sample_domain(system, 300, seed=2)
+    x = sample_domain(system, 1000, seed=2)
     f, J = system.f_and_df_dx(x)
     np.testing.assert_allclose(f, system.f(x), rtol=1e-13, atol=1e-13)
     assert _rel(J - _central_jacobian(system, x), J).max() <= 1e-6
