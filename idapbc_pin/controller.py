@@ -40,6 +40,8 @@ class IdaPbcNets(nn.Module):
         self.register_buffer("g", as_t(g))
         self.register_buffer("g_perp", as_t(g_perp))
         self.register_buffer("G_inv", as_t(np.linalg.inv(G)))
+        g = np.asarray(g, dtype=np.float64)
+        self.register_buffer("g_pinv", as_t(np.linalg.solve(g.T @ g, g.T)), persistent=False)  # (gᵀg)⁻¹gᵀ
         self.register_buffer("decay_rate", torch.tensor(float(decay_rate), dtype=like.dtype, device=like.device))
 
     @property
@@ -82,8 +84,7 @@ class IdaPbcNets(nn.Module):
 
     def control(self, f: Tensor, f_d: Tensor) -> Tensor:
         """u = (gᵀg)⁻¹gᵀ(f̃_d − f) with constant g: (N, n), (N, n) -> (N, m)."""
-        gtg = self.g.T @ self.g
-        return torch.linalg.solve(gtg, ((f_d - f) @ self.g).T).T
+        return (f_d - f) @ self.g_pinv.T
 
     def mismatch(self, f: Tensor, f_d: Tensor) -> Tensor:
         """μ = −g⊥(f − f̃_d): (N, n − m)."""
