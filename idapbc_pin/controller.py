@@ -185,38 +185,31 @@ class Controller:
         tau = self(x) @ self.system.B.T
         return tau[0] if single else tau
 
+    def _apply(self, fn, x) -> np.ndarray:
+        """Evaluate a torch function of x on numpy states, batched, dropping N for a single state."""
+        xb, single = self._batch(x)
+        out = self._np(fn(self._t(xb)))
+        return out[0] if single else out
+
     def H_d(self, x) -> np.ndarray:
         """Desired energy H_d(x): (N, n) -> (N,)."""
-        xb, single = self._batch(x)
-        with torch.no_grad():
-            out = self._np(self.nets.H(self._t(xb)))
-        return out[0] if single else out
+        return self._apply(torch.no_grad()(self.nets.H), x)
 
     def grad_H_d(self, x) -> np.ndarray:
         """∇H_d(x): (N, n) -> (N, n)."""
-        xb, single = self._batch(x)
-        out = self._np(self.nets.H.grad(self._t(xb)))
-        return out[0] if single else out
+        return self._apply(self.nets.H.grad, x)
 
     def J_d(self, x) -> np.ndarray:
         """Desired interconnection J_d(x) (skew): (N, n) -> (N, n, n)."""
-        xb, single = self._batch(x)
-        with torch.no_grad():
-            out = self._np(self.nets.J(self._t(xb)))
-        return out[0] if single else out
+        return self._apply(torch.no_grad()(self.nets.J), x)
 
     def R_d(self, x) -> np.ndarray:
         """Desired damping R_d(x) (positive definite): (N, n) -> (N, n, n)."""
-        xb, single = self._batch(x)
-        with torch.no_grad():
-            out = self._np(self.nets.R(self._t(xb)))
-        return out[0] if single else out
+        return self._apply(torch.no_grad()(self.nets.R), x)
 
     def f_d(self, x) -> np.ndarray:
         """f̃_d(x) = (J_d − R_d)∇H_d: (N, n) -> (N, n)."""
-        xb, single = self._batch(x)
-        out = self._np(self.nets.desired(self._t(xb))[4])
-        return out[0] if single else out
+        return self._apply(lambda t: self.nets.desired(t)[4], x)
 
     def mismatch(self, x) -> np.ndarray:
         """μ(x) = −g⊥(f − f̃_d): (N, n) -> (N, n − m)."""
