@@ -1,8 +1,10 @@
-"""Goal: time a 1000-state, 20 s ROA evaluation of the LQR baseline (DESIGN §4, "Speed").
+"""Goal: time a 1000-state, 20 s ROA evaluation (DESIGN §4, "Speed"), LQR and trained NIDA-PBC.
 
-Target (DESIGN): ≤ 60 s for a 2-DoF robot on 2 cores. Prints the ROA table of each system and the
-wall time of the simulation, with the integrator settings used.
-Run: python benchmarks/bench_roa.py [--states 1000] [--T 20] [--dt 0.01] [--threads N] [names ...]
+Target (DESIGN): ≤ 60 s for a 2-DoF robot on 2 cores. Prints the ROA table of each system (LQR only)
+or of each trained run (NIDA-PBC and LQR on the same states) and the wall time per controller and
+in total, with the integrator settings used.
+Run: python benchmarks/bench_roa.py [--states 1000] [--T 20] [--dt 0.01] [--box domain|half]
+                                    [--threads N] [names ...] [--run RUN_DIR ...]
 """
 
 from __future__ import annotations
@@ -17,22 +19,29 @@ from idapbc_pin.simulate import DEFAULT_THREADS, LQRController, roa
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("names", nargs="*", default=["acrobot", "paper_cartpole"])
+    parser.add_argument("names", nargs="*", help="systems for an LQR-only timing (default acrobot paper_cartpole without --run)")
     parser.add_argument("--states", type=int, default=1000)
     parser.add_argument("--T", type=float, default=20.0)
     parser.add_argument("--dt", type=float, default=0.01)
     parser.add_argument("--box", default="domain", choices=["domain", "half"])
+    parser.add_argument("--run", action="append", default=[], help="a trained run directory: time NIDA-PBC and LQR")
     parser.add_argument("--threads", type=int, default=None, help=f"Pinocchio threads (default {DEFAULT_THREADS})")
     args = parser.parse_args()
     print(f"cpus={os.cpu_count()} load={os.getloadavg()[0]:.2f} threads={args.threads or DEFAULT_THREADS} "
           f"states={args.states} T={args.T:g}s dt={args.dt:g}s rk4")
-    for name in args.names:
-        system = ip.load_system(name)
+    names = args.names or ([] if args.run else ["acrobot", "paper_cartpole"])
+    jobs = [(ip.load_system(name), {"lqr": None}) for name in names]
+    for path in args.run:
+        run = ip.load_run(path)
+        jobs.append((run.system, {"NIDA-PBC": run.controller, "lqr": None}))
+    for system, controllers in jobs:
+        controllers = {k: c if c is not None else LQRController(system) for k, c in controllers.items()}
         t0 = time.perf_counter()
-        result = roa(system, {"lqr": LQRController(system)}, n=args.states, box=args.box, T=args.T, dt=args.dt, threads=args.threads)
+        result = roa(system, controllers, n=args.states, box=args.box, T=args.T, dt=args.dt, threads=args.threads)
         total = time.perf_counter() - t0
         print(result.table())
-        print(f"{name}: {args.states} states x {args.T:g} s in {result['lqr'].wall_time:.1f} s of simulation ({total:.1f} s with LQR set-up and metrics)\n")
+        each = ", ".join(f"{k} {result[k].wall_time:.1f} s" for k in controllers)
+        print(f"{system.name}: {args.states} states x {args.T:g} s: {each}; {total:.1f} s in total with set-up and metrics\n")
 
 
 if __name__ == "__main__":

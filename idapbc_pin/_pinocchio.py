@@ -137,7 +137,8 @@ def _joint_infos(model: pin.Model) -> tuple[JointInfo, ...]:
 
 
 class PinocchioPlant:
-    """Mechanical plant evaluated by Pinocchio; batched over states by a loop over Pinocchio calls.
+    """Mechanical plant evaluated by Pinocchio, batched over states (pooled Pinocchio calls where
+    Pinocchio has them, a loop over states elsewhere).
 
     Holds the `pin.Model` and one `pin.Data` (scratch space; not thread-safe: use one plant per
     thread or process). Use through `idapbc_pin.System`, not directly.
@@ -163,6 +164,12 @@ class PinocchioPlant:
         self._direct = (np.array(direct_q, dtype=int), np.array(direct_v, dtype=int))
         self._circ = (np.array(circ_q, dtype=int), np.array(circ_v, dtype=int))
         self._permuted = direct_q != direct_v
+        # Batched v = M⁻¹p (ABA of a gravity-free copy at zero velocity) and ∇U (RNEA at rest):
+        # Pinocchio's pooled algorithms, one thread, no Python loop (see `f`).
+        free = model.copy()
+        free.gravity = pin.Motion.Zero()
+        self._pool = pin.ModelPool(model, 1)
+        self._free_pool = pin.ModelPool(free, 1)
 
     def __reduce__(self):  # Model pickles; Data is rebuilt (worker processes).
         return (PinocchioPlant, (self.model, self.path))
@@ -206,23 +213,35 @@ class PinocchioPlant:
         return out
 
     # ----------------------------------------------------------------- dynamics
+    def _velocity_and_gravity(self, qc: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """v = M⁻¹p and ∇U for configurations qc (N, model.nq), p (N, nv): (N, nv) each.
+
+        M⁻¹p is the ABA of the gravity-free model at zero velocity with torque p, ∇U the RNEA at
+        rest; both through `abaInParallel`/`rneaInParallel` (one thread), equal to
+        `computeMinverse(q) @ p` and `computeGeneralizedGravity(q)` to rounding (tests/test_dynamics).
+        """
+        N, nv = p.shape
+        Q = np.asfortranarray(qc.T)
+        zeros = np.zeros((nv, N), order="F")
+        v = pin.abaInParallel(1, self._free_pool, Q, zeros, np.asfortranarray(p.T))
+        grad_U = pin.rneaInParallel(1, self._pool, Q, zeros, zeros)
+        return np.array(v).reshape(nv, N).T, np.array(grad_U).reshape(nv, N).T
+
     def velocity(self, q: np.ndarray, p: np.ndarray) -> np.ndarray:
         """v = M(q)⁻¹ p: (N, nv) each -> (N, nv)."""
-        m, d = self.model, self.data
-        return np.stack([pin.computeMinverse(m, d, qc) @ pk for qc, pk in zip(self.config(q), p)])
+        return self._velocity_and_gravity(self.config(q), np.asarray(p, float))[0]
 
     def f(self, q: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """Open-loop f(x) = (v, Cᵀv − ∇U − D v): (N, nv) each -> (N, 2 nv)."""
+        """Open-loop f(x) = (v, Cᵀv − ∇U − D v): (N, nv) each -> (N, 2 nv).
+
+        v and ∇U batched by Pinocchio; the Coriolis matrix C(q, v) per state (no pooled version).
+        """
         m, d = self.model, self.data
-        N, nv = q.shape
-        v = np.empty((N, nv))
-        p_dot = np.empty((N, nv))
-        for k, qc in enumerate(self.config(q)):
-            vk = pin.computeMinverse(m, d, qc) @ p[k]
-            C = pin.computeCoriolisMatrix(m, d, qc, vk)
-            p_dot[k] = C.T @ vk - pin.computeGeneralizedGravity(m, d, qc)
-            v[k] = vk
-        p_dot -= self.damping * v
+        qc = self.config(q)
+        v, grad_U = self._velocity_and_gravity(qc, np.asarray(p, float))
+        coriolis = pin.computeCoriolisMatrix
+        C = np.stack([coriolis(m, d, qk, vk) for qk, vk in zip(qc, v)]) if len(v) else np.zeros((0,) + v.shape[1:] * 2)
+        p_dot = np.einsum("nji,nj->ni", C, v) - grad_U - self.damping * v
         return np.concatenate([v, p_dot], axis=1)
 
     def f_and_jacobian(self, q: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
