@@ -339,7 +339,7 @@ def _stages(job: Job, workdir: Path, record: dict):
 
     from .evaluate import evaluate_run
     from .system import load_system
-    from .view import write_html
+    from .view import view
 
     timings = record["timings"]
 
@@ -380,8 +380,10 @@ def _stages(job: Job, workdir: Path, record: dict):
             png = Path(figure(run, n=job.figure["n"], T=job.figure["T"], seed=ev["seed"]))
             record["files"]["figure"] = str(png.relative_to(run.path)) if png.is_relative_to(run.path) else str(png)
     with stage("html"):
-        write_html(run.path / "replay.html", run, n=job.view["n"], T=job.view["T"], seed=ev["seed"])
+        viewer = view(run, n=job.view["n"], T=job.view["T"], seed=ev["seed"], pick="success", open_server=False)
+        viewer.write_html(run.path / "replay.html")
         record["files"]["html"] = "replay.html"
+        record["replay"] = viewer.note
     record["stage"] = None
     return run, evaluation, cert
 

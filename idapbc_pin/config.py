@@ -37,6 +37,10 @@ FIELD_HELP = {
     "kappa": "κ > 0 of the robustness residuals f_sd1, f_sd2 (κ < ρ when ρ > 0)",
     "epsilon": "level ε of H_ε (inside: matching; outside: dissipation); 0 = automatic, the "
     "`inside_fraction` quantile of H_d over each batch (so ε keeps a meaning whatever H_d's scale)",
+    "scaling": "'none': the anchor's LQR weight is anchor_q·I and λ_max(P) = 1 in physical units, network increments of "
+    "J_d, R_d in absolute units; 'box': everything in box units z = (x − x*)/s, s the training box's half-widths "
+    "(anchor weight anchor_q·diag(1/s²), λ_max(SPS) = 1, increments of J_d and R_d scaled by s_i s_j), for robots "
+    "whose coordinates have very different ranges (light links: momenta of 1e-3 next to angles of 1)",
     "inside_fraction": "share of the samples inside H_ε when epsilon = 0 (automatic)",
     "decay_rate": "λ of the decay term Ḣ_d ≤ −λ H_d outside H_ε (1/s); < 0 = automatic "
     "(half the LQR anchor's local rate, or 0.5 1/s in the free form); 0 disables the term",
@@ -63,6 +67,7 @@ class TrainConfig:
     form: str = "anchored"
     anchor_q: float = 10.0
     anchor_p: str = "riccati"
+    scaling: str = "none"
     damping: str = "full"
     rho: float = 0.0
     kappa: float = 0.01
@@ -88,6 +93,7 @@ class TrainConfig:
             (self.damping in ("full", "actuated"), "damping must be 'full' or 'actuated'"),
             (self.anchor_q > 0, f"anchor_q must be > 0, got {self.anchor_q}"),
             (self.anchor_p in ("box", "lyapunov", "riccati"), "anchor_p must be 'box', 'lyapunov' or 'riccati'"),
+            (self.scaling in ("none", "box"), "scaling must be 'none' or 'box'"),
             (self.rho >= 0, f"rho (ρ) must be ≥ 0, got {self.rho}"),
             (self.kappa > 0, f"kappa (κ) must be > 0, got {self.kappa}"),
             (self.rho == 0 or self.kappa < self.rho, f"kappa (κ = {self.kappa}) must be < rho (ρ = {self.rho}): the paper needs κ ∈ (0, ρ)"),

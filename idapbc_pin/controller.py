@@ -100,15 +100,25 @@ class IdaPbcNets(nn.Module):
         return -mu @ self.G_inv[:, self.m :].T
 
 
+def _half_widths(system: System) -> np.ndarray:
+    """s (n,): half-widths of the training box around x* (the larger side)."""
+    lo, hi = system.domain
+    return np.maximum(hi - system.x_star, system.x_star - lo)
+
+
 def _anchor(system: System, config: TrainConfig):
     A, Bx = system.linearization()
-    Q = config.anchor_q * np.eye(system.n)
+    half = _half_widths(system)
+    box = config.scaling == "box"
+    Q = config.anchor_q * (np.diag(1.0 / half**2) if box else np.eye(system.n))
     if config.anchor_p == "riccati":
-        return lqr_anchor(A, Bx, Q=Q, P_mode="riccati", scale="unit")
-    lo, hi = system.domain
-    half = np.maximum(hi - system.x_star, system.x_star - lo)
-    Q_lyap = np.diag(1.0 / half**2) if config.anchor_p == "box" else None
-    return lqr_anchor(A, Bx, Q=Q, P_mode="lyapunov", scale="unit", Q_lyap=Q_lyap)
+        kw = dict(P_mode="riccati")
+    else:
+        kw = dict(P_mode="lyapunov", Q_lyap=np.diag(1.0 / half**2) if config.anchor_p == "box" else None)
+    if not box:
+        return lqr_anchor(A, Bx, Q=Q, scale="unit", **kw)
+    P = lqr_anchor(A, Bx, Q=Q, scale=None, **kw).P  # λ_max(SPS) = 1: H_d ≈ ½zᵀ(SPS)z ≤ ½‖z‖² in box units
+    return lqr_anchor(A, Bx, Q=Q, scale=1.0 / np.linalg.eigvalsh(half[:, None] * P * half[None, :]).max(), **kw)
 
 
 def build_nets(system: System, config: TrainConfig) -> IdaPbcNets:
@@ -116,20 +126,20 @@ def build_nets(system: System, config: TrainConfig) -> IdaPbcNets:
     dtype = getattr(torch, config.dtype)
     device = torch.device(config.device)
     x_star = torch.as_tensor(system.x_star, dtype=dtype, device=device)
-    lo, hi = system.domain
-    x_scale = torch.as_tensor(np.maximum(hi - system.x_star, system.x_star - lo), dtype=dtype, device=device)
+    x_scale = torch.as_tensor(_half_widths(system), dtype=dtype, device=device)
     actuated = torch.as_tensor(system.actuated_mask, device=device)
     kw = dict(width=config.width, depth=config.depth, x_scale=x_scale)
+    metric = dict(metric=x_scale if config.scaling == "box" else None)
     if config.form == "anchored":
         anchor = _anchor(system, config)
         H = EnergyNet(x_star, P=anchor.P, eps=0.0, **kw)
-        J = InterconnectionNet(x_star, J0=anchor.J, out_scale=0.1, **kw)
-        R = DampingNet(x_star, R0=anchor.R, rho=config.rho, pattern=config.damping, actuated=actuated, out_scale=0.1, **kw)
+        J = InterconnectionNet(x_star, J0=anchor.J, out_scale=0.1, **metric, **kw)
+        R = DampingNet(x_star, R0=anchor.R, rho=config.rho, pattern=config.damping, actuated=actuated, out_scale=0.1, **metric, **kw)
         decay = config.decay_rate if config.decay_rate >= 0 else 0.5 * _local_rate(anchor)
     else:
         H = EnergyNet(x_star, eps=1e-3, **kw)
-        J = InterconnectionNet(x_star, **kw)
-        R = DampingNet(x_star, rho=config.rho, pattern=config.damping, actuated=actuated, **kw)
+        J = InterconnectionNet(x_star, **metric, **kw)
+        R = DampingNet(x_star, rho=config.rho, pattern=config.damping, actuated=actuated, **metric, **kw)
         decay = config.decay_rate if config.decay_rate >= 0 else 0.5
     return IdaPbcNets(H, J, R, system.g(system.x_star), system.g_perp(system.x_star), decay)
 

@@ -543,6 +543,8 @@ class InterconnectionNet(_StateNet):
     out_scale : float
         Multiplies the last layer's initial weights (0: start at J_d ≡ J0, resp. ≡ skew(bias=0)).
     x_scale : Tensor, shape (n,), optional
+    metric : Tensor, shape (n,), optional
+        s > 0: the network's skew part is S skew(·) S, S = diag(s) (J_d in box units z = x/s).
     """
 
     def __init__(
@@ -555,6 +557,7 @@ class InterconnectionNet(_StateNet):
         activation: str = "tanh",
         out_scale: float = 1.0,
         x_scale: Tensor | None = None,
+        metric: Tensor | None = None,
     ):
         super().__init__(x_star, x_scale)
         n = self.n
@@ -562,6 +565,13 @@ class InterconnectionNet(_StateNet):
             raise ValueError("InterconnectionNet needs n ≥ 2")
         fk = _factory(x_star)
         self.net = _mlp(n, width, depth, n_skew(n), activation, out_scale, fk, out_bias=J0 is None)
+        if metric is None:
+            self.register_buffer("metric", None)
+        else:
+            s = _as_buffer("metric", metric, x_star, (n,))
+            if not (s > 0).all():
+                raise ValueError("metric must be positive")
+            self.register_buffer("metric", torch.outer(s, s))
         if J0 is None:
             self.register_buffer("J0", None)
         else:
@@ -579,9 +589,13 @@ class InterconnectionNet(_StateNet):
         """J_d(x): (N, n) → (N, n, n), skew-symmetric. ``v0``: the MLP at x*, if cached."""
         v = self.net(self._u(x))
         if self.J0 is None:
-            return skew(v, self.n)
+            return self._scaled(skew(v, self.n))
         v0 = self.net(torch.zeros_like(self.x_star)) if v0 is None else v0
-        return self.J0 + skew(v - v0, self.n)
+        return self.J0 + self._scaled(skew(v - v0, self.n))
+
+    def _scaled(self, K: Tensor) -> Tensor:
+        """S K S with S = diag(metric) (box units), or K."""
+        return K if self.metric is None else K * self.metric
 
 
 # --------------------------------------------------------------------------------------------
@@ -618,6 +632,9 @@ class DampingNet(_StateNet):
     out_scale : float
         Multiplies the last layer's initial weights (0: start at R_d ≡ R0 in the anchored form).
     x_scale : Tensor, shape (n,), optional
+    metric : Tensor, shape (n,), optional
+        s > 0: row i of the network's part of L is multiplied by s_i, so R_d = S L_z L_zᵀ S
+        (R_d in box units z = x/s); the anchored diagonal is relative and stays unscaled.
 
     Notes
     -----
@@ -640,11 +657,20 @@ class DampingNet(_StateNet):
         activation: str = "tanh",
         out_scale: float = 1.0,
         x_scale: Tensor | None = None,
+        metric: Tensor | None = None,
     ):
         super().__init__(x_star, x_scale)
         fk = _factory(x_star)
         n = self.n
         self.net = _mlp(n, width, depth, n_lower(n), activation, out_scale, fk, out_bias=R0 is None)
+        if metric is None:
+            self.register_buffer("row_scale", None)
+        else:
+            s = _as_buffer("metric", metric, x_star, (n,))
+            if not (s > 0).all():
+                raise ValueError("metric must be positive")
+            rows, _ = torch.tril_indices(n, n, offset=-1, device=s.device)
+            self.register_buffer("row_scale", torch.cat([s, s[rows]]))  # (diag, strict lower) entries of L
         self.register_buffer("S", self._pattern(pattern, actuated, x_star))
         self.pattern = pattern
         self.register_buffer("rho", self._check_rho(rho, fk))
@@ -694,12 +720,14 @@ class DampingNet(_StateNet):
         n = self.n
         out = self.net(self._u(x))
         r_d, r_o = out[..., :n], out[..., n:]
+        s = self.row_scale
         if self.L0 is None:
-            diag, low = softplus(r_d), r_o
-        else:
-            out0 = self.net(torch.zeros_like(self.x_star)) if out0 is None else out0
-            diag = torch.exp(self.log_d0 + r_d - out0[:n])
-            low = self.L0 + r_o - out0[n:]
+            entries = torch.cat([softplus(r_d), r_o], dim=-1)
+            return lower_tri(entries if s is None else entries * s, n)
+        out0 = self.net(torch.zeros_like(self.x_star)) if out0 is None else out0
+        diag = torch.exp(self.log_d0 + r_d - out0[:n])  # relative: needs no scaling
+        step = r_o - out0[n:]
+        low = self.L0 + (step if s is None else step * s[n:])
         return lower_tri(torch.cat([diag, low], dim=-1), n)
 
     def forward(self, x: Tensor) -> Tensor:

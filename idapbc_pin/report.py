@@ -576,7 +576,8 @@ def report(
 
     Runs `evaluate_run` (ROA of Neural IDA-PBC vs LQR on the domain and the half box,
     ``evaluation.json``), `certify` (``certificate.json``), the figure (``figure.png``) and a
-    meshcat replay of the figure's nominal trajectories (``replay.html``); the summary is also
+    meshcat replay of up to 3 rollouts that reach x* (``replay.html``, `view` with
+    ``pick="success"``); the summary is also
     written to ``report.txt``.
     """
     from .certify import certify
@@ -591,10 +592,10 @@ def report(
     fig_path = _save_png(plot(rows), run.path / "figure.png")
     parts = [format_evaluation(evaluation), cert.table(), f"figure: {fig_path}"]
     if html:
-        from .view import write_html
+        from .view import view
 
-        html_path = write_html(run.path / "replay.html", run, trajectories=rows[0].traj)
-        parts.append(f"replay: {html_path}")
+        viewer = view(run, n=3, T=10.0, seed=seed, pick="success", open_server=False)
+        parts.append(f"replay: {viewer.write_html(run.path / 'replay.html')} ({viewer.note})")
     text = "\n\n".join(parts)
     from .train import _atomic_write_bytes
 

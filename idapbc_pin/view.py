@@ -831,6 +831,7 @@ class Viewer:
             raise IdapbcError(f"fps must be positive, got {fps!r}.")
         self.system = system
         self.layout = layout
+        self.note = ""  # which rollouts these are (set by `view`)
         self.server: MeshcatServer | None = None
         self._drawing = _drawing(system, trace_link, style)
         rollouts = _rollouts(trajectories, int(system.nq))
@@ -1077,12 +1078,33 @@ def _simulate(system, controller, x0, T: float, dt: float):
     return simulate(system, controller, x0, T=steps * dt, dt=dt)
 
 
+#: With ``pick="success"``, candidates drawn per requested rollout.
+PICK_CANDIDATES = 20
+
+
+def _pick_successes(system, controller, n: int, T: float, dt: float, seed: int):
+    """Up to `n` rollouts that reach x* (DESIGN §4 criterion over the last 2 s of `T`) among
+    ``PICK_CANDIDATES · n`` uniform states of the half box, in draw order, filled up with failing
+    ones when fewer succeed. Returns (Trajectory of n rows, number reaching x*, candidates)."""
+    from .simulate import Trajectory, success
+
+    candidates = _initial_states(system, None, PICK_CANDIDATES * n, seed)
+    traj = _simulate(system, controller, candidates, T, dt)
+    ok = success(traj, system)
+    order = np.concatenate([np.flatnonzero(ok), np.flatnonzero(~ok)])[:n]
+    x = traj.x[order]
+    nq = system.nq
+    picked = Trajectory(t=traj.t, x=x, q=x[..., :nq], v=traj.v[order], u=traj.u[order], diverged=traj.diverged[order])
+    return picked, int(ok[order].sum()), len(candidates)
+
+
 def view(
     run_or_system,
     trajectories=None,
     *,
     x0=None,
     n: int = 3,
+    pick: str = "random",
     T: float = 10.0,
     dt: float = 0.01,
     seed: int = 0,
@@ -1107,7 +1129,11 @@ def view(
         or a pair (t (K,), q (K, nq) or (N, K, nq)). None: simulate `n` rollouts of `T` s (step `dt`)
         from states drawn uniformly from the half-size training box (seed `seed`), or from `x0`,
         with the run's controller, or the LQR baseline when given a `System`.
-    x0 : (N, n) initial states (q, p) or (N, nq) positions at rest; overrides `n`.
+    x0 : (N, n) initial states (q, p) or (N, nq) positions at rest; overrides `n` and `pick`.
+    pick : ``"random"`` (the first `n` uniform half-box states) or ``"success"``: up to `n` rollouts
+        that reach x* within `T` (DESIGN §4 criterion), chosen among ``PICK_CANDIDATES · n`` uniform
+        half-box states and filled up with failing ones; prints how many reach x*. A picture of what
+        the controller does where it works, not of how often it works (that is the ROA).
     html : write the standalone HTML replay there (atomically).
     open_server : start the live server (127.0.0.1) and print its URL; `Viewer.close` stops it.
     port : HTTP port of the live page; None picks the first free one from 7000; in use: error.
@@ -1124,14 +1150,25 @@ def view(
     Viewer (``.url``, ``.write_html(path)``, ``.close()``; shows inline in a notebook).
     """
     system, controller, _ = _resolve(run_or_system)
-    if trajectories is None:
+    if pick not in ("random", "success"):
+        raise IdapbcError(f"pick must be 'random' or 'success', got {pick!r}.")
+    if trajectories is None and x0 is None and pick == "success":
+        if n < 1:
+            raise IdapbcError(f"n must be at least 1, got {n}.")
+        trajectories, reached, drawn = _pick_successes(system, controller, n, T, dt, seed)
+        note = f"{reached} of {n} rollouts reach x* (picked among {drawn} random half-box states)"
+    elif trajectories is None:
         trajectories = _simulate(system, controller, _initial_states(system, x0, n, seed), T, dt)
+        note = f"{n if x0 is None else len(np.atleast_2d(x0))} rollouts from {'random half-box states' if x0 is None else 'the given states'}"
+    else:
+        note = "given trajectories"
     viewer = Viewer(system, trajectories, layout=layout, trace=trace, trace_link=trace_link, fps=fps, loop=loop, style=style, grid=grid)
+    viewer.note = note
     if html is not None:
         viewer.write_html(html)
     if open_server:
         url = viewer.serve(port)
-        print(f"meshcat viewer: {url}")
+        print(f"meshcat viewer: {url}  ({note})")
     return viewer
 
 
@@ -1166,6 +1203,9 @@ def add_view_command(subparsers) -> argparse.ArgumentParser:
                    help="initial state: n values (q then momenta p) or nq positions at rest; repeat for several rollouts")
     p.add_argument("--n", type=int, default=3, metavar="K", help="rollouts from random states of the half-size training box (default 3)")
     p.add_argument("--T", type=float, default=10.0, metavar="SECONDS", help="duration of each rollout (default 10)")
+    p.add_argument("--pick", choices=["random", "success"], default="random",
+                   help=f"random: the first K random half-box states (default); success: up to K rollouts that reach x*, "
+                        f"chosen among {PICK_CANDIDATES}·K random states")
     p.add_argument("--seed", type=int, default=0, help="seed of the random initial states (default 0)")
     p.add_argument("--html", metavar="FILE", help="write the standalone HTML replay (offline, one file)")
     p.add_argument("--port", type=int, metavar="P", help="HTTP port of the live page (default: first free from 7000)")
@@ -1194,11 +1234,11 @@ def _cmd_view(args: argparse.Namespace) -> int:
     if x0 is not None and len({len(v) for v in x0}) != 1:
         raise IdapbcError("every --x0 needs the same number of values. Fix: give n (q, p) or nq (q) values each time.")
     viewer = view(
-        target, x0=x0, n=args.n, T=args.T, seed=args.seed, html=args.html, open_server=False,
+        target, x0=x0, n=args.n, pick=args.pick, T=args.T, seed=args.seed, html=args.html, open_server=False,
         layout=args.layout, trace=not args.no_trace, trace_link=args.trace_link,
     )
     if args.html:
-        print(f"wrote {args.html} ({len(viewer.segments)} rollouts, {viewer.duration:.1f} s)")
+        print(f"wrote {args.html} ({len(viewer.segments)} rollouts, {viewer.duration:.1f} s; {viewer.note})")
     if not serve:
         return 0
 
@@ -1208,7 +1248,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         url = viewer.serve(args.port)
-        print(f"meshcat viewer: {url}  (Ctrl-C to stop)", flush=True)
+        print(f"meshcat viewer: {url}  ({viewer.note}; Ctrl-C to stop)", flush=True)
         viewer.wait()
     finally:
         viewer.close()

@@ -72,6 +72,11 @@ def random_spd(seed: int, n: int) -> torch.Tensor:
     return G @ G.T + 0.1 * torch.eye(n, dtype=f64)
 
 
+def random_metric(seed: int, n: int, boxed: bool) -> torch.Tensor | None:
+    """Box half-widths s > 0 spanning about two decades (light links: momenta ~1e-2), or None."""
+    return torch.exp(1.5 * torch.randn(n, generator=gen(seed + 7), dtype=f64)) if boxed else None
+
+
 def random_skew(seed: int, n: int) -> torch.Tensor:
     G = torch.randn(n, n, generator=gen(seed + 4), dtype=f64)
     return G - G.T
@@ -223,11 +228,11 @@ def test_energy_is_radially_unbounded_and_works_without_grad_mode():
 # J_d
 # --------------------------------------------------------------------------------------------
 @FAST
-@given(seed=seeds, n=dims, width=widths, depth=depths, scale=weight_scales, anchored=st.booleans())
-def test_interconnection_is_skew_and_anchored_at_J0(seed, n, width, depth, scale, anchored):
+@given(seed=seeds, n=dims, width=widths, depth=depths, scale=weight_scales, anchored=st.booleans(), boxed=st.booleans())
+def test_interconnection_is_skew_and_anchored_at_J0(seed, n, width, depth, scale, anchored, boxed):
     x_star = random_x_star(seed, n)
     J0 = random_skew(seed, n) if anchored else None
-    J = randomise_(InterconnectionNet(x_star, width, depth, J0=J0), seed, scale)
+    J = randomise_(InterconnectionNet(x_star, width, depth, J0=J0, metric=random_metric(seed, n, boxed)), seed, scale)
     x = points_away(x_star, seed)
     Jx = J(x)
     assert Jx.shape == (16, n, n)
@@ -240,11 +245,11 @@ def test_interconnection_is_skew_and_anchored_at_J0(seed, n, width, depth, scale
 # R_d
 # --------------------------------------------------------------------------------------------
 @FAST
-@given(seed=seeds, n=dims, width=widths, depth=depths, scale=weight_scales, anchored=st.booleans())
-def test_damping_is_positive_definite_even_with_rho_zero(seed, n, width, depth, scale, anchored):
+@given(seed=seeds, n=dims, width=widths, depth=depths, scale=weight_scales, anchored=st.booleans(), boxed=st.booleans())
+def test_damping_is_positive_definite_even_with_rho_zero(seed, n, width, depth, scale, anchored, boxed):
     x_star = random_x_star(seed, n)
     R0 = random_spd(seed, n) if anchored else None
-    R = randomise_(DampingNet(x_star, width, depth, R0=R0, rho=0.0), seed, scale)
+    R = randomise_(DampingNet(x_star, width, depth, R0=R0, rho=0.0, metric=random_metric(seed, n, boxed)), seed, scale)
     x = points_away(x_star, seed)
     Rx = R(x)
     assert Rx.shape == (16, n, n)
@@ -294,9 +299,10 @@ def test_anchored_closed_loop_jacobian_at_x_star_is_A_minus_BK(seed, n, width, d
     A, B = rng.standard_normal((n, n)), rng.standard_normal((n, m))
     an = lqr_anchor(A, B, P_mode=data.draw(st.sampled_from(["riccati", "lyapunov"])), scale="unit")
     x_star = random_x_star(seed, n)
+    s = random_metric(seed, n, data.draw(st.booleans()))  # scaling = "box" or "none"
     H = randomise_(EnergyNet(x_star, width, depth, P=an.P), seed, scale)
-    J = randomise_(InterconnectionNet(x_star, width, depth, J0=an.J), seed + 5, scale)
-    R = randomise_(DampingNet(x_star, width, depth, R0=an.R), seed + 6, scale)
+    J = randomise_(InterconnectionNet(x_star, width, depth, J0=an.J, metric=s), seed + 5, scale)
+    R = randomise_(DampingNet(x_star, width, depth, R0=an.R, metric=s), seed + 6, scale)
     f = closed_loop(H, J, R)
     assert f(x_star).abs().max() < 1e-12  # x* is an equilibrium of the closed loop
     jac = torch.autograd.functional.jacobian(f, x_star)

@@ -283,6 +283,34 @@ def test_a_run_without_trajectories_is_simulated_from_the_half_domain():
         view(run, x0=[[0.1, 0.2, 0.3]], open_server=False)
 
 
+def test_pick_success_shows_rollouts_that_reach_the_target_and_says_how_many():
+    from types import SimpleNamespace
+
+    from idapbc_pin.simulate import success, uniform_states
+    from idapbc_pin.view import PICK_CANDIDATES
+
+    system = ip.load_system("pendubot")
+    lqr = LQRController(system)
+    run = SimpleNamespace(system=system, controller=lqr, path=None)
+    viewer = view(run, n=2, T=6.0, seed=1, pick="success", open_server=False)
+    candidates = uniform_states(system, 2 * PICK_CANDIDATES, box="half", seed=1)
+    reached = success(simulate(system, lqr, candidates, T=6.0), system)
+    first = candidates[np.flatnonzero(reached)[:2]]
+    assert reached.sum() >= 2 and viewer.note.startswith("2 of 2 rollouts reach x*")
+    np.testing.assert_allclose([s.q[0] for s in viewer.segments], first[:, : system.nq])
+    assert all(np.abs(s.q[-1]).max() <= 0.05 for s in viewer.segments)
+
+    class Idle:  # no torque: the pendubot falls from every state
+        def __call__(self, x):
+            return np.zeros((np.atleast_2d(x).shape[0], system.m))
+
+    idle = view(SimpleNamespace(system=system, controller=Idle(), path=None), n=2, T=2.0, seed=1, pick="success", open_server=False)
+    assert idle.note.startswith("0 of 2 rollouts reach x*")
+    np.testing.assert_allclose([s.q[0] for s in idle.segments], candidates[:2, : system.nq])
+    with pytest.raises(IdapbcError, match="pick must be"):
+        view(run, n=1, pick="best", open_server=False)
+
+
 def _strip_visuals(src: Path, dst: Path) -> Path:
     text = re.sub(r"<visual>.*?</visual>", "", src.read_text(), flags=re.S)
     dst.write_text(text)
