@@ -131,7 +131,21 @@ def format_train_summary(run) -> str:
         lines.append("x* is locally exponentially stable (all eigenvalues have negative real part)")
     else:
         lines.append("WARNING: x* is NOT locally exponentially stable under the learned controller (an eigenvalue has Re >= 0)")
+    fastest = max((abs(complex(re, im)) for re, im in s["eigenvalues_at_target"]), default=0.0)
+    if fastest * STIFF_DT > STIFF_WARN:
+        lines.append(
+            f"NOTE: the fastest closed-loop pole at x* has |λ| = {fastest:.3g} 1/s: |λ|·dt = {fastest * STIFF_DT:.2g} at the default "
+            f"{STIFF_DT * 1e3:g} ms RK4 step of `simulate`, near or past RK4's stability limit 2.78 (and the loop is faster "
+            f"still away from x*); simulate with --dt {0.5 / fastest:.1g} or train with a gentler anchor (smaller anchor_q)"
+        )
     return "\n".join(lines)
+
+
+#: `simulate`'s default RK4 step (s), and the |λ|·dt above which `train` warns that the learned loop
+#: is too stiff for it (RK4 is stable on the negative real axis up to 2.78; measured: the Furuta
+#: pendulum's anchor with |λ| = 253 1/s, |λ|·dt = 2.5, diverged from every state at 10 ms and reached
+#: x* from 24 % of the half box at 2 ms).
+STIFF_DT, STIFF_WARN = 0.01, 1.0
 
 
 def build_parser() -> argparse.ArgumentParser:

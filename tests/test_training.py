@@ -75,7 +75,8 @@ def test_nan_guard_names_the_term_and_epoch_and_keeps_the_checkpoint(tmp_path):
 
 @pytest.mark.parametrize(
     "bad, fragment",
-    [({"rho": -1.0}, "rho"), ({"rho": 0.1, "kappa": 0.2}, "κ = 0.2) must be < rho"), ({"epochs": 0}, "epochs"), ({"form": "magic"}, "form")],
+    [({"rho": -1.0}, "rho"), ({"rho": 0.1, "kappa": 0.2}, "κ = 0.2) must be < rho"), ({"epochs": 0}, "epochs"), ({"form": "magic"}, "form"),
+     ({"scaling": "unit"}, "scaling must be")],
 )
 def test_bad_config_is_refused(bad, fragment):
     with pytest.raises(ip.IdapbcError) as info:
@@ -204,3 +205,18 @@ def test_fully_actuated_system_with_an_exact_solution_is_matched(tmp_path):
     assert np.linalg.norm(ctrl.mismatch(x[inside]), axis=1).max() < 1e-3
     traj = simulate(system, ctrl, uniform_states(system, 8, "domain", seed=12), T=20.0)
     assert success(traj, system).all()
+
+
+def test_train_summary_warns_when_the_loop_is_too_stiff_for_the_default_rk4_step():
+    from types import SimpleNamespace
+
+    from idapbc_pin.cli import format_train_summary
+
+    def summary(eigs):
+        s = {"status": "finished", "epochs_done": 1, "train_seconds": 1.0, "final_terms": {"matching": 0.1},
+             "eigenvalues_at_target": eigs, "locally_exponentially_stable": True}
+        return format_train_summary(SimpleNamespace(path="RUN", summary=s))
+
+    stiff = summary([[-252.5, 0.0], [-8.6, 2.5], [-8.6, -2.5], [-0.46, 0.0]])  # the Furuta anchor with anchor_q = 10, box units
+    assert "NOTE: the fastest closed-loop pole at x* has |λ| = 252 1/s" in stiff and "--dt 0.002 " in stiff
+    assert "NOTE" not in summary([[-40.4, 39.7], [-40.4, -39.7], [-4.8, 0.0]])
