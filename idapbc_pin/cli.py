@@ -127,6 +127,10 @@ def format_train_summary(run) -> str:
         "final loss terms: " + ", ".join(f"{k} {v:.3g}" for k, v in s["final_terms"].items()),
         f"closed-loop eigenvalues at x*: {eig}",
     ]
+    config = getattr(run, "config", None)
+    if config is not None and getattr(config, "form", "anchored") == "anchored":
+        units = "box units, Q = anchor_q·diag(1/s²)" if config.scaling == "box" else "physical units, Q = anchor_q·I"
+        lines.insert(3, f"anchor: LQR with anchor_q = {config.anchor_q:g} ({units})")
     if s["locally_exponentially_stable"]:
         lines.append("x* is locally exponentially stable (all eigenvalues have negative real part)")
     else:

@@ -27,8 +27,9 @@ FIELD_HELP = {
     "alpha": "adaptive-weight update rate α (paper: 0.01)",
     "form": "'anchored': networks pinned to the exact LQR solution at x* (locally exponentially stable by "
     "construction); 'free': the paper's free form (Bregman-shifted ICNN, skew NN, L Lᵀ + ρS)",
-    "anchor_q": "state weight of the LQR anchor, Q = anchor_q·I (R = I); 1 gives the same local loop as the LQR "
-    "baseline, larger values a faster one (anchored form only)",
+    "anchor_q": "state weight of the LQR anchor, Q = anchor_q·I (R = I; in box units with scaling 'box'); larger values "
+    "give a faster local loop (anchored form only). 0 = automatic: the largest of 10, 1, 0.1, 0.01 whose anchor has "
+    "no pole faster than 50 1/s (|λ|·dt ≤ 0.5 for the 10 ms RK4 judge of `simulate`)",
     "anchor_p": "Hessian P of H_d at x* (anchored form): 'box' solves A_clᵀP + PA_cl = −diag(1/half-width²) of the "
     "training box (well conditioned in box units), 'lyapunov' the same with −I, 'riccati' takes the Riccati solution",
     "damping": "where ρ injects damping: 'full' (ρI, the paper) or 'actuated' (only the actuated momentum rows)",
@@ -40,7 +41,8 @@ FIELD_HELP = {
     "scaling": "'none': the anchor's LQR weight is anchor_q·I and λ_max(P) = 1 in physical units, network increments of "
     "J_d, R_d in absolute units; 'box': everything in box units z = (x − x*)/s, s the training box's half-widths "
     "(anchor weight anchor_q·diag(1/s²), λ_max(SPS) = 1, increments of J_d and R_d scaled by s_i s_j), for robots "
-    "whose coordinates have very different ranges (light links: momenta of 1e-3 next to angles of 1)",
+    "whose coordinates have very different ranges (light links: momenta of 1e-3 next to angles of 1); 'auto': "
+    "'box' when the largest half-width exceeds 20 × the smallest, else 'none'",
     "inside_fraction": "share of the samples inside H_ε when epsilon = 0 (automatic)",
     "decay_rate": "λ of the decay term Ḣ_d ≤ −λ H_d outside H_ε (1/s); < 0 = automatic "
     "(half the LQR anchor's local rate, or 0.5 1/s in the free form); 0 disables the term",
@@ -65,9 +67,9 @@ class TrainConfig:
     gamma: float = 0.9999
     alpha: float = 0.01
     form: str = "anchored"
-    anchor_q: float = 10.0
+    anchor_q: float = 0.0
     anchor_p: str = "riccati"
-    scaling: str = "none"
+    scaling: str = "auto"
     damping: str = "full"
     rho: float = 0.0
     kappa: float = 0.01
@@ -91,9 +93,9 @@ class TrainConfig:
             (self.alpha > 0, "alpha must be > 0"),
             (self.form in ("anchored", "free"), "form must be 'anchored' or 'free'"),
             (self.damping in ("full", "actuated"), "damping must be 'full' or 'actuated'"),
-            (self.anchor_q > 0, f"anchor_q must be > 0, got {self.anchor_q}"),
+            (self.anchor_q >= 0, f"anchor_q must be > 0 (or 0 = automatic), got {self.anchor_q}"),
             (self.anchor_p in ("box", "lyapunov", "riccati"), "anchor_p must be 'box', 'lyapunov' or 'riccati'"),
-            (self.scaling in ("none", "box"), "scaling must be 'none' or 'box'"),
+            (self.scaling in ("auto", "none", "box"), "scaling must be 'auto', 'none' or 'box'"),
             (self.rho >= 0, f"rho (ρ) must be ≥ 0, got {self.rho}"),
             (self.kappa > 0, f"kappa (κ) must be > 0, got {self.kappa}"),
             (self.rho == 0 or self.kappa < self.rho, f"kappa (κ = {self.kappa}) must be < rho (ρ = {self.rho}): the paper needs κ ∈ (0, ρ)"),

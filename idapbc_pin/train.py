@@ -27,7 +27,7 @@ from tqdm.auto import tqdm
 
 from ._io import atomic_write_bytes, write_json
 from .config import TrainConfig
-from .controller import Controller, IdaPbcNets, build_nets
+from .controller import Controller, IdaPbcNets, anchor_settings, build_nets
 from .errors import IdapbcError
 from .loss import TERMS, AdaptiveWeights, loss_terms
 from .system import System, load_system
@@ -106,7 +106,9 @@ def load_run(path: str | Path, checkpoint: str = "best") -> Run:
     path = Path(path)
     if not (path / "config.json").is_file():
         raise IdapbcError(f"'{path}' is not a run directory (no config.json). Fix: pass a directory made by `idapbc-pin train`.")
-    config = TrainConfig.from_dict(json.loads((path / "config.json").read_text()))
+    raw = json.loads((path / "config.json").read_text())
+    raw.setdefault("scaling", "none")  # runs written before the option existed trained in physical units
+    config = TrainConfig.from_dict(raw)
     system = _system_from_record(json.loads((path / "system.json").read_text()), path)
     ckpt = path / "checkpoints" / f"{checkpoint}.pt"
     if not ckpt.is_file():
@@ -168,11 +170,15 @@ def train(
     """
     if resume is not None:
         run_dir = Path(resume)
-        saved = TrainConfig.from_dict(json.loads((run_dir / "config.json").read_text()))
+        raw = json.loads((run_dir / "config.json").read_text())
+        raw.setdefault("scaling", "none")  # runs written before the option existed trained in physical units
+        saved = TrainConfig.from_dict(raw)
         config = saved if config is None else saved.replace(epochs=config.epochs)
         state = torch.load(run_dir / "checkpoints" / "last.pt", map_location=config.device, weights_only=True)
     else:
         config = config or TrainConfig()
+        scaling, anchor_q = anchor_settings(system, config)  # "auto" values resolved: config.json holds what ran
+        config = config.replace(scaling=scaling, anchor_q=anchor_q)
         run_dir = _new_run_dir(Path(out) if out is not None else Path("runs") / system.name)
         state = None
     if config.device.startswith("cuda") and not torch.cuda.is_available():

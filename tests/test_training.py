@@ -220,3 +220,42 @@ def test_train_summary_warns_when_the_loop_is_too_stiff_for_the_default_rk4_step
     stiff = summary([[-252.5, 0.0], [-8.6, 2.5], [-8.6, -2.5], [-0.46, 0.0]])  # the Furuta anchor with anchor_q = 10, box units
     assert "NOTE: the fastest closed-loop pole at x* has |λ| = 252 1/s" in stiff and "--dt 0.002 " in stiff
     assert "NOTE" not in summary([[-40.4, 39.7], [-40.4, -39.7], [-4.8, 0.0]])
+
+
+@pytest.mark.parametrize(
+    "name, scaling, anchor_q",
+    [("paper_cartpole", "none", 10.0), ("paper_double_pendulum", "none", 10.0), ("pendubot", "none", 10.0),
+     ("cartpole", "box", 10.0), ("furuta", "box", 0.1)],
+)
+def test_automatic_units_and_anchor_weight(name, scaling, anchor_q):
+    """Box units where the box's half-widths span > 20× (light links), and the largest anchor weight whose
+    LQR loop has no pole faster than 50 1/s; explicit values are kept as given."""
+    from idapbc_pin.controller import AUTO_MAX_POLE, _anchor, _half_widths, anchor_settings
+
+    system = ip.load_system(name)
+    half = _half_widths(system)
+    assert (half.max() > 20 * half.min()) == (scaling == "box")
+    assert anchor_settings(system, TrainConfig.fast()) == (scaling, anchor_q)
+    auto = TrainConfig.fast().replace(scaling=scaling, anchor_q=anchor_q)
+    assert np.abs(np.linalg.eigvals(_anchor(system, auto).A_cl)).max() <= AUTO_MAX_POLE
+    if anchor_q < 10.0:  # the weight above it was too stiff
+        stiffer = auto.replace(anchor_q=anchor_q * 10)
+        assert np.abs(np.linalg.eigvals(_anchor(system, stiffer).A_cl)).max() > AUTO_MAX_POLE
+    assert anchor_settings(system, TrainConfig.fast(scaling="none", anchor_q=3.0)) == ("none", 3.0)
+
+
+def test_the_run_directory_holds_the_resolved_units_and_old_runs_load_in_physical_units(tmp_path):
+    import json
+
+    system = ip.load_system("furuta")
+    run = train(system, TrainConfig.fast(epochs=2, width=8, depth=1, samples=16), out=tmp_path / "new", progress=False)
+    saved = json.loads((run.path / "config.json").read_text())
+    assert (saved["scaling"], saved["anchor_q"]) == ("box", 0.1) and run.config.scaling == "box"
+    assert ip.load_run(run.path).controller(system.x_star[None]).shape == (1, 1)
+    legacy = train(system, TrainConfig.fast(epochs=2, width=8, depth=1, samples=16, scaling="none", anchor_q=10.0), out=tmp_path / "old", progress=False)
+    raw = json.loads((legacy.path / "config.json").read_text())
+    del raw["scaling"]  # written before the option existed
+    (legacy.path / "config.json").write_text(json.dumps(raw))
+    loaded = ip.load_run(legacy.path)
+    assert loaded.config.scaling == "none"
+    np.testing.assert_allclose(loaded.controller(system.x_star[None] + 0.1), legacy.controller(system.x_star[None] + 0.1))
