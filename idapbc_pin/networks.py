@@ -197,6 +197,16 @@ def _factory(x_star: Tensor) -> dict:
     return {"dtype": x_star.dtype, "device": x_star.device}
 
 
+def _metric(metric, x_star: Tensor) -> Tensor | None:
+    """Box half-widths s (n,) > 0 as a tensor like x_star, or None."""
+    if metric is None:
+        return None
+    s = _as_buffer("metric", metric, x_star, x_star.shape)
+    if not (s > 0).all():
+        raise ValueError("metric must be positive")
+    return s
+
+
 def _as_buffer(name: str, M, like: Tensor, shape: tuple[int, ...]) -> Tensor:
     if isinstance(M, np.ndarray):
         M = np.array(M, dtype=np.float64)  # writable copy (LinearAnchor arrays are read-only)
@@ -565,13 +575,8 @@ class InterconnectionNet(_StateNet):
             raise ValueError("InterconnectionNet needs n ≥ 2")
         fk = _factory(x_star)
         self.net = _mlp(n, width, depth, n_skew(n), activation, out_scale, fk, out_bias=J0 is None)
-        if metric is None:
-            self.register_buffer("metric", None)
-        else:
-            s = _as_buffer("metric", metric, x_star, (n,))
-            if not (s > 0).all():
-                raise ValueError("metric must be positive")
-            self.register_buffer("metric", torch.outer(s, s))
+        s = _metric(metric, x_star)
+        self.register_buffer("metric", None if s is None else torch.outer(s, s))
         if J0 is None:
             self.register_buffer("J0", None)
         else:
@@ -663,12 +668,10 @@ class DampingNet(_StateNet):
         fk = _factory(x_star)
         n = self.n
         self.net = _mlp(n, width, depth, n_lower(n), activation, out_scale, fk, out_bias=R0 is None)
-        if metric is None:
+        s = _metric(metric, x_star)
+        if s is None:
             self.register_buffer("row_scale", None)
         else:
-            s = _as_buffer("metric", metric, x_star, (n,))
-            if not (s > 0).all():
-                raise ValueError("metric must be positive")
             rows, _ = torch.tril_indices(n, n, offset=-1, device=s.device)
             self.register_buffer("row_scale", torch.cat([s, s[rows]]))  # (diag, strict lower) entries of L
         self.register_buffer("S", self._pattern(pattern, actuated, x_star))
