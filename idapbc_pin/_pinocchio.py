@@ -240,7 +240,8 @@ class PinocchioPlant:
         qc = self.config(q)
         v, grad_U = self._velocity_and_gravity(qc, np.asarray(p, float))
         coriolis = pin.computeCoriolisMatrix
-        C = np.stack([coriolis(m, d, qk, vk) for qk, vk in zip(qc, v)]) if len(v) else np.zeros((0,) + v.shape[1:] * 2)
+        nv = v.shape[1]
+        C = np.array([coriolis(m, d, qk, vk) for qk, vk in zip(qc, v)]).reshape(len(v), nv, nv)
         p_dot = np.einsum("nji,nj->ni", C, v) - grad_U - self.damping * v
         return np.concatenate([v, p_dot], axis=1)
 

@@ -13,7 +13,7 @@ Batch directory (``runs/batch-<stamp>/``, or ``--out DIR``)::
                      certificate.json, the figure, replay.html
 
 Each job runs `run_job`: `load_system` → `train` → `evaluate_run` → `certify` → `report.figure` →
-`write_html`. Any exception fails that job only (recorded with its stage, message and traceback);
+`view(pick="success")` → ``replay.html``. Any exception fails that job only (recorded with its stage, message and traceback);
 the batch goes on. ``job.json`` is written atomically when a job ends, so a batch killed at any
 moment resumes: re-running the same command (or ``--out``/``--resume`` the same directory) skips
 the jobs whose ``job.json`` says done with the same settings, and re-runs the others. A job killed

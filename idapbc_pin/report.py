@@ -215,6 +215,14 @@ def figure_data(
 _PANELS = ("q", "p", "margin", "u", "H")
 
 
+def _style_legend(ax, styles: Sequence[str], labels: Sequence[str]) -> None:
+    """Legend of the line styles (one per coordinate or input; colours are the rollouts)."""
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color="0.3", ls=styles[i % len(styles)]) for i in range(len(labels))]
+    ax.legend(handles, labels, fontsize=8, loc="upper right")
+
+
 def _unit_label(symbol: str, units: Sequence[str]) -> str:
     uniq = list(dict.fromkeys(units))
     return f"{symbol} [{' | '.join(uniq)}]"
@@ -277,17 +285,11 @@ def plot(rows: Sequence[FigureData]):
         # a) q
         ax_q.set_title("a) positions q(t)", fontsize=10, loc="left")
         ax_q.set_ylabel(_unit_label("q", d.q_units))
-        ax_q.legend(
-            [Line2D([], [], color="0.3", ls=styles[i % len(styles)]) for i in range(len(d.coordinate_names))],
-            [f"{nm} [{u}]" for nm, u in zip(d.coordinate_names, d.q_units)], fontsize=8, loc="upper right",
-        )
+        _style_legend(ax_q, styles, [f"{nm} [{u}]" for nm, u in zip(d.coordinate_names, d.q_units)])
         # b) p
         ax_p.set_title("b) momenta p(t)", fontsize=10, loc="left")
         ax_p.set_ylabel(_unit_label("p", d.p_units))
-        ax_p.legend(
-            [Line2D([], [], color="0.3", ls=styles[i % len(styles)]) for i in range(len(d.coordinate_names))],
-            [f"p_{nm} [{u}]" for nm, u in zip(d.coordinate_names, d.p_units)], fontsize=8, loc="upper right",
-        )
+        _style_legend(ax_p, styles, [f"p_{nm} [{u}]" for nm, u in zip(d.coordinate_names, d.p_units)])
         # c) dissipation margin
         ax_c.set_yscale("log")
         ax_c.set_title("c) ∇H_dᵀR_d∇H_d − ∇H_dᵀξ (> 0: dissipation holds)", fontsize=10, loc="left")
@@ -301,10 +303,7 @@ def plot(rows: Sequence[FigureData]):
         # d) u
         ax_u.set_title("d) input u(t)", fontsize=10, loc="left")
         ax_u.set_ylabel(_unit_label("u", d.u_units))
-        ax_u.legend(
-            [Line2D([], [], color="0.3", ls=styles[j % len(styles)]) for j in range(len(d.input_names))],
-            [f"u_{nm} [{u}]" for nm, u in zip(d.input_names, d.u_units)], fontsize=8, loc="upper right",
-        )
+        _style_legend(ax_u, styles, [f"u_{nm} [{u}]" for nm, u in zip(d.input_names, d.u_units)])
         # e) H_d with E shaded
         ax_h.set_yscale("log")
         positive = d.H[(d.H > 0) & d.valid]

@@ -1152,16 +1152,17 @@ def view(
     system, controller, _ = _resolve(run_or_system)
     if pick not in ("random", "success"):
         raise IdapbcError(f"pick must be 'random' or 'success', got {pick!r}.")
-    if trajectories is None and x0 is None and pick == "success":
+    if trajectories is not None:
+        note = "given trajectories"
+    elif x0 is None and pick == "success":
         if n < 1:
             raise IdapbcError(f"n must be at least 1, got {n}.")
         trajectories, reached, drawn = _pick_successes(system, controller, n, T, dt, seed)
         note = f"{reached} of {n} rollouts reach x* (picked among {drawn} random half-box states)"
-    elif trajectories is None:
-        trajectories = _simulate(system, controller, _initial_states(system, x0, n, seed), T, dt)
-        note = f"{n if x0 is None else len(np.atleast_2d(x0))} rollouts from {'random half-box states' if x0 is None else 'the given states'}"
     else:
-        note = "given trajectories"
+        start = _initial_states(system, x0, n, seed)
+        trajectories = _simulate(system, controller, start, T, dt)
+        note = f"{len(start)} rollouts from " + ("random half-box states" if x0 is None else "the given states")
     viewer = Viewer(system, trajectories, layout=layout, trace=trace, trace_link=trace_link, fps=fps, loop=loop, style=style, grid=grid)
     viewer.note = note
     if html is not None:
