@@ -12,7 +12,7 @@ import torch
 
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
-from idapbc_pin.controller import build_nets
+from idapbc_pin.controller import Controller, build_nets
 from idapbc_pin.train import TrainingDiverged, load_run, train
 
 TINY = dict(width=16, depth=2, samples=64, checkpoint_every=5)
@@ -150,15 +150,45 @@ def Controller_(system):
     return Controller(system, build_nets(system, TrainConfig(width=16, depth=2)))
 
 
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+@pytest.mark.parametrize("scaling", ["none", "box"])
 @pytest.mark.parametrize("form", ["anchored", "free"])
-def test_run_time_path_equals_the_training_path(form):
-    """The controller's explicit ∇H_d (no autograd) gives the same f̃_d and u as autograd."""
+def test_run_time_path_equals_the_training_path(form, scaling, dtype):
+    """Both run-time paths of f̃_d (numpy for a few states, torch for batches; explicit ∇H_d, no autograd)
+    give the autograd path's f̃_d, and u from one state equals u from a batch."""
     system = ip.load_system("cartpole")
     torch.manual_seed(1)
-    nets = build_nets(system, TrainConfig(width=16, depth=3, form=form, rho=0.2, kappa=0.1))
-    x = torch.as_tensor(system.x_star + np.random.default_rng(1).normal(scale=0.5, size=(30, system.n)))
-    fd_autograd = nets.desired(x)[4]
-    torch.testing.assert_close(nets.desired_fast(x), fd_autograd, rtol=1e-12, atol=1e-12)
+    config = TrainConfig(width=16, depth=3, form=form, rho=0.2, kappa=0.1, scaling=scaling, anchor_q=10.0, dtype=dtype)
+    ctrl = Controller(system, build_nets(system, config))
+    with torch.no_grad():  # move every weight off its initial value (the anchored last layers start small)
+        for p in ctrl.nets.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    x = system.x_star + np.random.default_rng(1).normal(scale=0.5, size=(30, system.n))
+    fd_autograd = ctrl.f_d(x)
+    tol = 1e-12 if dtype == "float64" else 2e-5
+    np.testing.assert_allclose(ctrl.flow()(x), fd_autograd, rtol=tol, atol=tol * np.abs(fd_autograd).max())
+    fd_torch = ctrl.nets.desired_fast(torch.as_tensor(x, dtype=getattr(torch, dtype))).double().numpy()
+    np.testing.assert_allclose(fd_torch, fd_autograd, rtol=tol, atol=tol * np.abs(fd_autograd).max())
+    u_ref = (fd_autograd - system.f(x)) @ system.g(system.x_star)
+    np.testing.assert_allclose(ctrl(x), u_ref, rtol=tol, atol=tol * np.abs(u_ref).max())  # 30 states: torch
+    np.testing.assert_allclose(ctrl(x[3]), u_ref[3], rtol=tol, atol=tol * np.abs(u_ref).max())  # one state: numpy
+    np.testing.assert_allclose(ctrl.with_damping(1.5).flow()(x), ctrl.with_damping(1.5).f_d(x), rtol=tol, atol=tol * np.abs(fd_autograd).max())
+
+
+def test_run_time_path_follows_the_weights():
+    """After an optimiser step the controller's run-time path uses the new weights, not a stale copy."""
+    system = ip.load_system("cartpole")
+    torch.manual_seed(2)
+    ctrl = Controller(system, build_nets(system, TrainConfig(width=16, depth=2)))
+    x = system.x_star + np.random.default_rng(2).normal(scale=0.5, size=(5, system.n))
+    before = ctrl(x)
+    loss = ctrl.nets.desired(torch.as_tensor(x), create_graph=True)[4].square().sum()
+    optimizer = torch.optim.Adam(ctrl.nets.parameters(), lr=1e-2)
+    loss.backward()
+    optimizer.step()
+    after = ctrl(x)
+    assert np.abs(after - before).max() > 1e-6
+    np.testing.assert_allclose(after, (ctrl.f_d(x) - system.f(x)) @ system.g(system.x_star), rtol=1e-12, atol=1e-12)
 
 
 def test_true_closed_loop_is_desired_dynamics_plus_xi():
