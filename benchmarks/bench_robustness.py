@@ -3,7 +3,7 @@
 Neural IDA-PBC and the LQR baseline (Q = I, R = I) from the same uniform states of the half-size box,
 the judge plant perturbed (the controller keeps its nominal model). Trains the paper's cartpole and
 the zoo's acrobot with the fast preset (`TrainConfig.fast()`) unless run directories are given.
-Run: python benchmarks/bench_robustness.py [--n 100] [--T 20] [--box half] [--epochs 600] [RUN_DIR ...]
+Run: python benchmarks/bench_robustness.py [--n 100] [--T 20] [--box half] [--epochs N] [RUN_DIR ...]
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=100, help="states per condition (default 100)")
     parser.add_argument("--T", type=float, default=20.0)
     parser.add_argument("--box", default="half", choices=["domain", "half"])
-    parser.add_argument("--epochs", type=int, default=600, help="fast-preset epochs when training")
+    parser.add_argument("--epochs", type=int, default=ip.TrainConfig.fast().epochs, help="fast-preset epochs when training")
     parser.add_argument("--noise", type=float, default=0.01, help="measurement noise σ on (q, v)")
     parser.add_argument("--saturation-factor", type=float, default=2.0, help="saturation at this × LQR's median nominal peak |u|")
     parser.add_argument("--out", default=None, help="where to train (default: a temporary folder)")

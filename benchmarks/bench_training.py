@@ -1,7 +1,7 @@
 """Goal: training time per paper benchmark, paper setting vs the `--fast` preset.
 
 Trains each system for `--epochs` epochs (default 40) with both configurations, prints the time per
-epoch and the extrapolated time of a full training (2000 epochs paper, 600 fast) and the speed-up.
+epoch and the extrapolated time of a full training (2000 epochs paper, 1200 fast) and the speed-up.
 Issue #3 target: the fast preset trains ≥ 5× faster. Pass --full to time complete trainings instead.
 Run: python benchmarks/bench_training.py [--epochs 40] [--full] [names ...]
 """

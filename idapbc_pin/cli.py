@@ -16,7 +16,7 @@ __all__ = ["main"]
 def TrainConfig_fast_help() -> str:
     from .config import TrainConfig
 
-    return TrainConfig.fast.__doc__.split(": ", 1)[-1]
+    return TrainConfig.fast.__doc__.splitlines()[0].split(": ", 1)[-1]
 
 
 def _key_value(text: str) -> tuple[str, float]:

@@ -67,15 +67,17 @@ def _optional_module(name: str) -> bool:
 # ---------------------------------------------------------------------------------------- validation
 def test_committed_pipelines_are_valid():
     from idapbc_pin.analytic import ANALYTIC
+    from idapbc_pin.config import TrainConfig
     from idapbc_pin.zoo import zoo_names
 
     zoo = load_pipeline(ROOT / "pipelines" / "zoo.toml")
     assert sorted(job.source for job in zoo.jobs) == zoo_names()
     paper = load_pipeline(ROOT / "pipelines" / "paper.toml")
     assert sorted((job.source, job.preset) for job in paper.jobs) == sorted((nm, p) for nm in ANALYTIC for p in ("paper", "fast"))
+    fast = TrainConfig.fast()
     for job in paper.jobs:  # the paper's Table I settings, or the fast preset on top of them
         assert (job.config["epochs"], job.config["samples"], job.config["width"], job.config["depth"]) == (
-            (2000, 512, 300, 3) if job.preset == "paper" else (600, 512, 64, 2)
+            (2000, 512, 300, 3) if job.preset == "paper" else (fast.epochs, fast.samples, fast.width, fast.depth)
         )
     smoke = load_pipeline(SMOKE)
     assert len(smoke.jobs) == 2

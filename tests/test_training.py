@@ -227,7 +227,7 @@ def test_fully_actuated_system_with_an_exact_solution_is_matched(tmp_path):
     from idapbc_pin.simulate import simulate, success, uniform_states
 
     system = ip.load_system("paper_mass_spring_damper")
-    run = train(system, TrainConfig.fast(epochs=400), out=tmp_path, progress=False)
+    run = train(system, TrainConfig.fast(epochs=400, depth=2), out=tmp_path, progress=False)
     ctrl = run.controller
     x = uniform_states(system, 4000, "domain", seed=11)
     inside = ctrl.H_d(x) < run.summary["epsilon"]
