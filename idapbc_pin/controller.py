@@ -17,9 +17,9 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ._runtime import DesiredFlow, snapshot
 from .config import TrainConfig
 from .lqr import lqr_anchor
-from ._runtime import DesiredFlow, snapshot
 from .networks import DampingNet, EnergyNet, InterconnectionNet
 from .system import System
 
@@ -118,10 +118,10 @@ AUTO_MAX_POLE = 50.0
 def anchor_settings(system: System, config: TrainConfig) -> tuple[str, float]:
     """The resolved ``(scaling, anchor_q)`` of `config` for `system` (see `TrainConfig`'s "auto" values).
 
-    Measured (the earlier 64 × 2, 600-epoch fast preset, 200 domain states): box units took the zoo cartpole (half-widths spanning
-    65×) from 9 % to 86.5 % success and cost the paper cartpole (2×) 70 % → 54.5 %; the Furuta
-    pendulum in box units reached 0 / 44.5 / 51 % with anchor_q = 10 / 1 / 0.1 (fastest anchor pole
-    253 / 80 / 25 1/s).
+    Measured (the earlier 64 × 2, 600-epoch fast preset, 200 domain states): box units took the zoo
+    cartpole (half-widths spanning 65×) from 9 % to 86.5 % success and cost the paper cartpole (2×)
+    70 % → 54.5 %; the Furuta pendulum in box units reached 0 / 44.5 / 51 % with anchor_q = 10 / 1 /
+    0.1 (fastest anchor pole 253 / 80 / 25 1/s).
     """
     scaling = config.scaling
     if scaling == "auto":
@@ -226,7 +226,7 @@ class Controller:
         """u(x) = (gᵀg)⁻¹gᵀ(f̃_d(x) − f(x)): (N, n) -> (N, m) (N·m or N)."""
         xb, single = self._batch(x)
         f_d = self.flow()(xb) if len(xb) <= RUNTIME_MAX_BATCH else self._np(self.nets.desired_fast(self._t(xb)))
-        u = (f_d - self.system.f(xb)) @ self._g_pinv.T
+        u = (f_d - self.system.f(xb)) @ self._g_pinv.T  # float64 whatever the networks' dtype
         return u[0] if single else u
 
     def flow(self) -> DesiredFlow:
