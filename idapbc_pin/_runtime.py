@@ -71,6 +71,7 @@ class DesiredFlow:
     icnn_z: tuple[np.ndarray, ...]
     icnn_out: np.ndarray
     icnn_at_target: tuple[np.ndarray, np.ndarray]  # Ĥ(0) (), ∇_uĤ(0) (n,)
+    icnn_map: np.ndarray | None  # (n, n) W of u = W(x − x*) (`EnergyNet.input_map`), else u = (x − x*)/x_scale
     eps: np.ndarray  # ()
     P: np.ndarray | None  # (n, n), anchored form
     # J_d
@@ -96,7 +97,8 @@ class DesiredFlow:
 
     def grad_H(self, x: np.ndarray) -> np.ndarray:
         """∇H_d(x): (N, n) -> (N, n) (`EnergyNet.value_and_grad_explicit`)."""
-        u = (x - self.x_star) / self.x_scale
+        d = x - self.x_star
+        u = d / self.x_scale if self.icnn_map is None else d @ self.icnn_map.T
         pre = [u @ self.icnn_x[0].T + self.icnn_b[0]]
         for k in range(1, len(self.icnn_x)):
             pre.append(_softplus(pre[-1]) @ self.icnn_z[k - 1].T + u @ self.icnn_x[k].T + self.icnn_b[k])
@@ -108,9 +110,9 @@ class DesiredFlow:
             if k > 0:
                 delta = s @ self.icnn_z[k - 1]
         h0, g0 = self.icnn_at_target
-        d = x - self.x_star
         s = (h - h0 - u @ g0) + self.eps * (d * d).sum(-1)
-        ds = (g - g0) / self.x_scale + 2 * self.eps * d
+        dD = (g - g0) / self.x_scale if self.icnn_map is None else (g - g0) @ self.icnn_map
+        ds = dD + 2 * self.eps * d
         if self.P is None:
             return ds
         return d @ self.P + (s / (1 + s))[:, None] * ds
@@ -190,6 +192,7 @@ def snapshot(nets) -> DesiredFlow:
         icnn_z=tuple(_np(icnn._positive(k)) for k in range(icnn.depth - 1)),
         icnn_out=_np(icnn._positive(None)),
         icnn_at_target=(_np(h0), _np(g0)),
+        icnn_map=_np(H.input_map),
         eps=_np(H.eps),
         P=_np(H.P),
         j_net=_mlp(J.net),

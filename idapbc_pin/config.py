@@ -32,6 +32,9 @@ FIELD_HELP = {
     "no pole faster than 50 1/s (|λ|·dt ≤ 0.5 for the 10 ms RK4 judge of `simulate`)",
     "anchor_p": "Hessian P of H_d at x* (anchored form): 'box' solves A_clᵀP + PA_cl = −diag(1/half-width²) of the "
     "training box (well conditioned in box units), 'lyapunov' the same with −I, 'riccati' takes the Riccati solution",
+    "energy_input": "input of H_d's ICNN (anchored form): 'box' u = (x − x*)/s (s: the training box's half-widths), "
+    "'anchor' u = S P (x − x*) in the anchor's metric, so the network part of f̃_d is (J0 − R0)∇ψ = A_cl S ∇_uψ, "
+    "bounded by the anchor's own scale however badly conditioned P is",
     "damping": "where ρ injects damping: 'full' (ρI, the paper) or 'actuated' (only the actuated momentum rows)",
     "rho": "ρ ≥ 0 added as ρS to R_d during training (free form; anchored keeps 0 so R_d(x*) is the LQR R); "
     "raise it after training with `with_damping`",
@@ -70,6 +73,7 @@ class TrainConfig:
     anchor_q: float = 0.0
     anchor_p: str = "riccati"
     scaling: str = "auto"
+    energy_input: str = "anchor"
     damping: str = "full"
     rho: float = 0.0
     kappa: float = 0.01
@@ -96,6 +100,7 @@ class TrainConfig:
             (self.anchor_q >= 0, f"anchor_q must be > 0 (or 0 = automatic), got {self.anchor_q}"),
             (self.anchor_p in ("box", "lyapunov", "riccati"), "anchor_p must be 'box', 'lyapunov' or 'riccati'"),
             (self.scaling in ("auto", "none", "box"), "scaling must be 'auto', 'none' or 'box'"),
+            (self.energy_input in ("box", "anchor"), "energy_input must be 'box' or 'anchor'"),
             (self.rho >= 0, f"rho (ρ) must be ≥ 0, got {self.rho}"),
             (self.kappa > 0, f"kappa (κ) must be > 0, got {self.kappa}"),
             (self.rho == 0 or self.kappa < self.rho, f"kappa (κ = {self.kappa}) must be < rho (ρ = {self.rho}): the paper needs κ ∈ (0, ρ)"),
@@ -113,10 +118,11 @@ class TrainConfig:
     def fast(cls, **overrides) -> "TrainConfig":
         """The `--fast` preset: width 64 × 3 layers, float32, 1200 epochs (DESIGN §2 lesson 6).
 
-        Measured on the paper cartpole's training domain (200 states, seeds 0/1/2): 75.0 / 73.5 / 75.5 %
-        success against the paper setting's 78.5 / 69.0 / 78.5 % (means 74.7 vs 75.3 %), training in
-        55–60 s against 454 s. The previous preset, 64 × 2 with 600 epochs (20 s), reached 70.0 / 69.5 /
-        71.5 % (mean 70.3 %); more samples per epoch (2048) or a cosine learning rate did not help.
+        Measured on the paper cartpole's training domain (200 states, seeds 0/1/2), H_d's box input:
+        75.0 / 73.5 / 75.5 % success against the paper setting's 78.5 / 69.0 / 78.5 % (means 74.7 vs
+        75.3 %), training in 55–60 s against 454 s; the previous preset, 64 × 2 with 600 epochs, reached
+        70.3 % on average. With the anchor input (the default): 76.5 / 75.0 / 75.5 %, and the paper
+        setting 68.0 / 63.5 % (seeds 0/1). See the README's "Fast preset vs paper setting".
         """
         base = {"width": 64, "depth": 3, "dtype": "float32", "epochs": 1200}
         return cls(**{**base, **overrides})

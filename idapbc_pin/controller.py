@@ -166,7 +166,8 @@ def build_nets(system: System, config: TrainConfig) -> IdaPbcNets:
     metric = dict(metric=x_scale if scaling == "box" else None)
     if config.form == "anchored":
         anchor = _lqr_anchor(system, config, scaling, anchor_q)
-        H = EnergyNet(x_star, P=anchor.P, eps=0.0, **kw)
+        W = _half_widths(system)[:, None] * anchor.P if config.energy_input == "anchor" else None  # u = S P δ
+        H = EnergyNet(x_star, P=anchor.P, eps=0.0, input_map=W, **kw)
         J = InterconnectionNet(x_star, J0=anchor.J, out_scale=0.1, **metric, **kw)
         R = DampingNet(x_star, R0=anchor.R, rho=config.rho, pattern=config.damping, actuated=actuated, out_scale=0.1, **metric, **kw)
         decay = config.decay_rate if config.decay_rate >= 0 else 0.5 * _local_rate(anchor)

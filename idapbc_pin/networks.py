@@ -410,7 +410,8 @@ class ICNN(nn.Module):
 class EnergyNet(_StateNet):
     """Desired energy H_d: ℝⁿ → ℝ≥0 satisfying the paper's (i)–(iii) exactly, for any weights.
 
-    With Ĥ the :class:`ICNN` of u = (x - x*)/x_scale and its Bregman divergence at x*,
+    With Ĥ the :class:`ICNN` of u = (x - x*)/x_scale (or W(x − x*), see ``input_map``) and its
+    Bregman divergence at x*,
 
         D(x) = Ĥ(u) - Ĥ(0) - ∇_uĤ(0)ᵀu  ≥ 0    (convex, D(x*) = 0, ∇D(x*) = 0),
 
@@ -435,6 +436,12 @@ class EnergyNet(_StateNet):
         only adds a term of order ‖δ‖⁴ (ψ ≈ s²/2); 0 is allowed there.
     x_scale : Tensor, shape (n,), optional
         Input normalisation of the ICNN (the ε and P terms are in x).
+    input_map : Tensor, shape (n, n), optional
+        W: the ICNN sees u = W(x − x*) instead of (x − x*)/x_scale, and ∇D = Wᵀ∇_uD. With W = S P
+        (S = diag of the box half-widths; `TrainConfig.energy_input = "anchor"`) the network part of
+        the anchored flow, (J0 − R0)∇ψ = A_cl P⁻¹∇ψ, becomes A_cl S ∇_uψ: bounded by the anchor's
+        scale over the box however badly conditioned P is. Convexity and (i)–(iii) hold for any W
+        (a convex function of a linear map is convex; D(x*) = 0, ∇D(x*) = 0 still).
 
     Notes
     -----
@@ -453,6 +460,7 @@ class EnergyNet(_StateNet):
         P: Tensor | None = None,
         eps: float = 1e-3,
         x_scale: Tensor | None = None,
+        input_map: Tensor | None = None,
     ):
         super().__init__(x_star, x_scale)
         fk = _factory(x_star)
@@ -471,6 +479,16 @@ class EnergyNet(_StateNet):
                 raise ValueError("P must be symmetric positive definite")
             self.register_buffer("P", P)
         self.register_buffer("eps", torch.tensor(float(eps), **fk))
+        self.register_buffer("input_map", None if input_map is None else _as_buffer("input_map", input_map, x_star, (n, n)))
+
+    def _u(self, x: Tensor) -> Tensor:
+        """The ICNN's input: u = W(x − x*) with `input_map` W, else (x − x*)/x_scale."""
+        u = super()._u(x)
+        return u if self.input_map is None else (x - self.x_star) @ self.input_map.T
+
+    def _to_x(self, g: Tensor) -> Tensor:
+        """Chain rule back to x: ∇_x = Wᵀ∇_u, (..., n)."""
+        return g / self.x_scale if self.input_map is None else g @ self.input_map
 
     @property
     def form(self) -> Literal["bregman", "anchored"]:
@@ -503,7 +521,7 @@ class EnergyNet(_StateNet):
         h, g = self.icnn.value_and_grad(u)
         delta = x - self.x_star
         D = h - h0 - u @ g0  # rounding-level error near x* (the exact form is `bregman`)
-        dD = (g - g0) / self.x_scale
+        dD = self._to_x(g - g0)
         s = D + self.eps * (delta * delta).sum(-1)
         ds = dD + 2 * self.eps * delta
         if self.P is None:

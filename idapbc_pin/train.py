@@ -101,14 +101,22 @@ class Run:
         return Controller(self.system, self.nets)
 
 
+#: Values of options that runs written before the option existed trained with (their config.json
+#: lacks the key): physical units, and H_d's ICNN fed the box-normalised state.
+LEGACY_DEFAULTS = {"scaling": "none", "energy_input": "box"}
+
+
+def _with_legacy_defaults(raw: dict) -> dict:
+    return {**LEGACY_DEFAULTS, **raw}
+
+
 def load_run(path: str | Path, checkpoint: str = "best") -> Run:
     """Load a run directory (checkpoints are read with ``torch.load(weights_only=True)``)."""
     path = Path(path)
     if not (path / "config.json").is_file():
         raise IdapbcError(f"'{path}' is not a run directory (no config.json). Fix: pass a directory made by `idapbc-pin train`.")
     raw = json.loads((path / "config.json").read_text())
-    raw.setdefault("scaling", "none")  # runs written before the option existed trained in physical units
-    config = TrainConfig.from_dict(raw)
+    config = TrainConfig.from_dict(_with_legacy_defaults(raw))
     system = _system_from_record(json.loads((path / "system.json").read_text()), path)
     ckpt = path / "checkpoints" / f"{checkpoint}.pt"
     if not ckpt.is_file():
@@ -171,8 +179,7 @@ def train(
     if resume is not None:
         run_dir = Path(resume)
         raw = json.loads((run_dir / "config.json").read_text())
-        raw.setdefault("scaling", "none")  # runs written before the option existed trained in physical units
-        saved = TrainConfig.from_dict(raw)
+        saved = TrainConfig.from_dict(_with_legacy_defaults(raw))
         config = saved if config is None else saved.replace(epochs=config.epochs)
         state = torch.load(run_dir / "checkpoints" / "last.pt", map_location=config.device, weights_only=True)
     else:

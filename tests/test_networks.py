@@ -199,11 +199,13 @@ def test_free_energy_satisfies_conditions_i_to_iii_for_random_weights(seed, n, w
 
 
 @FAST
-@given(seed=seeds, n=dims, width=widths, depth=depths, scale=weight_scales)
-def test_anchored_energy_has_hessian_P_at_x_star_and_stays_convex(seed, n, width, depth, scale):
+@given(seed=seeds, n=dims, width=widths, depth=depths, scale=weight_scales, mapped=st.booleans())
+def test_anchored_energy_has_hessian_P_at_x_star_and_stays_convex(seed, n, width, depth, scale, mapped):
+    """(i)–(iii) and ∇²H_d(x*) = P, with the ICNN fed (x − x*)/s or the anchor-metric input S P (x − x*)."""
     x_star = random_x_star(seed, n)
     P = random_spd(seed, n)
-    H = randomise_(EnergyNet(x_star, width, depth, P=P), seed, scale)
+    W = torch.diag(random_metric(seed, n, True)) @ P if mapped else None
+    H = randomise_(EnergyNet(x_star, width, depth, P=P, input_map=W), seed, scale)
     assert H.form == "anchored"
     Hs, gs = H.value_and_grad(x_star.unsqueeze(0))
     assert Hs.abs().max() < 1e-12 and gs.abs().max() < 1e-12
@@ -300,7 +302,8 @@ def test_anchored_closed_loop_jacobian_at_x_star_is_A_minus_BK(seed, n, width, d
     an = lqr_anchor(A, B, P_mode=data.draw(st.sampled_from(["riccati", "lyapunov"])), scale="unit")
     x_star = random_x_star(seed, n)
     s = random_metric(seed, n, data.draw(st.booleans()))  # scaling = "box" or "none"
-    H = randomise_(EnergyNet(x_star, width, depth, P=an.P), seed, scale)
+    W = torch.diag(random_metric(seed, n, True)) @ torch.as_tensor(an.P) if data.draw(st.booleans()) else None  # energy_input
+    H = randomise_(EnergyNet(x_star, width, depth, P=an.P, input_map=W), seed, scale)
     J = randomise_(InterconnectionNet(x_star, width, depth, J0=an.J, metric=s), seed + 5, scale)
     R = randomise_(DampingNet(x_star, width, depth, R0=an.R, metric=s), seed + 6, scale)
     f = closed_loop(H, J, R)

@@ -113,13 +113,14 @@ def test_short_training_of_each_paper_benchmark_decreases_the_loss(name, tmp_pat
     assert json.loads((run.path / "summary.json").read_text())["status"] == "finished"
 
 
+@pytest.mark.parametrize("energy_input", ["anchor", "box"])
 @pytest.mark.parametrize("name", ["paper_cartpole", "acrobot", "furuta"])
-def test_anchor_makes_the_closed_loop_linearisation_the_lqr_loop(name):
+def test_anchor_makes_the_closed_loop_linearisation_the_lqr_loop(name, energy_input):
     """For random weights, ∂(f + g u)/∂x at x* equals A − BK of the LQR anchor (Theorem 2, μ̄* = 0)."""
     from idapbc_pin.controller import Controller, _anchor
 
     system = ip.load_system(name)
-    config = TrainConfig(width=16, depth=2)
+    config = TrainConfig(width=16, depth=2, energy_input=energy_input)
     anchor = _anchor(system, config)
     for seed in range(3):
         torch.manual_seed(seed)
@@ -152,13 +153,13 @@ def Controller_(system):
 
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
 @pytest.mark.parametrize("scaling", ["none", "box"])
-@pytest.mark.parametrize("form", ["anchored", "free"])
-def test_run_time_path_equals_the_training_path(form, scaling, dtype):
+@pytest.mark.parametrize("form, energy_input", [("anchored", "anchor"), ("anchored", "box"), ("free", "box")])
+def test_run_time_path_equals_the_training_path(form, energy_input, scaling, dtype):
     """Both run-time paths of f̃_d (numpy for a few states, torch for batches; explicit ∇H_d, no autograd)
     give the autograd path's f̃_d, and u from one state equals u from a batch."""
     system = ip.load_system("cartpole")
     torch.manual_seed(1)
-    config = TrainConfig(width=16, depth=3, form=form, rho=0.2, kappa=0.1, scaling=scaling, anchor_q=10.0, dtype=dtype)
+    config = TrainConfig(width=16, depth=3, form=form, rho=0.2, kappa=0.1, scaling=scaling, anchor_q=10.0, dtype=dtype, energy_input=energy_input)
     ctrl = Controller(system, build_nets(system, config))
     with torch.no_grad():  # move every weight off its initial value (the anchored last layers start small)
         for p in ctrl.nets.parameters():
@@ -282,10 +283,10 @@ def test_the_run_directory_holds_the_resolved_units_and_old_runs_load_in_physica
     saved = json.loads((run.path / "config.json").read_text())
     assert (saved["scaling"], saved["anchor_q"]) == ("box", 0.1) and run.config.scaling == "box"
     assert ip.load_run(run.path).controller(system.x_star[None]).shape == (1, 1)
-    legacy = train(system, TrainConfig.fast(epochs=2, width=8, depth=1, samples=16, scaling="none", anchor_q=10.0), out=tmp_path / "old", progress=False)
+    legacy = train(system, TrainConfig.fast(epochs=2, width=8, depth=1, samples=16, scaling="none", anchor_q=10.0, energy_input="box"), out=tmp_path / "old", progress=False)
     raw = json.loads((legacy.path / "config.json").read_text())
-    del raw["scaling"]  # written before the option existed
+    del raw["scaling"], raw["energy_input"]  # written before the options existed
     (legacy.path / "config.json").write_text(json.dumps(raw))
     loaded = ip.load_run(legacy.path)
-    assert loaded.config.scaling == "none"
+    assert (loaded.config.scaling, loaded.config.energy_input) == ("none", "box")
     np.testing.assert_allclose(loaded.controller(system.x_star[None] + 0.1), legacy.controller(system.x_star[None] + 0.1))
