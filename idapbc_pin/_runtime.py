@@ -95,10 +95,9 @@ class DesiredFlow:
     def n(self) -> int:
         return self.x_star.shape[0]
 
-    def grad_H(self, x: np.ndarray) -> np.ndarray:
-        """∇H_d(x): (N, n) -> (N, n) (`EnergyNet.value_and_grad_explicit`)."""
-        d = x - self.x_star
-        u = d / self.x_scale if self.icnn_map is None else d @ self.icnn_map.T
+    def _grad_H(self, d: np.ndarray, u_box: np.ndarray) -> np.ndarray:
+        """∇H_d: (N, n) -> (N, n) from δ = x − x* and δ/x_scale (`EnergyNet.value_and_grad_explicit`)."""
+        u = u_box if self.icnn_map is None else d @ self.icnn_map.T
         pre = [u @ self.icnn_x[0].T + self.icnn_b[0]]
         for k in range(1, len(self.icnn_x)):
             pre.append(_softplus(pre[-1]) @ self.icnn_z[k - 1].T + u @ self.icnn_x[k].T + self.icnn_b[k])
@@ -117,24 +116,24 @@ class DesiredFlow:
             return ds
         return d @ self.P + (s / (1 + s))[:, None] * ds
 
-    def J(self, x: np.ndarray) -> np.ndarray:
-        """J_d(x): (N, n) -> (N, n, n), skew-symmetric (`InterconnectionNet.forward`)."""
+    def _J(self, u: np.ndarray) -> np.ndarray:
+        """J_d: (N, n) -> (N, n, n) from u = (x − x*)/x_scale, skew-symmetric (`InterconnectionNet.forward`)."""
         n = self.n
-        v = self.j_net((x - self.x_star) / self.x_scale)
+        v = self.j_net(u)
         if self.j0 is not None:
             v = v - self.j_at_target
         i, j = self.upper
-        K = np.zeros((len(x), n, n), dtype=v.dtype)
+        K = np.zeros((len(u), n, n), dtype=v.dtype)
         K[:, i, j] = v
         K[:, j, i] = -v
         if self.j_metric is not None:
             K = K * self.j_metric
         return K if self.j0 is None else self.j0 + K
 
-    def L(self, x: np.ndarray) -> np.ndarray:
-        """L(x): (N, n) -> (N, n, n), lower triangular with R_d = L Lᵀ + ρS (`DampingNet.cholesky_factor`)."""
+    def _L(self, u: np.ndarray) -> np.ndarray:
+        """L: (N, n) -> (N, n, n) from u, lower triangular with R_d = L Lᵀ + ρS (`DampingNet.cholesky_factor`)."""
         n = self.n
-        out = self.r_net((x - self.x_star) / self.x_scale)
+        out = self.r_net(u)
         r_d, r_o = out[:, :n], out[:, n:]
         s = self.row_scale
         if self.l0 is None:
@@ -146,17 +145,18 @@ class DesiredFlow:
             step = r_o - self.r_at_target[n:]
             low = self.l0 + (step if s is None else step * s[n:])
         i, j = self.lower
-        L = np.zeros((len(x), n, n), dtype=out.dtype)
+        L = np.zeros((len(u), n, n), dtype=out.dtype)
         L[:, self.diagonal, self.diagonal] = diag
         L[:, i, j] = low
         return L
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """f̃_d(x) = J_d∇H_d − L(Lᵀ∇H_d) − ρS∇H_d: (N, n) -> (N, n), float64."""
-        x = np.asarray(x, dtype=self.x_star.dtype)
-        col = self.grad_H(x)[:, :, None]
-        L = self.L(x)
-        f_d = self.J(x) @ col - L @ (L.transpose(0, 2, 1) @ col)
+        d = np.asarray(x, dtype=self.x_star.dtype) - self.x_star
+        u = d / self.x_scale  # the input of J_d's and R_d's networks, computed once
+        col = self._grad_H(d, u)[:, :, None]
+        L = self._L(u)
+        f_d = self._J(u) @ col - L @ (L.transpose(0, 2, 1) @ col)
         if self.rho:
             f_d = f_d - self.rho * (self.S @ col)
         return f_d[:, :, 0].astype(np.float64)
@@ -166,10 +166,16 @@ def _np(t: torch.Tensor | None) -> np.ndarray | None:
     return None if t is None else t.detach().cpu().numpy().copy()
 
 
+#: torch activation modules of `networks._mlp` -> `_ACTIVATIONS` keys.
+_ACTIVATION_OF = {"Tanh": "tanh", "_SoftplusModule": "softplus"}
+
+
 def _mlp(seq: nn.Sequential) -> _Mlp:
     linears = [m for m in seq if isinstance(m, nn.Linear)]
     acts = {type(m).__name__ for m in seq if not isinstance(m, nn.Linear)}
-    activation = "tanh" if acts == {"Tanh"} else "softplus"
+    if len(acts) != 1 or not acts <= _ACTIVATION_OF.keys():
+        raise ValueError(f"snapshot: unsupported activation layers {sorted(acts)}; known: {sorted(_ACTIVATION_OF)}")
+    activation = _ACTIVATION_OF[acts.pop()]
     return _Mlp(tuple(_np(m.weight) for m in linears), tuple(_np(m.bias) for m in linears), activation)
 
 

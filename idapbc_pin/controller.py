@@ -159,14 +159,15 @@ def build_nets(system: System, config: TrainConfig) -> IdaPbcNets:
     dtype = getattr(torch, config.dtype)
     device = torch.device(config.device)
     x_star = torch.as_tensor(system.x_star, dtype=dtype, device=device)
-    x_scale = torch.as_tensor(_half_widths(system), dtype=dtype, device=device)
+    half = _half_widths(system)
+    x_scale = torch.as_tensor(half, dtype=dtype, device=device)
     actuated = torch.as_tensor(system.actuated_mask, device=device)
     kw = dict(width=config.width, depth=config.depth, x_scale=x_scale)
     scaling, anchor_q = anchor_settings(system, config)
     metric = dict(metric=x_scale if scaling == "box" else None)
     if config.form == "anchored":
         anchor = _lqr_anchor(system, config, scaling, anchor_q)
-        W = _half_widths(system)[:, None] * anchor.P if config.energy_input == "anchor" else None  # u = S P δ
+        W = half[:, None] * anchor.P if config.energy_input == "anchor" else None  # u = S P δ
         H = EnergyNet(x_star, P=anchor.P, eps=0.0, input_map=W, **kw)
         J = InterconnectionNet(x_star, J0=anchor.J, out_scale=0.1, **metric, **kw)
         R = DampingNet(x_star, R0=anchor.R, rho=config.rho, pattern=config.damping, actuated=actuated, out_scale=0.1, **metric, **kw)
