@@ -313,6 +313,7 @@ def _summarise(run: Run, status: str, epoch: int, eps_ema, elapsed: float) -> di
         "epsilon": eps_ema,
         "final_terms": last,
         "eigenvalues_at_target": [[float(z.real), float(z.imag)] for z in eig],
+        "open_loop_fastest_pole": float(np.abs(np.linalg.eigvals(run.system.linearization()[0])).max()),
         "locally_exponentially_stable": les,
         "rho": ctrl.rho,
     }
