@@ -238,42 +238,36 @@ def test_fully_actuated_system_with_an_exact_solution_is_matched(tmp_path):
     assert success(traj, system).all()
 
 
-def test_train_summary_warns_when_the_loop_is_too_stiff_for_the_default_rk4_step():
+def _train_summary_text(eigs, open_loop=None) -> str:
+    """`format_train_summary` of a finished run with closed-loop eigenvalues `eigs` at x* ([re, im] pairs)."""
     from types import SimpleNamespace
 
     from idapbc_pin.cli import format_train_summary
 
-    def summary(eigs):
-        s = {"status": "finished", "epochs_done": 1, "train_seconds": 1.0, "final_terms": {"matching": 0.1},
-             "eigenvalues_at_target": eigs, "locally_exponentially_stable": True}
-        return format_train_summary(SimpleNamespace(path="RUN", summary=s))
+    s = {"status": "finished", "epochs_done": 1, "train_seconds": 1.0, "final_terms": {"matching": 0.1},
+         "eigenvalues_at_target": eigs, "locally_exponentially_stable": True}
+    if open_loop is not None:
+        s["open_loop_fastest_pole"] = open_loop
+    return format_train_summary(SimpleNamespace(path="RUN", summary=s))
 
-    stiff = summary([[-252.5, 0.0], [-8.6, 2.5], [-8.6, -2.5], [-0.46, 0.0]])  # the Furuta anchor with anchor_q = 10, box units
+
+def test_train_summary_warns_when_the_loop_is_too_stiff_for_the_default_rk4_step():
+    stiff = _train_summary_text([[-252.5, 0.0], [-8.6, 2.5], [-8.6, -2.5], [-0.46, 0.0]])  # the Furuta anchor with anchor_q = 10, box units
     assert "NOTE: the fastest closed-loop pole at x* has |λ| = 252 1/s" in stiff and "--dt 0.002 " in stiff
-    assert "NOTE" not in summary([[-40.4, 39.7], [-40.4, -39.7], [-4.8, 0.0]])
+    assert "NOTE" not in _train_summary_text([[-40.4, 39.7], [-40.4, -39.7], [-4.8, 0.0]])
     assert "gentler anchor" in stiff and "plant has it too" not in stiff  # no open-loop pole recorded: blame the anchor
 
 
 def test_the_stiffness_note_blames_the_plant_when_its_own_pole_is_that_fast():
     """erd:double_pendulum (light links, URDF joint damping): the plant itself has a −136 1/s pole,
     which no anchor weight removes; the NOTE says so instead of suggesting a gentler anchor."""
-    from types import SimpleNamespace
-
-    from idapbc_pin.cli import format_train_summary
-
     system = ip.load_system("erd:double_pendulum", actuated=["joint1"])
     plant = float(np.abs(np.linalg.eigvals(system.linearization()[0])).max())
     assert plant > 100.0  # the plant's damping pole: stiff for the 10 ms RK4 step on its own
 
-    def note(closed, open_loop):
-        s = {"status": "finished", "epochs_done": 1, "train_seconds": 1.0, "final_terms": {"matching": 0.1},
-             "eigenvalues_at_target": [[-closed, 0.0], [-1.0, 0.0]], "locally_exponentially_stable": True,
-             "open_loop_fastest_pole": open_loop}
-        return format_train_summary(SimpleNamespace(path="RUN", summary=s))
-
-    own = note(plant, plant)
+    own = _train_summary_text([[-plant, 0.0], [-1.0, 0.0]], open_loop=plant)
     assert "plant has it too" in own and "gentler anchor" not in own and "--dt 0.004" in own
-    anchor = note(250.0, 10.0)  # the Furuta anchor with anchor_q = 10: the anchor's own pole
+    anchor = _train_summary_text([[-250.0, 0.0], [-1.0, 0.0]], open_loop=10.0)  # the Furuta anchor with anchor_q = 10
     assert "gentler anchor" in anchor and "plant has it too" not in anchor
 
 
