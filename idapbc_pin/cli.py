@@ -138,11 +138,12 @@ def format_train_summary(run) -> str:
     fastest = max((abs(complex(re, im)) for re, im in s["eigenvalues_at_target"]), default=0.0)
     if fastest * STIFF_DT > STIFF_WARN:
         plant = s.get("open_loop_fastest_pole", 0.0)
+        smaller_step = f"simulate with --dt {0.5 / fastest:.1g}"
         fix = (
             f"the plant has it too (open loop at x*: |λ| = {plant:.3g} 1/s, e.g. joint damping on light links), so no anchor "
-            f"weight removes it: simulate with --dt {0.5 / fastest:.1g}"
+            f"weight removes it: {smaller_step}"
             if plant >= PLANT_POLE_SHARE * fastest
-            else f"simulate with --dt {0.5 / fastest:.1g} or train with a gentler anchor (smaller anchor_q)"
+            else f"{smaller_step} or train with a gentler anchor (smaller anchor_q)"
         )
         lines.append(
             f"NOTE: the fastest closed-loop pole at x* has |λ| = {fastest:.3g} 1/s: |λ|·dt = {fastest * STIFF_DT:.2g} at the default "

@@ -19,7 +19,7 @@ from torch import Tensor, nn
 
 from ._runtime import DesiredFlow, snapshot
 from .config import TrainConfig
-from .lqr import lqr_anchor
+from .lqr import fastest_pole, lqr_anchor
 from .networks import DampingNet, EnergyNet, InterconnectionNet
 from .system import System
 
@@ -130,7 +130,7 @@ def anchor_settings(system: System, config: TrainConfig) -> tuple[str, float]:
     if config.anchor_q > 0:
         return scaling, float(config.anchor_q)
     for q in AUTO_ANCHOR_Q:
-        if np.abs(np.linalg.eigvals(_lqr_anchor(system, config, scaling, q).A_cl)).max() <= AUTO_MAX_POLE:
+        if fastest_pole(_lqr_anchor(system, config, scaling, q).A_cl) <= AUTO_MAX_POLE:
             return scaling, q
     return scaling, AUTO_ANCHOR_Q[-1]
 

@@ -25,6 +25,7 @@ import scipy.linalg as sla
 __all__ = [
     "LinearAnchor",
     "controllability_rank",
+    "fastest_pole",
     "is_stabilisable",
     "lqr",
     "lqr_anchor",
@@ -33,6 +34,11 @@ __all__ = [
 
 _RTOL = 1e-10
 """Default relative tolerance of the controllability staircase (see :func:`controllability_rank`)."""
+
+
+def fastest_pole(A: np.ndarray) -> float:
+    """max |λ(A)| of a square matrix A (n, n), in 1/s for a state matrix: the stiffest mode."""
+    return float(np.abs(np.linalg.eigvals(A)).max())
 
 
 # --------------------------------------------------------------------------------------------

@@ -30,6 +30,7 @@ from .config import TrainConfig
 from .controller import Controller, IdaPbcNets, anchor_settings, build_nets
 from .errors import IdapbcError
 from .loss import TERMS, AdaptiveWeights, loss_terms
+from .lqr import fastest_pole
 from .system import System, load_system
 
 __all__ = ["Run", "TrainingDiverged", "load_run", "load_run_system", "train"]
@@ -313,7 +314,7 @@ def _summarise(run: Run, status: str, epoch: int, eps_ema, elapsed: float) -> di
         "epsilon": eps_ema,
         "final_terms": last,
         "eigenvalues_at_target": [[float(z.real), float(z.imag)] for z in eig],
-        "open_loop_fastest_pole": float(np.abs(np.linalg.eigvals(run.system.linearization()[0])).max()),
+        "open_loop_fastest_pole": fastest_pole(run.system.linearization()[0]),
         "locally_exponentially_stable": les,
         "rho": ctrl.rho,
     }
