@@ -15,7 +15,7 @@ import torch
 
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
-from idapbc_pin.controller import Controller, build_nets
+from idapbc_pin.control.controller import Controller, build_nets
 
 
 def latency(ctrl: Controller, q: np.ndarray, v: np.ndarray, repeat: int) -> np.ndarray:

@@ -14,7 +14,7 @@ import os
 import time
 
 import idapbc_pin as ip
-from idapbc_pin.simulate import DEFAULT_THREADS, LQRController, roa
+from idapbc_pin.sim.simulate import DEFAULT_THREADS, LQRController, roa
 
 
 def main() -> None:

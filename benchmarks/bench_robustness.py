@@ -16,7 +16,7 @@ import time
 import torch
 
 import idapbc_pin as ip
-from idapbc_pin.robustness import default_conditions, robustness_table
+from idapbc_pin.evaluation.robustness import default_conditions, robustness_table
 
 
 def main() -> None:

@@ -14,7 +14,7 @@ import time
 
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
-from idapbc_pin.train import train
+from idapbc_pin.training.train import train
 
 
 def seconds_per_epoch(system, config: TrainConfig, out: str) -> float:

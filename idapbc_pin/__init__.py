@@ -12,17 +12,17 @@ Imported eagerly: several public functions share their module's name (train, sim
 report, view), and a lazy attribute would be shadowed by the submodule once it is imported.
 """
 
-from .batch import run_batch
-from .certify import certify
+from .batch.batch import run_batch
+from .certificate.certify import certify
 from .config import TrainConfig
 from .errors import IdapbcError
-from .evaluate import evaluate_run
-from .report import figure, report
-from .robustness import perturbed_system, robustness_table
-from .simulate import LQRController, roa, simulate
-from .system import System, load_system
-from .train import Run, load_run, train
-from .view import view, write_html
+from .evaluation.evaluate import evaluate_run
+from .reporting.report import figure, report
+from .evaluation.robustness import perturbed_system, robustness_table
+from .sim.simulate import LQRController, roa, simulate
+from .model.system import System, load_system
+from .training.train import Run, load_run, train
+from .viewer.view import view, write_html
 
 __version__ = "0.1.0"
 

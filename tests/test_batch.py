@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from idapbc_pin.batch import (
+from idapbc_pin.batch.batch import (
     SUMMARY_COLUMNS,
     VOLATILE_COLUMNS,
     _train_or_resume,
@@ -30,7 +30,7 @@ from idapbc_pin.batch import (
     run_batch,
     zoo_table_markdown,
 )
-from idapbc_pin._pipeline import PipelineError, load_pipeline
+from idapbc_pin.batch.pipeline import PipelineError, load_pipeline
 from idapbc_pin.errors import IdapbcError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,9 +66,9 @@ def _optional_module(name: str) -> bool:
 
 # ---------------------------------------------------------------------------------------- validation
 def test_committed_pipelines_are_valid():
-    from idapbc_pin.analytic import ANALYTIC
+    from idapbc_pin.model.analytic import ANALYTIC
     from idapbc_pin.config import TrainConfig
-    from idapbc_pin.zoo import zoo_names
+    from idapbc_pin.model.zoo import zoo_names
 
     zoo = load_pipeline(ROOT / "pipelines" / "zoo.toml")
     assert sorted(job.source for job in zoo.jobs) == zoo_names()
@@ -218,7 +218,7 @@ def test_a_job_failing_at_run_time_is_recorded_and_the_others_finish(tmp_path):
 @pytest.mark.slow
 def test_a_killed_batch_resumes_with_only_the_remaining_jobs(tmp_path):
     out = tmp_path / "batch"
-    code = "import sys; from idapbc_pin.batch import run_batch; run_batch(sys.argv[1], workers=1, out=sys.argv[2], progress=False)"
+    code = "import sys; from idapbc_pin.batch.batch import run_batch; run_batch(sys.argv[1], workers=1, out=sys.argv[2], progress=False)"
     proc = subprocess.Popen([sys.executable, "-c", code, str(SMOKE), str(out)], cwd=tmp_path, start_new_session=True,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
     first = out / "furuta" / "job.json"
@@ -245,8 +245,8 @@ def test_a_killed_batch_resumes_with_only_the_remaining_jobs(tmp_path):
 
 
 def test_a_job_killed_during_training_resumes_from_its_last_checkpoint(tmp_path):
-    from idapbc_pin.system import load_system
-    from idapbc_pin.train import train
+    from idapbc_pin.model.system import load_system
+    from idapbc_pin.training.train import train
 
     job = load_pipeline(SMOKE).jobs[1]
     config = job.train_config().replace(epochs=10, checkpoint_every=5)
@@ -269,7 +269,7 @@ def test_a_job_killed_during_training_resumes_from_its_last_checkpoint(tmp_path)
 def test_a_worker_that_cannot_see_the_batch_directory_ships_its_files_back(tmp_path):
     # a Ray node without the shared filesystem: the batch token is not there, so the job runs in a
     # temporary folder and returns it as an archive, which the driver unpacks into the job dir
-    from idapbc_pin.batch import _unpack, run_job
+    from idapbc_pin.batch.batch import _unpack, run_job
 
     path = _pipeline(tmp_path, '[[job]]\nname = "far"\nsource = "furuta"\ntrain = { device = "cuda:99" }\n')
     job = load_pipeline(path).jobs[0]
@@ -301,6 +301,6 @@ def test_readme_zoo_table_matches_the_committed_zoo_summary():
         pytest.skip("pipelines/results/zoo-summary.csv is not committed yet (copy a zoo batch's summary.csv there)")
     assert block == zoo_table_markdown(summary).strip(), (
         "README's zoo table is out of step with pipelines/results/zoo-summary.csv. Fix: "
-        "python -c \"from pathlib import Path; from idapbc_pin.batch import replace_zoo_table, zoo_table_markdown; "
+        "python -c \"from pathlib import Path; from idapbc_pin.batch.batch import replace_zoo_table, zoo_table_markdown; "
         "p = Path('README.md'); p.write_text(replace_zoo_table(p.read_text(), zoo_table_markdown('pipelines/results/zoo-summary.csv')))\""
     )

@@ -19,7 +19,7 @@ import scipy.linalg
 import torch
 
 import idapbc_pin as ip
-from idapbc_pin.certify import LABEL, Certificate, certify, closed_loop_terms
+from idapbc_pin.certificate.certify import LABEL, Certificate, certify, closed_loop_terms
 
 
 # ====================================================================== stand-in controllers

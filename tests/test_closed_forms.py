@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import idapbc_pin as ip
-from idapbc_pin.zoo import zoo_urdf_path
+from idapbc_pin.model.zoo import zoo_urdf_path
 
 G = 9.81
 N_RANDOM = 100

@@ -15,8 +15,9 @@ import pytest
 import torch
 
 import idapbc_pin as ip
-from idapbc_pin.analytic import analytic_names
-from idapbc_pin.zoo import zoo_names
+from idapbc_pin.model.analytic import analytic_names
+from idapbc_pin.model.system import EQUILIBRIUM_TOL
+from idapbc_pin.model.zoo import zoo_names
 
 from .conftest import sample_domain
 
@@ -203,4 +204,4 @@ def test_input_matrix_and_annihilator(name):
     assert np.all(np.abs(np.linalg.det(Gm)) > 0.5)
     for col, joint in enumerate(system.actuated):
         assert system.B[system.coordinate_names.index(joint), col] == 1.0
-    assert np.all(np.abs(system.equilibrium_residual()) <= ip.system.EQUILIBRIUM_TOL)
+    assert np.all(np.abs(system.equilibrium_residual()) <= EQUILIBRIUM_TOL)

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from idapbc_pin.lqr import (
+from idapbc_pin.control.linear import (
     LinearAnchor,
     controllability_rank,
     is_stabilisable,

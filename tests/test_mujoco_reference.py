@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 import idapbc_pin as ip
-from idapbc_pin.zoo import zoo_names, zoo_urdf_path
+from idapbc_pin.model.zoo import zoo_names, zoo_urdf_path
 
 mujoco = pytest.importorskip("mujoco", reason="the MuJoCo reference needs `pip install mujoco` (the [dev] extra)")
 

@@ -14,8 +14,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from idapbc_pin.lqr import lqr_anchor
-from idapbc_pin.networks import (
+from idapbc_pin.control.linear import lqr_anchor
+from idapbc_pin.control.networks import (
     ICNN,
     DampingNet,
     EnergyNet,

@@ -11,9 +11,9 @@ import pytest
 import torch
 
 import idapbc_pin as ip
-from idapbc_pin.report import MARGIN_FLOOR, add_eval_commands, extra_damping_rho, figure, figure_data, plot, report
-from idapbc_pin.robustness import MeasuredController, default_conditions, parse_mismatch, perturbed_system, robustness_table
-from idapbc_pin.simulate import LQRController, simulate, uniform_states
+from idapbc_pin.reporting.report import MARGIN_FLOOR, add_eval_commands, extra_damping_rho, figure, figure_data, plot, report
+from idapbc_pin.evaluation.robustness import MeasuredController, default_conditions, parse_mismatch, perturbed_system, robustness_table
+from idapbc_pin.sim.simulate import LQRController, simulate, uniform_states
 
 
 @pytest.fixture(scope="module")
@@ -218,7 +218,7 @@ def test_cli_bad_input_is_an_idapbc_error(tiny_run, tmp_path, argv):
 
 
 def test_cli_main_maps_errors_to_exit_2(tmp_path, capsys):
-    from idapbc_pin.cli import build_parser, main
+    from idapbc_pin.cli.main import build_parser, main
 
     commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
     if "certify" not in commands:

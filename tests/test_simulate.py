@@ -15,7 +15,7 @@ import pytest
 import scipy.linalg as sla
 
 import idapbc_pin as ip
-from idapbc_pin.simulate import (
+from idapbc_pin.sim.simulate import (
     LQRController,
     Trajectory,
     equilibrium_offset,

@@ -12,8 +12,8 @@ import torch
 
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
-from idapbc_pin.controller import Controller, build_nets
-from idapbc_pin.train import TrainingDiverged, load_run, train
+from idapbc_pin.control.controller import Controller, build_nets
+from idapbc_pin.training.train import TrainingDiverged, load_run, train
 
 TINY = dict(width=16, depth=2, samples=64, checkpoint_every=5)
 
@@ -117,7 +117,7 @@ def test_short_training_of_each_paper_benchmark_decreases_the_loss(name, tmp_pat
 @pytest.mark.parametrize("name", ["paper_cartpole", "acrobot", "furuta"])
 def test_anchor_makes_the_closed_loop_linearisation_the_lqr_loop(name, energy_input):
     """For random weights, ∂(f + g u)/∂x at x* equals A − BK of the LQR anchor (Theorem 2, μ̄* = 0)."""
-    from idapbc_pin.controller import Controller, _anchor
+    from idapbc_pin.control.controller import Controller, _anchor
 
     system = ip.load_system(name)
     config = TrainConfig(width=16, depth=2, energy_input=energy_input)
@@ -146,7 +146,7 @@ def test_controller_structure_and_extra_damping():
 
 
 def Controller_(system):
-    from idapbc_pin.controller import Controller
+    from idapbc_pin.control.controller import Controller
 
     return Controller(system, build_nets(system, TrainConfig(width=16, depth=2)))
 
@@ -206,10 +206,10 @@ def test_true_closed_loop_is_desired_dynamics_plus_xi():
     torch.testing.assert_close(closed_loop, f_d + nets.xi(nets.mismatch(f, f_d)), rtol=1e-10, atol=1e-10)
 
 
-@pytest.mark.parametrize("name", sorted(__import__("idapbc_pin.zoo", fromlist=["ZOO"]).ZOO))
+@pytest.mark.parametrize("name", sorted(__import__("idapbc_pin.model.zoo", fromlist=["ZOO"]).ZOO))
 def test_fast_preset_networks_build_on_every_zoo_robot(name):
     """float32 networks anchored on each robot's LQR loop (the anchor is factored in float64)."""
-    from idapbc_pin.controller import Controller, _anchor
+    from idapbc_pin.control.controller import Controller, _anchor
 
     system = ip.load_system(name)
     torch.manual_seed(0)
@@ -225,7 +225,7 @@ def test_fully_actuated_system_with_an_exact_solution_is_matched(tmp_path):
     """The mass-spring-damper is fully actuated (g⊥ = [1 0]: matching only asks q̇-row = p), so an
     exact solution exists. Training drives max ‖μ‖ below 1e-3 on fresh test samples of H_ε (where
     the paper's loss asks for matching) and the closed loop converges to x*."""
-    from idapbc_pin.simulate import simulate, success, uniform_states
+    from idapbc_pin.sim.simulate import simulate, success, uniform_states
 
     system = ip.load_system("paper_mass_spring_damper")
     run = train(system, TrainConfig.fast(epochs=400, depth=2), out=tmp_path, progress=False)
@@ -242,7 +242,7 @@ def _train_summary_text(eigs, open_loop=None) -> str:
     """`format_train_summary` of a finished run with closed-loop eigenvalues `eigs` at x* ([re, im] pairs)."""
     from types import SimpleNamespace
 
-    from idapbc_pin.cli import format_train_summary
+    from idapbc_pin.cli.main import format_train_summary
 
     s = {"status": "finished", "epochs_done": 1, "train_seconds": 1.0, "final_terms": {"matching": 0.1},
          "eigenvalues_at_target": eigs, "locally_exponentially_stable": True}
@@ -279,7 +279,7 @@ def test_the_stiffness_note_blames_the_plant_when_its_own_pole_is_that_fast():
 def test_automatic_units_and_anchor_weight(name, scaling, anchor_q):
     """Box units where the box's half-widths span > 20× (light links), and the largest anchor weight whose
     LQR loop has no pole faster than 50 1/s; explicit values are kept as given."""
-    from idapbc_pin.controller import AUTO_MAX_POLE, _anchor, _half_widths, anchor_settings
+    from idapbc_pin.control.controller import AUTO_MAX_POLE, _anchor, _half_widths, anchor_settings
 
     system = ip.load_system(name)
     half = _half_widths(system)

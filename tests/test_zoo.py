@@ -11,7 +11,7 @@ import pinocchio as pin
 import pytest
 
 import idapbc_pin as ip
-from idapbc_pin.zoo import ZOO, ZooEntry, zoo_dir, zoo_entry, zoo_names, zoo_urdf_path
+from idapbc_pin.model.zoo import ZOO, ZooEntry, zoo_dir, zoo_entry, zoo_names, zoo_urdf_path
 
 # name -> (coordinates in model order, Pinocchio nq, coordinates that are pendulum angles).
 # Pendulum angles are those along which U(q) has a strict maximum at q = 0 (upright); along the

@@ -49,9 +49,9 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ._io import atomic_write_bytes, write_json
-from ._pipeline import Job, Pipeline, PipelineError, load_pipeline
-from .errors import IdapbcError
+from .._io import atomic_write_bytes, write_json
+from .pipeline import Job, Pipeline, PipelineError, load_pipeline
+from ..errors import IdapbcError
 
 __all__ = [
     "BatchResult",
@@ -172,7 +172,7 @@ def _train_or_resume(system, config, workdir: Path):
 
     Returns (run, how) with how None (fresh), "reused" or "resumed from epoch K".
     """
-    from .train import load_run, train
+    from ..training.train import load_run, train
 
     runs = sorted(p.parent for p in workdir.glob("*/config.json"))
     for stale in runs[:-1]:
@@ -337,9 +337,9 @@ def run_job(job: Job, job_dir: str | Path, batch_token: str | None = None) -> di
 def _stages(job: Job, workdir: Path, record: dict):
     import torch
 
-    from .evaluate import evaluate_run
-    from .system import load_system
-    from .view import view
+    from ..evaluation.evaluate import evaluate_run
+    from ..model.system import load_system
+    from ..viewer.view import view
 
     timings = record["timings"]
 
@@ -658,7 +658,7 @@ def run_batch(
 
     Parameters
     ----------
-    pipeline_path : the TOML pipeline (see `idapbc_pin._pipeline` for the format).
+    pipeline_path : the TOML pipeline (see `idapbc_pin.batch.pipeline` for the format).
     workers : jobs at a time (default: the number of cores, at most the number of jobs); 1 runs
         them one by one in this process. With ``ray="auto"`` it is the local instance's num_cpus.
     ray : None (local processes), ``"auto"`` (a new local Ray instance; the cluster in
@@ -885,7 +885,7 @@ def zoo_table_markdown(summary_csv) -> str:
     head = ["robot", "actuated", "success, domain: NIDA-PBC / LQR", "success, half box: NIDA-PBC / LQR",
             "median settling: NIDA-PBC / LQR", "x* LES", "dissipation ok", "sublevel set covers", "training"]  # fmt: skip
     note = (
-        f"Generated from `{Path(summary_csv).name}` by `idapbc_pin.batch.zoo_table_markdown`: {n} uniform states per box, "
+        f"Generated from `{Path(summary_csv).name}` by `idapbc_pin.batch.batch.zoo_table_markdown`: {n} uniform states per box, "
         f"T = {T} s, success = within 0.05 of x* over the last 2 s (DESIGN §4); certificate figures are sampled, not proofs."
     )
     return _table(head, body) + "\n\n" + note + "\n"

@@ -16,7 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from ._mechanics import mechanical_f, mechanical_jacobian
-from .errors import IdapbcError
+from ..errors import IdapbcError
 
 __all__ = ["JointInfo", "PinocchioPlant", "load_urdf_plant"]
 

@@ -49,8 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import write_json
-from .errors import IdapbcError
+from .._io import write_json
+from ..errors import IdapbcError
 
 __all__ = [
     "Certificate",
@@ -404,7 +404,7 @@ def resolve_controller(run_or_ctrl, epsilon: float | None = None):
     path = None
     obj = run_or_ctrl
     if isinstance(obj, (str, os.PathLike)):
-        from .train import load_run
+        from ..training.train import load_run
 
         obj = load_run(obj)
     if hasattr(obj, "controller") and hasattr(obj, "path"):  # a Run
@@ -495,7 +495,7 @@ def _sublevel(t: ClosedLoopTerms, exclude: float, epsilon: float, c_boundary: fl
 
 
 def _equilibrium(ctrl, system, n_each: int, T: float, dt: float, seed: int) -> Equilibrium:
-    from .simulate import SUCCESS_WINDOW, settled, simulate, success, uniform_states, wrap_angles
+    from ..sim.simulate import SUCCESS_WINDOW, settled, simulate, success, uniform_states, wrap_angles
 
     x_star = _f64(system.x_star)
     lo, hi = (_f64(b) for b in system.domain)

@@ -18,7 +18,7 @@ import numpy as np
 
 from ._pinocchio import JointInfo, load_urdf_plant
 from .analytic import ANALYTIC
-from .errors import IdapbcError, NotAnEquilibriumError
+from ..errors import IdapbcError, NotAnEquilibriumError
 from .zoo import ZOO, zoo_urdf_path
 
 __all__ = [
@@ -291,7 +291,7 @@ def load_system(
 
     Parameters
     ----------
-    source : path to a .urdf; a zoo name (`idapbc_pin.zoo.zoo_names()`); a built-in analytic
+    source : path to a .urdf; a zoo name (`idapbc_pin.model.zoo.zoo_names()`); a built-in analytic
         name (``paper_double_pendulum``, ``paper_cartpole``, ``paper_mass_spring_damper``); or
         ``erd:<stem>`` for example-robot-data's ``robots/*/urdf/<stem>.urdf``.
     actuated : names of the actuated joints (order = order of u). Default: the registry entry's.

@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .simulate import LQRController, RoaResult, roa
-from .train import Run, _write_json
+from ..sim.simulate import LQRController, RoaResult, roa
+from ..training.train import Run, _write_json
 
 __all__ = ["Evaluation", "evaluate_run", "format_evaluation"]
 

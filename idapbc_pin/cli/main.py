@@ -8,13 +8,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .errors import IdapbcError
+from ..errors import IdapbcError
 
 __all__ = ["main"]
 
 
 def TrainConfig_fast_help() -> str:
-    from .config import TrainConfig
+    from ..config import TrainConfig
 
     return TrainConfig.fast.__doc__.splitlines()[0].split(": ", 1)[-1]
 
@@ -58,15 +58,15 @@ def system_kwargs(args: argparse.Namespace) -> dict:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
-    from .inspection import format_report, inspect_system
+    from ..model.inspection import format_report, inspect_system
 
     print(format_report(inspect_system(args.source, **system_kwargs(args))))
     return 0
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
-    from .analytic import ANALYTIC
-    from .zoo import ZOO
+    from ..model.analytic import ANALYTIC
+    from ..model.zoo import ZOO
 
     print("zoo (urdf/):")
     for entry in ZOO.values():
@@ -79,9 +79,9 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from .config import TrainConfig
-    from .system import load_system
-    from .train import train
+    from ..config import TrainConfig
+    from ..model.system import load_system
+    from ..training.train import train
 
     overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth") if getattr(args, k) is not None}
     if args.resume:
@@ -100,20 +100,20 @@ def _cmd_train(args: argparse.Namespace) -> int:
         print(f"interrupted: resume with  idapbc-pin train --resume {run.path}")
         return 130
     if args.evaluate > 0:
-        from .evaluate import evaluate_run, format_evaluation
+        from ..evaluation.evaluate import evaluate_run, format_evaluation
 
         print(format_evaluation(evaluate_run(run, n=args.evaluate)))
     return 0
 
 
 def raise_usage(message: str):
-    from .errors import IdapbcError
+    from ..errors import IdapbcError
 
     raise IdapbcError(f"{message}. Fix: see `idapbc-pin train --help`.")
 
 
 def _resume_system(run_dir):
-    from .train import load_run_system
+    from ..training.train import load_run_system
 
     return load_run_system(run_dir)
 
@@ -172,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_system_arguments(p)
     p.set_defaults(func=_cmd_inspect)
 
-    from .config import FIELD_HELP
+    from ..config import FIELD_HELP
 
     p = sub.add_parser("train", help="train Neural IDA-PBC; writes a run directory")
     p.add_argument("source", metavar="SOURCE", nargs="?", help="URDF path, zoo name, built-in name or erd:<stem>")
@@ -194,15 +194,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("list", help="zoo robots and built-in systems")
     p.set_defaults(func=_cmd_list)
 
-    from .view import add_view_command
+    from ..viewer.view import add_view_command
 
     add_view_command(sub)
 
-    from .report import add_eval_commands
+    from ..reporting.report import add_eval_commands
 
     add_eval_commands(sub)
 
-    from .batch import add_batch_command
+    from ..batch.batch import add_batch_command
 
     add_batch_command(sub)
     return parser

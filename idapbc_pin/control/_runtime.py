@@ -5,7 +5,7 @@ of dispatch, and one evaluation of the three networks is about 70 of them: 0.65 
 networks and 1.2 ms for the paper's 3×300 (`benchmarks/bench_controller.py`, one state), above a
 1 kHz loop's budget. The same arithmetic in numpy costs about 1 µs per operation. `DesiredFlow`
 holds the weights as numpy arrays (in the networks' dtype) and repeats, operation for operation,
-the explicit forms of `idapbc_pin.networks`:
+the explicit forms of `idapbc_pin.control.networks`:
 
 * ∇H_d from the ICNN's explicit backward pass (`EnergyNet.value_and_grad_explicit`),
 * J_d = J0 + S skew(NN_J(u) − NN_J(0)) S, or skew(NN_J(u)) in the free form,
@@ -59,7 +59,7 @@ class _Mlp:
 class DesiredFlow:
     """f̃_d(x) = (J_d(x) − R_d(x))∇H_d(x) for (N, n) numpy states, from frozen weights.
 
-    Fields mirror the torch modules' buffers and parameters (see `idapbc_pin.networks`); arrays
+    Fields mirror the torch modules' buffers and parameters (see `idapbc_pin.control.networks`); arrays
     have the networks' dtype (float32 or float64). Build it with `snapshot`.
     """
 

@@ -24,7 +24,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from .lqr import lqr
+from ..control.linear import lqr
 
 __all__ = [
     "DIVERGENCE_BOUND",

@@ -30,9 +30,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ._io import atomic_write_bytes
-from .certify import closed_loop_terms, resolve_controller, write_json_atomic
-from .errors import IdapbcError
+from .._io import atomic_write_bytes
+from ..certificate.certify import closed_loop_terms, resolve_controller, write_json_atomic
+from ..errors import IdapbcError
 
 __all__ = [
     "DEFAULT_EXTRA_RHO",
@@ -98,7 +98,7 @@ class FigureData:
 
 
 def _initial_states(system, x0, n: int, seed: int) -> np.ndarray:
-    from .simulate import uniform_states
+    from ..sim.simulate import uniform_states
 
     if x0 is None:
         if int(n) < 1:
@@ -169,7 +169,7 @@ def figure_data(
 
     Parameters
     ----------
-    run : a `Run`, a run directory or a controller (see `idapbc_pin.certify`).
+    run : a `Run`, a run directory or a controller (see `idapbc_pin.certificate.certify`).
     x0 : (N, n) initial states or (N, nq) positions at rest; default `n` uniform states of the
         half-size box (seed `seed`).
     T, dt : horizon and RK4 step, s.
@@ -179,8 +179,8 @@ def figure_data(
     saturation, noise : as in `simulate` and `MeasuredController`.
     traj : an already simulated `Trajectory` of this controller (then nothing is simulated).
     """
-    from .robustness import MeasuredController
-    from .simulate import simulate
+    from ..evaluation.robustness import MeasuredController
+    from ..sim.simulate import simulate
 
     ctrl, system, eps, _ = resolve_controller(run, epsilon)
     if rho is not None:
@@ -349,7 +349,7 @@ def extra_damping_rho(ctrl, n: int = 2000, seed: int = 0) -> float:
     run's R_d = −sym(A_cl P⁻¹) can reach 10⁴ when P is scaled to λ_max = 1), so a fixed ρ = 1 may
     change nothing; this roughly doubles the damping along ∇H_d whatever the scale.
     """
-    from .simulate import uniform_states
+    from ..sim.simulate import uniform_states
 
     x = uniform_states(ctrl.system, n, "half", seed)
     dH = np.asarray(ctrl.grad_H_d(x), float)
@@ -368,7 +368,7 @@ def _extra_rho(ctrl, rho_extra) -> float:
 
 def _as_run(run):
     if isinstance(run, (str, os.PathLike)):
-        from .train import load_run
+        from ..training.train import load_run
 
         return load_run(run)
     return run
@@ -452,7 +452,7 @@ class SimulationResult:
 def _scores(system, controllers, x0, T, dt, saturation, box_name, box, seed):
     import time
 
-    from .simulate import ControllerScore, RoaResult, equilibrium_offset, peak_input, settled, settling_time, simulate, success
+    from ..sim.simulate import ControllerScore, RoaResult, equilibrium_offset, peak_input, settled, settling_time, simulate, success
 
     scores, trajs = {}, {}
     for name, ctrl in controllers.items():
@@ -498,9 +498,9 @@ def simulate_run(
     mismatch : {kind: scale} or "mass=1.2,..." for the judge plant (`perturbed_system`).
     saturation : max |u| per input.   noise : σ of the (q, v) measurement noise.
     """
-    from .robustness import MeasuredController, parse_mismatch, perturbed_system
-    from .simulate import LQRController, evaluation_box, uniform_states
-    from .train import load_run
+    from ..evaluation.robustness import MeasuredController, parse_mismatch, perturbed_system
+    from ..sim.simulate import LQRController, evaluation_box, uniform_states
+    from ..training.train import load_run
 
     if not hasattr(run, "controller"):
         run = load_run(run)
@@ -535,7 +535,7 @@ def simulate_run(
                 "mismatch": scales, "saturation": saturation, "noise": noise}
     json_path = fig_path = None
     if write:
-        from .simulate import Trajectory
+        from ..sim.simulate import Trajectory
 
         record = dict(settings)
         for name, s in res.scores.items():
@@ -545,7 +545,7 @@ def simulate_run(
                 "success": s.success.tolist(), "settling_time": s.settling_time.tolist(),
             }
         record["x0"] = x0.tolist()
-        from .certify import _clean
+        from ..certificate.certify import _clean
 
         json_path = write_json_atomic(run.path / "simulation.json", _clean(record))
         k = min(int(n_figure), x0.shape[0])
@@ -579,9 +579,9 @@ def report(
     ``pick="success"``); the summary is also
     written to ``report.txt``.
     """
-    from .certify import certify
-    from .evaluate import evaluate_run, format_evaluation
-    from .train import load_run
+    from ..certificate.certify import certify
+    from ..evaluation.evaluate import evaluate_run, format_evaluation
+    from ..training.train import load_run
 
     if not hasattr(run, "controller"):
         run = load_run(run)
@@ -591,12 +591,12 @@ def report(
     fig_path = _save_png(plot(rows), run.path / "figure.png")
     parts = [format_evaluation(evaluation), cert.table(), f"figure: {fig_path}"]
     if html:
-        from .view import view
+        from ..viewer.view import view
 
         viewer = view(run, n=3, T=10.0, seed=seed, pick="success", open_server=False)
         parts.append(f"replay: {viewer.write_html(run.path / 'replay.html')} ({viewer.note})")
     text = "\n\n".join(parts)
-    from .train import _atomic_write_bytes
+    from ..training.train import _atomic_write_bytes
 
     _atomic_write_bytes(run.path / "report.txt", (text + "\n").encode())
     return text
@@ -616,7 +616,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_certify(args: argparse.Namespace) -> int:
-    from .certify import certify
+    from ..certificate.certify import certify
 
     cert = certify(args.run, n=args.n, seed=args.seed, epsilon=args.epsilon, settle=args.settle)
     print(cert.table())
@@ -630,7 +630,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
-    from .robustness import default_conditions, robustness_table
+    from ..evaluation.robustness import default_conditions, robustness_table
 
     sat = "auto" if args.saturation is None else args.saturation
     conds = default_conditions(mass=args.mass, saturation=sat, noise=args.noise)

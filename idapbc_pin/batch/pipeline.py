@@ -35,9 +35,9 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .config import TrainConfig
-from .errors import IdapbcError
-from .system import load_system
+from ..config import TrainConfig
+from ..errors import IdapbcError
+from ..model.system import load_system
 
 __all__ = ["Job", "Pipeline", "PipelineError", "load_pipeline", "SMOKE_TRAIN", "SMOKE_EVALUATE", "SMOKE_CERTIFY", "SMOKE_FIGURE", "SMOKE_VIEW"]
 

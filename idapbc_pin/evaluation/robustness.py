@@ -31,7 +31,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .errors import IdapbcError
+from ..errors import IdapbcError
 
 __all__ = [
     "MISMATCH_KINDS",
@@ -89,7 +89,7 @@ def parse_mismatch(spec) -> dict[str, float]:
 def _scaled_pinocchio(plant, mass: float, length: float, damping: float):
     import pinocchio as pin
 
-    from ._pinocchio import PinocchioPlant
+    from ..model._pinocchio import PinocchioPlant
 
     model = plant.model.copy()
     for jid in range(1, model.njoints):
@@ -109,7 +109,7 @@ def _scaled_pinocchio(plant, mass: float, length: float, damping: float):
 
 
 def _scaled_analytic(plant, joints, mass: float, length: float, damping: float):
-    from .analytic import CosCoupledPlant, MassSpringDamperPlant
+    from ..model.analytic import CosCoupledPlant, MassSpringDamperPlant
 
     if isinstance(plant, CosCoupledPlant):
         new = copy.copy(plant)
@@ -328,13 +328,13 @@ def robustness_table(
     Parameters
     ----------
     run : a `Run` or a run directory (its controller, optionally with extra damping `rho`).
-    n, T, dt, seed, box : the ROA settings (`idapbc_pin.simulate.roa`); the same states in every row.
+    n, T, dt, seed, box : the ROA settings (`idapbc_pin.sim.simulate.roa`); the same states in every row.
     conditions : rows (default `default_conditions()`: nominal, mass ×0.8 and ×1.2, saturation at
         `saturation_factor` × LQR's median nominal peak |u|, noise σ = 0.01).
     write : write ``robustness.json`` into the run directory.
     """
-    from .simulate import LQRController, roa
-    from .train import load_run
+    from ..sim.simulate import LQRController, roa
+    from ..training.train import load_run
 
     t0 = time.perf_counter()
     if not hasattr(run, "controller"):
@@ -368,13 +368,13 @@ def robustness_table(
         conditions=tuple(resolved), results=tuple(results), wall_time=time.perf_counter() - t0,
     )
     if write and getattr(run, "path", None) is not None:
-        from .certify import write_json_atomic
+        from ..certificate.certify import write_json_atomic
 
         write_json_atomic(run.path / "robustness.json", _clean(result.to_dict()))
     return result
 
 
 def _clean(obj):
-    from .certify import _clean as clean
+    from ..certificate.certify import _clean as clean
 
     return clean(obj)

@@ -25,13 +25,13 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from ._io import atomic_write_bytes, write_json
-from .config import TrainConfig
-from .controller import Controller, IdaPbcNets, anchor_settings, build_nets
-from .errors import IdapbcError
+from .._io import atomic_write_bytes, write_json
+from ..config import TrainConfig
+from ..control.controller import Controller, IdaPbcNets, anchor_settings, build_nets
+from ..errors import IdapbcError
 from .loss import TERMS, AdaptiveWeights, loss_terms
-from .lqr import fastest_pole
-from .system import System, load_system
+from ..control.linear import fastest_pole
+from ..model.system import System, load_system
 
 __all__ = ["Run", "TrainingDiverged", "load_run", "load_run_system", "train"]
 

@@ -18,10 +18,10 @@ import torch
 from torch import Tensor, nn
 
 from ._runtime import DesiredFlow, snapshot
-from .config import TrainConfig
-from .lqr import fastest_pole, lqr_anchor
+from ..config import TrainConfig
+from .linear import fastest_pole, lqr_anchor
 from .networks import DampingNet, EnergyNet, InterconnectionNet
-from .system import System
+from ..model.system import System
 
 __all__ = ["Controller", "IdaPbcNets", "build_nets"]
 

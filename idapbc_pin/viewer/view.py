@@ -56,7 +56,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import IdapbcError
+from ..errors import IdapbcError
 
 __all__ = [
     "DEFAULT_FPS",
@@ -390,7 +390,7 @@ class _Drawing:
 def _package_dirs(urdf: Path) -> list[str]:
     dirs = [str(urdf.parent), str(urdf.parent.parent)]
     try:
-        from .system import erd_robots_dir
+        from ..model.system import erd_robots_dir
 
         dirs.append(str(erd_robots_dir().parent.parent))
     except IdapbcError:
@@ -549,7 +549,7 @@ class _AnalyticDrawing(_Drawing):
     """The paper's analytic systems, drawn from their coordinates (no URDF)."""
 
     def __init__(self, system):
-        from .analytic import CosCoupledPlant
+        from ..model.analytic import CosCoupledPlant
 
         plant = system.plant
         kinds = tuple(j.kind for j in system.joints)
@@ -970,7 +970,7 @@ class Viewer:
 
     def write_html(self, path) -> Path:
         """Write `replay_html` to `path` atomically (temp file + rename); returns the path."""
-        from ._io import atomic_write_bytes
+        from .._io import atomic_write_bytes
 
         return atomic_write_bytes(path, self.replay_html().encode("utf-8"))
 
@@ -1034,11 +1034,11 @@ def _resolve(run_or_system):
     if isinstance(run_or_system, (str, Path)):
         p = Path(run_or_system)
         if p.is_dir() and (p / "config.json").is_file():
-            from .train import load_run
+            from ..training.train import load_run
 
             run_or_system = load_run(p)
         else:
-            from .system import load_system
+            from ..model.system import load_system
 
             run_or_system = load_system(str(run_or_system))
     if hasattr(run_or_system, "controller") and hasattr(run_or_system, "system"):
@@ -1050,7 +1050,7 @@ def _resolve(run_or_system):
 
 def _initial_states(system, x0, n: int, seed: int) -> np.ndarray:
     if x0 is None:
-        from .simulate import uniform_states
+        from ..sim.simulate import uniform_states
 
         if n < 1:
             raise IdapbcError(f"n must be at least 1, got {n}.")
@@ -1068,7 +1068,7 @@ def _initial_states(system, x0, n: int, seed: int) -> np.ndarray:
 
 
 def _simulate(system, controller, x0, T: float, dt: float):
-    from .simulate import LQRController, simulate
+    from ..sim.simulate import LQRController, simulate
 
     if controller is None:
         controller = LQRController(system)
@@ -1086,7 +1086,7 @@ def _pick_successes(system, controller, n: int, T: float, dt: float, seed: int):
     """Up to `n` rollouts that reach x* (DESIGN §4 criterion over the last 2 s of `T`) among
     ``PICK_CANDIDATES · n`` uniform states of the half box, in draw order, filled up with failing
     ones when fewer succeed. Returns (Trajectory of n rows, number reaching x*, candidates)."""
-    from .simulate import Trajectory, success
+    from ..sim.simulate import Trajectory, success
 
     candidates = _initial_states(system, None, PICK_CANDIDATES * n, seed)
     traj = _simulate(system, controller, candidates, T, dt)
@@ -1125,7 +1125,7 @@ def view(
     ----------
     run_or_system : a trained `Run`, a `System`, a run directory or a system source (URDF path,
         zoo or built-in name, ``erd:<stem>``).
-    trajectories : a `Trajectory` from `idapbc_pin.simulate` (all its rollouts), a list of them,
+    trajectories : a `Trajectory` from `idapbc_pin.sim.simulate` (all its rollouts), a list of them,
         or a pair (t (K,), q (K, nq) or (N, K, nq)). None: simulate `n` rollouts of `T` s (step `dt`)
         from states drawn uniformly from the half-size training box (seed `seed`), or from `x0`,
         with the run's controller, or the LQR baseline when given a `System`.
@@ -1185,7 +1185,7 @@ def write_html(path, run_or_system, trajectories=None, **kwargs) -> Path:
 # ====================================================================== CLI
 def add_view_command(subparsers) -> argparse.ArgumentParser:
     """Register ``idapbc-pin view RUN_OR_SOURCE ...`` on an argparse sub-parsers object."""
-    from .cli import _key_range, _key_value
+    from ..cli.main import _key_range, _key_value
 
     p = subparsers.add_parser(
         "view",
@@ -1221,13 +1221,13 @@ def add_view_command(subparsers) -> argparse.ArgumentParser:
 def _cmd_view(args: argparse.Namespace) -> int:
     import signal
 
-    from .cli import system_kwargs
+    from ..cli.main import system_kwargs
 
     source = Path(args.source)
     if source.is_dir() and (source / "config.json").is_file():
         target = str(source)
     else:
-        from .system import load_system
+        from ..model.system import load_system
 
         target = load_system(args.source, **system_kwargs(args))
     serve = args.html is None or args.serve or args.port is not None

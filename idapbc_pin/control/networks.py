@@ -14,7 +14,7 @@ Two forms of each (chosen by passing anchors or not):
 
 * free form (the paper's, with the exact Bregman shift for H_d);
 * anchored form (DESIGN §2 "Local exactness: an LQR anchor"): given (P, J0, R0) from
-  :func:`idapbc_pin.lqr.lqr_anchor`, ∇²H_d(x*) = P, J_d(x*) = J0, R_d(x*) = R0 (ρ = 0), so the
+  :func:`idapbc_pin.control.linear.lqr_anchor`, ∇²H_d(x*) = P, J_d(x*) = J0, R_d(x*) = R0 (ρ = 0), so the
   closed-loop Jacobian at x* is (J0 - R0)P = A - BK, the LQR loop, for any weights.
 
 Conventions: states x have shape (N, n) (any leading batch shape works), x* has shape (n,). The

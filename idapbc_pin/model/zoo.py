@@ -15,7 +15,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import IdapbcError
+from ..errors import IdapbcError
 
 __all__ = ["ZOO", "ZOO_ENV_VAR", "ZooEntry", "zoo_dir", "zoo_entry", "zoo_names", "zoo_urdf_path"]
 
@@ -133,7 +133,7 @@ def zoo_dir() -> Path:
     env = os.environ.get(ZOO_ENV_VAR)
     if env:
         return Path(env).expanduser().resolve()
-    return Path(__file__).resolve().parents[1] / "urdf"
+    return Path(__file__).resolve().parents[2] / "urdf"
 
 
 def zoo_urdf_path(name: str) -> Path:

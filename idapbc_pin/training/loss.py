@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .controller import IdaPbcNets
+from ..control.controller import IdaPbcNets
 
 __all__ = ["TERMS", "AdaptiveWeights", "loss_terms"]
 

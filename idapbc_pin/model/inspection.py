@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import IdapbcError, NotAnEquilibriumError
-from .lqr import controllability_rank
+from ..errors import IdapbcError, NotAnEquilibriumError
+from ..control.linear import controllability_rank
 from .system import System, load_system
 
 __all__ = ["Candidate", "ModelReport", "format_report", "inspect_system"]
