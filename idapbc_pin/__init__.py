@@ -21,7 +21,8 @@ from .reporting.report import figure, report
 from .evaluation.robustness import perturbed_system, robustness_table
 from .sim.simulate import LQRController, roa, simulate
 from .model.system import System, load_system
-from .training.train import Run, load_run, train
+from .training.run import Run, load_run
+from .training.train import train
 from .viewer.view import view, write_html
 
 __version__ = "0.1.0"

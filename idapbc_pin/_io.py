@@ -1,17 +1,28 @@
-"""Atomic file writes: a temp file in the same folder, fsync, then os.replace.
+"""Run-directory files: atomic writes, one to-JSON conversion, and one reader that names damage.
 
-A reader never sees a half-written file, and a crash leaves the previous version (DESIGN: run
-directories are never corrupted).
+Writes go to a temp file in the same folder, are fsynced, then `os.replace`d: a reader never sees a
+half-written file, and a crash leaves the previous version. Reads of JSON files that a run or batch
+directory holds go through `read_json`, which turns a missing, truncated or garbled file into one
+`IdapbcError` line naming the file and the fix.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write_bytes", "write_json"]
+import numpy as np
+
+from .errors import IdapbcError
+
+__all__ = ["DamagedFileError", "atomic_write_bytes", "finite_or_none", "read_json", "to_json", "write_json"]
+
+
+class DamagedFileError(IdapbcError):
+    """A file of a run or batch directory exists but cannot be read (truncated, garbled, non-finite)."""
 
 
 def atomic_write_bytes(path, data: bytes) -> Path:
@@ -32,7 +43,55 @@ def atomic_write_bytes(path, data: bytes) -> Path:
     return path
 
 
-def write_json(path, obj, *, sort_keys: bool = True, default=None, allow_nan: bool = True) -> Path:
-    """`obj` as indented JSON, written atomically."""
-    text = json.dumps(obj, indent=2, sort_keys=sort_keys, default=default, allow_nan=allow_nan) + "\n"
+def finite_or_none(v):
+    """A float, or None for None, NaN, ±inf and values that are not numbers."""
+    if v is None or isinstance(v, (bool, np.bool_)):
+        return None if v is None else float(v)
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def to_json(obj):
+    """`obj` with numpy scalars and arrays as Python values, tuples as lists, paths as strings and
+    non-finite floats as None (JSON has no NaN): the one conversion every JSON file goes through."""
+    if isinstance(obj, dict):
+        return {str(k): to_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, set)):
+        return [to_json(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_json(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return finite_or_none(obj)
+    if isinstance(obj, os.PathLike):
+        return str(obj)
+    if hasattr(obj, "tolist"):  # torch tensors and other array-likes
+        return to_json(obj.tolist())
+    return obj
+
+
+def write_json(path, obj, *, sort_keys: bool = True) -> Path:
+    """`to_json(obj)` as indented JSON, written atomically; returns the path."""
+    text = json.dumps(to_json(obj), indent=2, sort_keys=sort_keys, allow_nan=False, default=str) + "\n"
     return atomic_write_bytes(path, text.encode())
+
+
+def read_json(path, *, fix: str = "restore it from a backup, or delete the run directory and train again"):
+    """The JSON value in `path`; a missing or unreadable file raises one `IdapbcError` line.
+
+    fix : what the user should do when the file is damaged (ends the error's `Fix:` sentence).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise IdapbcError(f"'{path}' is missing. Fix: {fix}.")
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DamagedFileError(f"{path} is damaged ({reason}). Fix: {fix}.") from None

@@ -13,7 +13,8 @@ import torch
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
 from idapbc_pin.control.controller import Controller, build_nets
-from idapbc_pin.training.train import TrainingDiverged, load_run, train
+from idapbc_pin.training.run import load_run
+from idapbc_pin.training.train import TrainingDiverged, train
 
 TINY = dict(width=16, depth=2, samples=64, checkpoint_every=5)
 

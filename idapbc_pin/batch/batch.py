@@ -101,15 +101,7 @@ _atomic_write_bytes = atomic_write_bytes
 
 
 def _write_json(path: Path, obj) -> None:
-    write_json(path, obj, default=_json_default)
-
-
-def _json_default(obj):
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    if isinstance(obj, (set, tuple)):
-        return list(obj)
-    return str(obj)
+    write_json(path, obj)
 
 
 def _read_json(path: Path) -> dict | None:
@@ -172,7 +164,8 @@ def _train_or_resume(system, config, workdir: Path):
 
     Returns (run, how) with how None (fresh), "reused" or "resumed from epoch K".
     """
-    from ..training.train import load_run, train
+    from ..training.run import load_run
+    from ..training.train import train
 
     runs = sorted(p.parent for p in workdir.glob("*/config.json"))
     for stale in runs[:-1]:

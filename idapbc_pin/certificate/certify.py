@@ -392,7 +392,7 @@ def _clean(obj):
 
 def write_json_atomic(path: Path, obj) -> Path:
     """Write `obj` as JSON to `path` atomically (temp file in the same folder + os.replace)."""
-    return write_json(path, obj, sort_keys=False, allow_nan=False)
+    return write_json(path, obj, sort_keys=False)
 
 
 # ====================================================================== pieces
@@ -404,7 +404,7 @@ def resolve_controller(run_or_ctrl, epsilon: float | None = None):
     path = None
     obj = run_or_ctrl
     if isinstance(obj, (str, os.PathLike)):
-        from ..training.train import load_run
+        from ..training.run import load_run
 
         obj = load_run(obj)
     if hasattr(obj, "controller") and hasattr(obj, "path"):  # a Run

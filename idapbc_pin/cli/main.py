@@ -113,7 +113,7 @@ def raise_usage(message: str):
 
 
 def _resume_system(run_dir):
-    from ..training.train import load_run_system
+    from ..training.run import load_run_system
 
     return load_run_system(run_dir)
 

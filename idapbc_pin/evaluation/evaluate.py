@@ -11,7 +11,8 @@ import math
 from dataclasses import dataclass
 
 from ..sim.simulate import LQRController, RoaResult, roa
-from ..training.train import Run, _write_json
+from .._io import write_json as _write_json
+from ..training.run import Run
 
 __all__ = ["Evaluation", "evaluate_run", "format_evaluation"]
 

@@ -334,7 +334,7 @@ def robustness_table(
     write : write ``robustness.json`` into the run directory.
     """
     from ..sim.simulate import LQRController, roa
-    from ..training.train import load_run
+    from ..training.run import load_run
 
     t0 = time.perf_counter()
     if not hasattr(run, "controller"):

@@ -368,7 +368,7 @@ def _extra_rho(ctrl, rho_extra) -> float:
 
 def _as_run(run):
     if isinstance(run, (str, os.PathLike)):
-        from ..training.train import load_run
+        from ..training.run import load_run
 
         return load_run(run)
     return run
@@ -500,7 +500,7 @@ def simulate_run(
     """
     from ..evaluation.robustness import MeasuredController, parse_mismatch, perturbed_system
     from ..sim.simulate import LQRController, evaluation_box, uniform_states
-    from ..training.train import load_run
+    from ..training.run import load_run
 
     if not hasattr(run, "controller"):
         run = load_run(run)
@@ -581,7 +581,7 @@ def report(
     """
     from ..certificate.certify import certify
     from ..evaluation.evaluate import evaluate_run, format_evaluation
-    from ..training.train import load_run
+    from ..training.run import load_run
 
     if not hasattr(run, "controller"):
         run = load_run(run)
@@ -596,7 +596,7 @@ def report(
         viewer = view(run, n=3, T=10.0, seed=seed, pick="success", open_server=False)
         parts.append(f"replay: {viewer.write_html(run.path / 'replay.html')} ({viewer.note})")
     text = "\n\n".join(parts)
-    from ..training.train import _atomic_write_bytes
+    from .._io import atomic_write_bytes as _atomic_write_bytes
 
     _atomic_write_bytes(run.path / "report.txt", (text + "\n").encode())
     return text

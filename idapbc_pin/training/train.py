@@ -1,143 +1,34 @@
 """The trainer: fresh uniform samples each epoch, named loss terms with adaptive weights, Adam,
-atomic checkpoints (last and best), resume, NaN guard, Ctrl-C, and a self-contained run directory.
-
-Run directory (`<out>/<stamp>/`, `out` defaults to ``runs/<system>``)::
-
-    config.json      resolved TrainConfig          system.json   source, actuated, target, domain, URDF hash
-    robot.urdf       copy of the URDF (if any)     metrics.csv   one row per epoch, every term by name
-    checkpoints/last.pt, best.pt                   summary.json  final terms, ε, eigenvalues at x*, status
+atomic checkpoints (last and best), resume, NaN guard, Ctrl-C. The run directory it writes is
+described in `training.run`.
 """
 
 from __future__ import annotations
 
 import csv
 import datetime as _dt
-import hashlib
-import io
-import json
 import math
-import shutil
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .._io import atomic_write_bytes, write_json
+from .._io import write_json
 from ..config import TrainConfig
-from ..control.controller import Controller, IdaPbcNets, anchor_settings, build_nets
+from ..control.controller import anchor_settings, build_nets
 from ..errors import IdapbcError
 from .loss import TERMS, AdaptiveWeights, loss_terms
 from ..control.linear import fastest_pole
-from ..model.system import System, load_system
+from ..model.system import System
+from .run import Run, read_checkpoint, read_config, save_checkpoint, system_record
 
-__all__ = ["Run", "TrainingDiverged", "load_run", "load_run_system", "train"]
+__all__ = ["TrainingDiverged", "train"]
 
 
 class TrainingDiverged(IdapbcError):
     """A loss term or gradient became NaN or inf; the last good checkpoint is kept."""
-
-
-# ---------------------------------------------------------------------------------------- files
-_atomic_write_bytes = atomic_write_bytes
-_write_json = write_json
-
-
-def _save_checkpoint(path: Path, state: dict) -> None:
-    buf = io.BytesIO()
-    torch.save(state, buf)
-    _atomic_write_bytes(path, buf.getvalue())
-
-
-def _system_record(system: System, run_dir: Path) -> dict:
-    record = {
-        "name": system.name,
-        "source": system.source,
-        "actuated": list(system.actuated),
-        "target": {nm: float(v) for nm, v in zip(system.coordinate_names, system.x_star[: system.nq])},
-        "domain": {"lo": system.domain[0].tolist(), "hi": system.domain[1].tolist()},
-        "state_names": list(system.state_names),
-        "urdf": None,
-    }
-    src = Path(system.source)
-    if src.suffix == ".urdf" and src.is_file():
-        shutil.copyfile(src, run_dir / "robot.urdf")
-        record["urdf"] = {"file": "robot.urdf", "sha256": hashlib.sha256(src.read_bytes()).hexdigest()}
-    return record
-
-
-def _system_from_record(record: dict, run_dir: Path) -> System:
-    source = record["source"]
-    if record.get("urdf"):
-        copy = run_dir / record["urdf"]["file"]
-        if hashlib.sha256(copy.read_bytes()).hexdigest() != record["urdf"]["sha256"]:
-            raise IdapbcError(f"'{copy}' does not match the hash recorded at training time. Fix: restore the run's robot.urdf.")
-        source = str(copy)
-    system = load_system(source, actuated=record["actuated"], target=record["target"], domain=(record["domain"]["lo"], record["domain"]["hi"]))
-    return _rename(system, record["name"], record["source"])
-
-
-def _rename(system: System, name: str, source: str) -> System:
-    from dataclasses import replace
-
-    return replace(system, name=name, source=source)
-
-
-# ---------------------------------------------------------------------------------------- run
-@dataclass
-class Run:
-    """A trained (or training) run: its directory, system, config, networks and summary."""
-
-    path: Path
-    system: System
-    config: TrainConfig
-    nets: IdaPbcNets
-    summary: dict = field(default_factory=dict)
-
-    @property
-    def controller(self) -> Controller:
-        """The control law u = (gᵀg)⁻¹gᵀ(f̃_d − f) with the trained networks."""
-        return Controller(self.system, self.nets)
-
-
-#: Values of options that runs written before the option existed trained with (their config.json
-#: lacks the key): physical units, and H_d's ICNN fed the box-normalised state.
-LEGACY_DEFAULTS = {"scaling": "none", "energy_input": "box"}
-
-
-def _with_legacy_defaults(raw: dict) -> dict:
-    return {**LEGACY_DEFAULTS, **raw}
-
-
-def load_run(path: str | Path, checkpoint: str = "best") -> Run:
-    """Load a run directory (checkpoints are read with ``torch.load(weights_only=True)``)."""
-    path = Path(path)
-    if not (path / "config.json").is_file():
-        raise IdapbcError(f"'{path}' is not a run directory (no config.json). Fix: pass a directory made by `idapbc-pin train`.")
-    raw = json.loads((path / "config.json").read_text())
-    config = TrainConfig.from_dict(_with_legacy_defaults(raw))
-    system = _system_from_record(json.loads((path / "system.json").read_text()), path)
-    ckpt = path / "checkpoints" / f"{checkpoint}.pt"
-    if not ckpt.is_file():
-        ckpt = path / "checkpoints" / "last.pt"
-    if not ckpt.is_file():
-        raise IdapbcError(f"run '{path}' has no checkpoint yet. Fix: train it (or resume it) first.")
-    torch.manual_seed(config.seed)
-    nets = build_nets(system, config)
-    state = torch.load(ckpt, map_location=config.device, weights_only=True)
-    nets.load_state_dict(state["nets"])
-    summary = json.loads((path / "summary.json").read_text()) if (path / "summary.json").is_file() else {}
-    return Run(path, system, config, nets, summary)
-
-
-def load_run_system(path: str | Path) -> System:
-    """The `System` a run was trained on (from its system.json and URDF copy)."""
-    path = Path(path)
-    if not (path / "system.json").is_file():
-        raise IdapbcError(f"'{path}' is not a run directory (no system.json). Fix: pass a directory made by `idapbc-pin train`.")
-    return _system_from_record(json.loads((path / "system.json").read_text()), path)
 
 
 def _new_run_dir(out: Path) -> Path:
@@ -179,10 +70,9 @@ def train(
     """
     if resume is not None:
         run_dir = Path(resume)
-        raw = json.loads((run_dir / "config.json").read_text())
-        saved = TrainConfig.from_dict(_with_legacy_defaults(raw))
+        saved = read_config(run_dir)
         config = saved if config is None else saved.replace(epochs=config.epochs)
-        state = torch.load(run_dir / "checkpoints" / "last.pt", map_location=config.device, weights_only=True)
+        state = read_checkpoint(run_dir, "last", map_location=config.device)
     else:
         config = config or TrainConfig()
         scaling, anchor_q = anchor_settings(system, config)  # "auto" values resolved: config.json holds what ran
@@ -205,8 +95,8 @@ def train(
         gen.set_state(state["generator"])
         start_epoch, best, eps_ema, elapsed = int(state["epoch"]), float(state["best"]), state["epsilon"], float(state["elapsed"])
     else:
-        _write_json(run_dir / "config.json", config.to_dict())
-        _write_json(run_dir / "system.json", _system_record(system, run_dir))
+        write_json(run_dir / "config.json", config.to_dict())
+        write_json(run_dir / "system.json", system_record(system, run_dir))
     dtype, device = getattr(torch, config.dtype), torch.device(config.device)
     as_t = lambda a: torch.as_tensor(a, dtype=dtype, device=device)  # noqa: E731
 
@@ -219,7 +109,7 @@ def train(
         metrics_path.write_text("\n".join(lines[: start_epoch + 1]) + "\n")
 
     def checkpoint(name: str, epoch: int) -> None:
-        _save_checkpoint(
+        save_checkpoint(
             run_dir / "checkpoints" / f"{name}.pt",
             {
                 "epoch": epoch,
@@ -294,7 +184,7 @@ def train(
 
     run = Run(run_dir, system, config, nets)
     run.summary = _summarise(run, status, epoch, eps_ema, elapsed)
-    _write_json(run_dir / "summary.json", run.summary)
+    write_json(run_dir / "summary.json", run.summary)
     return run
 
 

@@ -1034,7 +1034,7 @@ def _resolve(run_or_system):
     if isinstance(run_or_system, (str, Path)):
         p = Path(run_or_system)
         if p.is_dir() and (p / "config.json").is_file():
-            from ..training.train import load_run
+            from ..training.run import load_run
 
             run_or_system = load_run(p)
         else:

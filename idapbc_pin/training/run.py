@@ -1,0 +1,209 @@
+"""A run directory and its files: `Run`, `load_run`, `resolve_run` and the one checkpoint reader.
+
+Layout of a run directory (`<out>/<stamp>/`, `out` defaults to ``runs/<system>``)::
+
+    config.json      resolved TrainConfig          system.json   source, actuated, target, domain, URDF hash
+    robot.urdf       copy of the URDF (if any)     metrics.csv   one row per epoch, every term by name
+    checkpoints/last.pt, best.pt                   summary.json  final terms, ε, eigenvalues at x*, status
+
+Every file is read here (JSON through `_io.read_json`, checkpoints through `read_checkpoint`), so a
+damaged file always gives the same one-line error that names it and the fix.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import shutil
+import sys
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import torch
+
+from .._io import DamagedFileError, atomic_write_bytes, read_json
+from ..config import TrainConfig
+from ..control.controller import Controller, IdaPbcNets, build_nets
+from ..errors import IdapbcError
+from ..model.system import System, load_system
+
+__all__ = [
+    "CHECKPOINTS",
+    "Run",
+    "load_run",
+    "load_run_system",
+    "read_checkpoint",
+    "read_config",
+    "resolve_run",
+    "save_checkpoint",
+    "system_record",
+]
+
+#: The checkpoints a run keeps: the lowest summed loss so far, and the most recent epoch.
+CHECKPOINTS = ("best", "last")
+
+#: Values of options that runs written before the option existed trained with (their config.json
+#: lacks the key): physical units, and H_d's ICNN fed the box-normalised state.
+LEGACY_DEFAULTS = {"scaling": "none", "energy_input": "box"}
+
+
+@dataclass
+class Run:
+    """A trained (or training) run: its directory, system, config, networks and summary."""
+
+    path: Path
+    system: System
+    config: TrainConfig
+    nets: IdaPbcNets
+    summary: dict = field(default_factory=dict)
+    checkpoint: str = "best"
+
+    @property
+    def controller(self) -> Controller:
+        """The control law u = (gᵀg)⁻¹gᵀ(f̃_d − f) with the trained networks."""
+        return Controller(self.system, self.nets)
+
+
+# ------------------------------------------------------------------------------------ checkpoints
+def save_checkpoint(path: Path, state: dict) -> None:
+    """`torch.save(state)` written atomically (a crash leaves the previous checkpoint)."""
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def _checkpoint_problem(path: Path, map_location="cpu") -> tuple[dict | None, str | None]:
+    """(state, None) for a readable checkpoint with finite weights, else (None, the reason)."""
+    if not path.is_file():
+        return None, "missing"
+    try:
+        state = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:  # torch raises RuntimeError, UnpicklingError, EOFError, … for damaged files
+        return None, (str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__)
+    if not isinstance(state, dict) or not isinstance(state.get("nets"), dict) or "epoch" not in state:
+        return None, "not a checkpoint written by idapbc-pin train"
+    bad = [k for k, v in state["nets"].items() if torch.is_tensor(v) and v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if bad:
+        return None, f"non-finite weights in '{bad[0]}': training diverged before this checkpoint"
+    return state, None
+
+
+def read_checkpoint(run_dir, name: str, map_location="cpu") -> dict:
+    """The state saved in ``run_dir/checkpoints/<name>.pt`` (``weights_only=True``), weights finite.
+
+    A missing, truncated, garbled or non-finite checkpoint raises `DamagedFileError` with one line
+    that names the file and, when the other checkpoint is intact, how to use that one instead.
+    """
+    run_dir = Path(run_dir)
+    path = run_dir / "checkpoints" / f"{name}.pt"
+    state, problem = _checkpoint_problem(path, map_location)
+    if problem is None:
+        return state
+    intact = [o for o in CHECKPOINTS if o != name and _checkpoint_problem(run_dir / "checkpoints" / f"{o}.pt")[1] is None]
+    if intact:
+        other = intact[0]
+        fix = f"use the intact {other}.pt (--checkpoint {other}; for --resume, copy checkpoints/{other}.pt over checkpoints/{name}.pt)"
+    elif problem.startswith("non-finite"):
+        fix = "train again with a lower --lr"
+    else:
+        fix = "no intact checkpoint is left in this run; train again"
+    what = f"'{path}' is missing" if problem == "missing" else f"{path} is damaged ({problem})"
+    raise DamagedFileError(f"{what}. Fix: {fix}.")
+
+
+# ------------------------------------------------------------------------------------ system record
+def system_record(system: System, run_dir: Path) -> dict:
+    """system.json: what `load_system` needs to rebuild the system, and a copy + hash of the URDF."""
+    record = {
+        "name": system.name,
+        "source": system.source,
+        "actuated": list(system.actuated),
+        "target": {nm: float(v) for nm, v in zip(system.coordinate_names, system.x_star[: system.nq])},
+        "domain": {"lo": system.domain[0].tolist(), "hi": system.domain[1].tolist()},
+        "state_names": list(system.state_names),
+        "urdf": None,
+    }
+    src = Path(system.source)
+    if src.suffix == ".urdf" and src.is_file():
+        shutil.copyfile(src, run_dir / "robot.urdf")
+        record["urdf"] = {"file": "robot.urdf", "sha256": hashlib.sha256(src.read_bytes()).hexdigest()}
+    return record
+
+
+def _system_from_record(record: dict, run_dir: Path) -> System:
+    try:
+        source, actuated, target = record["source"], record["actuated"], record["target"]
+        domain = (record["domain"]["lo"], record["domain"]["hi"])
+    except (KeyError, TypeError) as exc:
+        raise DamagedFileError(f"{run_dir / 'system.json'} is damaged (no {exc}). Fix: restore it, or train again.") from None
+    if record.get("urdf"):
+        copy = run_dir / record["urdf"]["file"]
+        if not copy.is_file() or hashlib.sha256(copy.read_bytes()).hexdigest() != record["urdf"]["sha256"]:
+            raise IdapbcError(f"'{copy}' does not match the hash recorded at training time. Fix: restore the run's robot.urdf.")
+        source = str(copy)
+    system = load_system(source, actuated=actuated, target=target, domain=domain)
+    return replace(system, name=record.get("name", system.name), source=record["source"])
+
+
+def _require_run_dir(path: Path) -> None:
+    if not path.is_dir() or not (path / "config.json").exists():
+        raise IdapbcError(f"'{path}' is not a run directory (no config.json). Fix: pass a directory made by `idapbc-pin train`.")
+
+
+def read_config(path) -> TrainConfig:
+    """The resolved `TrainConfig` in a run directory's config.json (older runs get `LEGACY_DEFAULTS`)."""
+    path = Path(path)
+    _require_run_dir(path)
+    raw = read_json(path / "config.json", fix="restore config.json, or train again")
+    if not isinstance(raw, dict):
+        raise DamagedFileError(f"{path / 'config.json'} is damaged (not a JSON object). Fix: restore config.json, or train again.")
+    try:
+        return TrainConfig.from_dict({**LEGACY_DEFAULTS, **raw})
+    except IdapbcError as exc:
+        raise DamagedFileError(f"{path / 'config.json'} is damaged ({exc}).") from None
+
+
+def load_run_system(path) -> System:
+    """The `System` a run was trained on (from its system.json and URDF copy)."""
+    path = Path(path)
+    _require_run_dir(path)
+    return _system_from_record(read_json(path / "system.json", fix="restore system.json, or train again"), path)
+
+
+def load_run(path, checkpoint: str | None = None) -> Run:
+    """Load a run directory (checkpoints are read with ``torch.load(weights_only=True)``).
+
+    checkpoint : 'best' or 'last'. None (default) takes 'best' (or 'last' while no best exists) and
+        refuses a run whose other checkpoint is damaged, so damage never passes unnoticed; naming one
+        explicitly uses it and only warns (stderr) about the other.
+    """
+    path = Path(path)
+    config = read_config(path)
+    system = load_run_system(path)
+    if checkpoint is not None and checkpoint not in CHECKPOINTS:
+        raise IdapbcError(f"unknown checkpoint '{checkpoint}'. Fix: use one of {', '.join(CHECKPOINTS)}.")
+    present = [c for c in CHECKPOINTS if (path / "checkpoints" / f"{c}.pt").is_file()]
+    if not present:
+        raise IdapbcError(f"run '{path}' has no checkpoint yet. Fix: train it (or resume it) first.")
+    name = checkpoint or ("best" if "best" in present else "last")
+    state = read_checkpoint(path, name, map_location=config.device)
+    for other in present:
+        if other != name and _checkpoint_problem(path / "checkpoints" / f"{other}.pt")[1] is not None:
+            if checkpoint is None:
+                read_checkpoint(path, other)  # raises the one-line error that names the damaged file
+            print(f"warning: {path / 'checkpoints' / (other + '.pt')} is damaged; using {name}.pt as asked.", file=sys.stderr)
+    torch.manual_seed(config.seed)
+    nets = build_nets(system, config)
+    nets.load_state_dict(state["nets"])
+    summary = read_json(path / "summary.json", fix="delete summary.json (it is rewritten by the next train --resume)") if (path / "summary.json").exists() else {}
+    return Run(path, system, config, nets, summary, checkpoint=name)
+
+
+def resolve_run(run_or_path, checkpoint: str | None = None) -> Run:
+    """A `Run` as it is, or `load_run` of a run directory (str or path): the one place that accepts both."""
+    if isinstance(run_or_path, Run):
+        return run_or_path
+    if isinstance(run_or_path, (str, os.PathLike)):
+        return load_run(run_or_path, checkpoint=checkpoint)
+    raise IdapbcError(f"expected a Run or a run directory, got {type(run_or_path).__name__}. Fix: pass ip.load_run(...) or its path.")
