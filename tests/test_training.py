@@ -243,7 +243,7 @@ def _train_summary_text(eigs, open_loop=None) -> str:
     """`format_train_summary` of a finished run with closed-loop eigenvalues `eigs` at x* ([re, im] pairs)."""
     from types import SimpleNamespace
 
-    from idapbc_pin.cli.main import format_train_summary
+    from idapbc_pin.training.summary import format_train_summary
 
     s = {"status": "finished", "epochs_done": 1, "train_seconds": 1.0, "final_terms": {"matching": 0.1},
          "eigenvalues_at_target": eigs, "locally_exponentially_stable": True}

@@ -33,6 +33,7 @@ import numpy as np
 from .._io import atomic_write_bytes
 from ..certificate.certify import closed_loop_terms, resolve_controller, write_json_atomic
 from ..errors import IdapbcError
+from ..sim.states import initial_states
 
 __all__ = [
     "DEFAULT_EXTRA_RHO",
@@ -95,23 +96,6 @@ class FigureData:
         """(N, K, nq) momenta, the second half of x."""
         nq = len(self.coordinate_names)
         return self.traj.x[..., nq:]
-
-
-def _initial_states(system, x0, n: int, seed: int) -> np.ndarray:
-    from ..sim.simulate import uniform_states
-
-    if x0 is None:
-        if int(n) < 1:
-            raise IdapbcError(f"n must be at least 1, got {n}. Fix: pass --n 1 or more.")
-        return uniform_states(system, int(n), box="half", seed=seed)
-    x0 = np.atleast_2d(np.asarray(x0, float))
-    if x0.ndim == 2 and x0.shape[1] == system.nq:  # positions at rest
-        x0 = np.concatenate([x0, np.zeros_like(x0)], axis=1)
-    if x0.ndim != 2 or x0.shape[1] != system.n:
-        raise IdapbcError(f"x0 needs {system.n} values (q, p: {', '.join(system.state_names)}) or {system.nq} positions at rest, got shape {x0.shape}.")
-    if not np.all(np.isfinite(x0)):
-        raise IdapbcError("x0 contains NaN or inf. Fix: give finite values.")
-    return x0
 
 
 def _steps(T: float, dt: float) -> float:
@@ -190,7 +174,7 @@ def figure_data(
             raise IdapbcError(f"ρ must be finite and ≥ 0, got {rho}. Fix: e.g. --rho 1.")
         ctrl = ctrl.with_damping(float(rho))
     if traj is None:
-        x0 = _initial_states(system, x0, n, seed)
+        x0 = initial_states(system, x0, n, seed)
         judge = system if plant is None else plant
         law = ctrl if (plant is None and not noise) else MeasuredController(ctrl, plant=judge, model=system, noise=noise, seed=seed)
         if saturation is not None and not np.all(np.asarray(saturation, float) > 0):
@@ -377,7 +361,7 @@ def _as_run(run):
 def _figure_rows(run, x0, n, T, dt, seed, rho_extra, extra: bool) -> list[FigureData]:
     run = _as_run(run)
     ctrl, system, eps, _ = resolve_controller(run)
-    x0 = _initial_states(system, x0, n, seed)
+    x0 = initial_states(system, x0, n, seed)
     rows = [figure_data(run, x0, T=T, dt=dt, seed=seed)]
     if extra and hasattr(ctrl, "with_damping"):
         rho = _extra_rho(ctrl, rho_extra)
@@ -514,7 +498,7 @@ def simulate_run(
         x0 = uniform_states(nominal, int(n), box, seed)
         box_name, bounds = box, evaluation_box(nominal, box)
     else:
-        x0 = _initial_states(nominal, x0, 0, seed)
+        x0 = initial_states(nominal, x0, 0, seed)
         box_name, bounds = "custom", (x0.min(axis=0), x0.max(axis=0))
     if saturation is not None and not (math.isfinite(saturation) and saturation > 0):
         raise IdapbcError(f"saturation must be a positive max |u|, got {saturation}. Fix: e.g. --saturation 20.")

@@ -25,6 +25,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..control.linear import lqr
+from .states import evaluation_box, half_box, uniform_states
 
 __all__ = [
     "DIVERGENCE_BOUND",
@@ -521,34 +522,6 @@ class LQRController:
 
 
 # ====================================================================== ROA
-def half_box(system) -> tuple[np.ndarray, np.ndarray]:
-    """The training domain shrunk by half around x*: x* + (lo − x*)/2, x* + (hi − x*)/2."""
-    lo, hi = (np.asarray(b, float) for b in system.domain)
-    x_star = np.asarray(system.x_star, float)
-    return x_star + 0.5 * (lo - x_star), x_star + 0.5 * (hi - x_star)
-
-
-def evaluation_box(system, box="domain") -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi), each (n,): ``"domain"`` (the training box), ``"half"`` (`half_box`) or a pair."""
-    if isinstance(box, str):
-        if box == "domain":
-            lo, hi = system.domain
-            return np.asarray(lo, float).copy(), np.asarray(hi, float).copy()
-        if box == "half":
-            return half_box(system)
-        raise ValueError(f"box must be 'domain', 'half' or a (lo, hi) pair, got {box!r}")
-    lo, hi = (np.broadcast_to(np.asarray(b, float), (system.n,)).copy() for b in box)
-    if np.any(~(hi >= lo)):
-        raise ValueError("box: need lo ≤ hi componentwise")
-    return lo, hi
-
-
-def uniform_states(system, n: int, box="domain", seed: int = 0) -> np.ndarray:
-    """(n, system.n) states (q, p) drawn uniformly from `evaluation_box(system, box)`."""
-    lo, hi = evaluation_box(system, box)
-    return lo + (hi - lo) * np.random.default_rng(seed).random((int(n), system.n))
-
-
 def _median(a: np.ndarray) -> float:
     a = a[np.isfinite(a)]
     return float(np.median(a)) if a.size else math.nan

@@ -57,6 +57,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import IdapbcError
+from ..sim.states import initial_states
 
 __all__ = [
     "DEFAULT_FPS",
@@ -1048,25 +1049,6 @@ def _resolve(run_or_system):
     raise IdapbcError(f"cannot view {type(run_or_system).__name__}. Fix: pass a Run, a System, a run directory or a system source.")
 
 
-def _initial_states(system, x0, n: int, seed: int) -> np.ndarray:
-    if x0 is None:
-        from ..sim.simulate import uniform_states
-
-        if n < 1:
-            raise IdapbcError(f"n must be at least 1, got {n}.")
-        return uniform_states(system, n, box="half", seed=seed)
-    x0 = np.atleast_2d(np.asarray(x0, float))
-    if x0.shape[1] == system.nq:  # positions at rest
-        x0 = np.concatenate([x0, np.zeros_like(x0)], axis=1)
-    if x0.ndim != 2 or x0.shape[1] != system.n:
-        raise IdapbcError(
-            f"x0 needs {system.n} values (q, p: {', '.join(system.state_names)}) or {system.nq} positions at rest, got shape {x0.shape}."
-        )
-    if not np.all(np.isfinite(x0)):
-        raise IdapbcError("x0 contains NaN or inf. Fix: give finite values.")
-    return x0
-
-
 def _simulate(system, controller, x0, T: float, dt: float):
     from ..sim.simulate import LQRController, simulate
 
@@ -1088,7 +1070,7 @@ def _pick_successes(system, controller, n: int, T: float, dt: float, seed: int):
     ones when fewer succeed. Returns (Trajectory of n rows, number reaching x*, candidates)."""
     from ..sim.simulate import Trajectory, success
 
-    candidates = _initial_states(system, None, PICK_CANDIDATES * n, seed)
+    candidates = initial_states(system, None, PICK_CANDIDATES * n, seed)
     traj = _simulate(system, controller, candidates, T, dt)
     ok = success(traj, system)
     order = np.concatenate([np.flatnonzero(ok), np.flatnonzero(~ok)])[:n]
@@ -1160,7 +1142,7 @@ def view(
         trajectories, reached, drawn = _pick_successes(system, controller, n, T, dt, seed)
         note = f"{reached} of {n} rollouts reach x* (picked among {drawn} random half-box states)"
     else:
-        start = _initial_states(system, x0, n, seed)
+        start = initial_states(system, x0, n, seed)
         trajectories = _simulate(system, controller, start, T, dt)
         note = f"{len(start)} rollouts from " + ("random half-box states" if x0 is None else "the given states")
     viewer = Viewer(system, trajectories, layout=layout, trace=trace, trace_link=trace_link, fps=fps, loop=loop, style=style, grid=grid)
@@ -1185,7 +1167,7 @@ def write_html(path, run_or_system, trajectories=None, **kwargs) -> Path:
 # ====================================================================== CLI
 def add_view_command(subparsers) -> argparse.ArgumentParser:
     """Register ``idapbc-pin view RUN_OR_SOURCE ...`` on an argparse sub-parsers object."""
-    from ..cli.main import _key_range, _key_value
+    from ..cli._args import key_range as _key_range, key_value as _key_value
 
     p = subparsers.add_parser(
         "view",
@@ -1221,7 +1203,7 @@ def add_view_command(subparsers) -> argparse.ArgumentParser:
 def _cmd_view(args: argparse.Namespace) -> int:
     import signal
 
-    from ..cli.main import system_kwargs
+    from ..cli._args import system_kwargs
 
     source = Path(args.source)
     if source.is_dir() and (source / "config.json").is_file():

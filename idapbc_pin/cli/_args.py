@@ -1,0 +1,58 @@
+"""Argument types and groups shared by several sub-commands (argparse lives only in `cli/`)."""
+
+from __future__ import annotations
+
+import argparse
+
+__all__ = ["add_system_arguments", "key_range", "key_value", "positive_int", "system_kwargs"]
+
+
+def key_value(text: str) -> tuple[str, float]:
+    """'JOINT=VALUE' -> (JOINT, float(VALUE))."""
+    name, sep, value = text.partition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected JOINT=VALUE, got '{text}'")
+    try:
+        return name, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{value}' in '{text}' is not a number") from None
+
+
+def key_range(text: str) -> tuple[str, tuple[float, float]]:
+    """'NAME=LO:HI' -> (NAME, (LO, HI))."""
+    name, sep, rng = text.partition("=")
+    lo, sep2, hi = rng.partition(":")
+    try:
+        if not (sep and sep2 and name):
+            raise ValueError
+        return name, (float(lo), float(hi))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected NAME=LO:HI (NAME a joint or p_<joint>), got '{text}'") from None
+
+
+def positive_int(text: str) -> int:
+    """An integer ≥ 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be ≥ 1, got {value}")
+    return value
+
+
+def add_system_arguments(parser: argparse.ArgumentParser) -> None:
+    """SOURCE, --actuated, --target, --domain: shared by every sub-command that loads a system."""
+    parser.add_argument("source", metavar="SOURCE", help="URDF path, zoo name, built-in name (paper_*) or erd:<example-robot-data URDF stem>")
+    parser.add_argument("--actuated", nargs="+", action="extend", metavar="JOINT", help="actuated joint(s); default: the zoo entry's")
+    parser.add_argument("--target", type=key_value, action="append", metavar="JOINT=VALUE", help="target joint value (rad or m), repeatable; default 0 (upright)")
+    parser.add_argument("--domain", type=key_range, action="append", metavar="NAME=LO:HI", help="training-box bounds of a coordinate (joint or p_<joint>), repeatable")
+
+
+def system_kwargs(args: argparse.Namespace) -> dict:
+    """load_system keyword arguments from parsed CLI arguments."""
+    return {
+        "actuated": args.actuated,
+        "target": dict(args.target) if args.target else None,
+        "domain": dict(args.domain) if args.domain else None,
+    }

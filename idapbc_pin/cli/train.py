@@ -1,0 +1,94 @@
+"""`inspect`, `list` and `train`: the model and training sub-commands."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..config import FIELD_HELP, TrainConfig
+from ..errors import IdapbcError
+from ._args import add_system_arguments, key_range, key_value, system_kwargs
+
+__all__ = ["add_model_commands", "add_train_command"]
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from ..model.inspection import format_report, inspect_system
+
+    print(format_report(inspect_system(args.source, **system_kwargs(args))))
+    return 0
+
+
+def _cmd_list(args: argparse.Namespace) -> int:
+    from ..model.analytic import ANALYTIC
+    from ..model.zoo import ZOO
+
+    zoo, analytic = list(ZOO.values()), list(ANALYTIC.values())
+    w_name = 2 + max(len(e.name) for e in zoo + analytic)  # columns never run together
+    w_urdf = 2 + max(len(e.urdf) for e in zoo)
+    w_act = 2 + max(len(", ".join(e.actuated)) for e in zoo + analytic)
+    print("zoo (urdf/):")
+    for entry in zoo:
+        print(f"  {entry.name:<{w_name}}{entry.urdf:<{w_urdf}}actuated: {', '.join(entry.actuated):<{w_act}}{entry.description}")
+    print("built-in analytic systems (paper §V):")
+    for spec in analytic:
+        print(f"  {spec.name:<{w_name}}{'':<{w_urdf}}actuated: {', '.join(spec.actuated):<{w_act}}{spec.description}")
+    print("example-robot-data: erd:<URDF stem>, e.g. erd:double_pendulum_continuous --actuated joint1")
+    return 0
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from ..model.system import load_system
+    from ..training.run import load_run_system
+    from ..training.summary import format_train_summary
+    from ..training.train import train
+
+    overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth") if getattr(args, k) is not None}
+    if args.resume:
+        run = train(load_run_system(args.resume), TrainConfig(epochs=args.epochs) if args.epochs else None, resume=args.resume)
+    else:
+        if args.source is None:
+            raise IdapbcError("train needs SOURCE (or --resume RUN). Fix: see `idapbc-pin train --help`.")
+        base = TrainConfig.from_file(args.config) if args.config else TrainConfig()
+        if args.fast:
+            base = TrainConfig.fast(**{k: v for k, v in base.to_dict().items() if v != getattr(TrainConfig(), k)})
+        config = base.replace(**overrides)
+        system = load_system(args.source, **system_kwargs(args))
+        run = train(system, config, out=args.out)
+    print(format_train_summary(run))
+    if run.summary.get("status") == "interrupted":
+        print(f"interrupted: resume with  idapbc-pin train --resume {run.path}")
+        return 130
+    if args.evaluate > 0:
+        from ..evaluation.evaluate import evaluate_run, format_evaluation
+
+        print(format_evaluation(evaluate_run(run, n=args.evaluate)))
+    return 0
+
+
+def add_model_commands(sub) -> None:
+    """`inspect` and `list`."""
+    p = sub.add_parser("inspect", help="joints, dimensions, actuation, target equilibrium, controllability")
+    add_system_arguments(p)
+    p.set_defaults(func=_cmd_inspect)
+    p = sub.add_parser("list", help="zoo robots and built-in systems")
+    p.set_defaults(func=_cmd_list)
+
+
+def add_train_command(sub) -> None:
+    """`train`, its options named after `TrainConfig`'s fields (help from `FIELD_HELP`)."""
+    p = sub.add_parser("train", help="train Neural IDA-PBC; writes a run directory")
+    p.add_argument("source", metavar="SOURCE", nargs="?", help="URDF path, zoo name, built-in name or erd:<stem>")
+    p.add_argument("--actuated", nargs="+", action="extend", metavar="JOINT", help="actuated joint(s); default: the zoo entry's")
+    p.add_argument("--target", type=key_value, action="append", metavar="JOINT=VALUE", help="target joint value, repeatable")
+    p.add_argument("--domain", type=key_range, action="append", metavar="NAME=LO:HI", help="training-box bounds, repeatable")
+    p.add_argument("--config", metavar="FILE", help="TOML ([train] table) or JSON training config")
+    p.add_argument("--fast", action="store_true", help="fast preset: " + TrainConfig.fast.__doc__.splitlines()[0].split(": ", 1)[-1])
+    p.add_argument("--out", metavar="DIR", help="parent of the run directory (default runs/<system>)")
+    p.add_argument("--resume", metavar="RUN", help="continue RUN from its last checkpoint (same result as uninterrupted)")
+    p.add_argument("--evaluate", type=int, default=100, metavar="N", help="closed-loop check vs LQR from N random states after training (0: skip)")
+    for name, kind in (("epochs", int), ("seed", int), ("lr", float), ("width", int), ("depth", int), ("rho", float), ("kappa", float)):
+        p.add_argument(f"--{name}", type=kind, help=FIELD_HELP[name])
+    p.add_argument("--device", help=FIELD_HELP["device"])
+    p.add_argument("--form", choices=["anchored", "free"], help=FIELD_HELP["form"])
+    p.add_argument("--damping", choices=["full", "actuated"], help=FIELD_HELP["damping"])
+    p.set_defaults(func=_cmd_train)

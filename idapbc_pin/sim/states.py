@@ -1,0 +1,54 @@
+"""Initial states for evaluation: boxes around x* and uniform draws from them (fixed seeds)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import IdapbcError
+
+__all__ = ["evaluation_box", "half_box", "initial_states", "uniform_states"]
+
+
+def half_box(system) -> tuple[np.ndarray, np.ndarray]:
+    """The training domain shrunk by half around x*: x* + (lo − x*)/2, x* + (hi − x*)/2."""
+    lo, hi = (np.asarray(b, float) for b in system.domain)
+    x_star = np.asarray(system.x_star, float)
+    return x_star + 0.5 * (lo - x_star), x_star + 0.5 * (hi - x_star)
+
+
+def evaluation_box(system, box="domain") -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi), each (n,): ``"domain"`` (the training box), ``"half"`` (`half_box`) or a pair."""
+    if isinstance(box, str):
+        if box == "domain":
+            lo, hi = system.domain
+            return np.asarray(lo, float).copy(), np.asarray(hi, float).copy()
+        if box == "half":
+            return half_box(system)
+        raise ValueError(f"box must be 'domain', 'half' or a (lo, hi) pair, got {box!r}")
+    lo, hi = (np.broadcast_to(np.asarray(b, float), (system.n,)).copy() for b in box)
+    if np.any(~(hi >= lo)):
+        raise ValueError("box: need lo ≤ hi componentwise")
+    return lo, hi
+
+
+def uniform_states(system, n: int, box="domain", seed: int = 0) -> np.ndarray:
+    """(n, system.n) states (q, p) drawn uniformly from `evaluation_box(system, box)`."""
+    lo, hi = evaluation_box(system, box)
+    return lo + (hi - lo) * np.random.default_rng(seed).random((int(n), system.n))
+
+
+def initial_states(system, x0, n: int, seed: int) -> np.ndarray:
+    """(N, n) start states: the given `x0` ((N, n) states, or (N, nq) positions at rest), or, when
+    `x0` is None, `n` uniform states of the half box drawn with `seed`."""
+    if x0 is None:
+        if int(n) < 1:
+            raise IdapbcError(f"n must be at least 1, got {n}. Fix: pass --n 1 or more.")
+        return uniform_states(system, int(n), box="half", seed=seed)
+    x0 = np.atleast_2d(np.asarray(x0, float))
+    if x0.ndim == 2 and x0.shape[1] == system.nq:  # positions at rest
+        x0 = np.concatenate([x0, np.zeros_like(x0)], axis=1)
+    if x0.ndim != 2 or x0.shape[1] != system.n:
+        raise IdapbcError(f"x0 needs {system.n} values (q, p: {', '.join(system.state_names)}) or {system.nq} positions at rest, got shape {x0.shape}.")
+    if not np.all(np.isfinite(x0)):
+        raise IdapbcError("x0 contains NaN or inf. Fix: give finite values.")
+    return x0

@@ -1,0 +1,51 @@
+"""What `train` prints when it ends: status, loss terms, the anchor, eigenvalues at x*, stiffness."""
+
+from __future__ import annotations
+
+__all__ = ["PLANT_POLE_SHARE", "STIFF_DT", "STIFF_WARN", "format_train_summary"]
+
+#: `simulate`'s default RK4 step (s), and the |λ|·dt above which `train` warns that the learned loop
+#: is too stiff for it (RK4 is stable on the negative real axis up to 2.78; measured: the Furuta
+#: pendulum's anchor with |λ| = 253 1/s, |λ|·dt = 2.5, diverged from every state at 10 ms and reached
+#: x* from 24 % of the half box at 2 ms).
+STIFF_DT, STIFF_WARN = 0.01, 1.0
+#: The NOTE blames the plant rather than the anchor when the open loop at x* has a pole at least this
+#: share of the fastest closed-loop one (`erd:double_pendulum`: open loop 136 1/s from joint damping on
+#: light links, closed loop 136 1/s with the weakest automatic anchor).
+PLANT_POLE_SHARE = 0.9
+
+
+def format_train_summary(run) -> str:
+    """Several lines describing a finished (or interrupted) `Run` from its summary."""
+    s = run.summary
+    eig = ", ".join(f"{re:.3g}" + (f"{im:+.3g}j" if abs(im) > 1e-12 else "") for re, im in s["eigenvalues_at_target"])
+    lines = [
+        f"run: {run.path}",
+        f"status: {s['status']} after {s['epochs_done']} epochs, {s['train_seconds']:.1f} s",
+        "final loss terms: " + ", ".join(f"{k} {v:.3g}" for k, v in s["final_terms"].items()),
+        f"closed-loop eigenvalues at x*: {eig}",
+    ]
+    config = getattr(run, "config", None)
+    if config is not None and getattr(config, "form", "anchored") == "anchored":
+        units = "box units, Q = anchor_q·diag(1/s²)" if config.scaling == "box" else "physical units, Q = anchor_q·I"
+        lines.insert(3, f"anchor: LQR with anchor_q = {config.anchor_q:g} ({units})")
+    if s["locally_exponentially_stable"]:
+        lines.append("x* is locally exponentially stable (all eigenvalues have negative real part)")
+    else:
+        lines.append("WARNING: x* is NOT locally exponentially stable under the learned controller (an eigenvalue has Re >= 0)")
+    fastest = max((abs(complex(re, im)) for re, im in s["eigenvalues_at_target"]), default=0.0)
+    if fastest * STIFF_DT > STIFF_WARN:
+        plant = s.get("open_loop_fastest_pole", 0.0)
+        smaller_step = f"simulate with --dt {0.5 / fastest:.1g}"
+        fix = (
+            f"the plant has it too (open loop at x*: |λ| = {plant:.3g} 1/s, e.g. joint damping on light links), so no anchor "
+            f"weight removes it: {smaller_step}"
+            if plant >= PLANT_POLE_SHARE * fastest
+            else f"{smaller_step} or train with a gentler anchor (smaller anchor_q)"
+        )
+        lines.append(
+            f"NOTE: the fastest closed-loop pole at x* has |λ| = {fastest:.3g} 1/s: |λ|·dt = {fastest * STIFF_DT:.2g} at the default "
+            f"{STIFF_DT * 1e3:g} ms RK4 step of `simulate`, near or past RK4's stability limit 2.78 (and the loop is faster "
+            f"still away from x*); {fix}"
+        )
+    return "\n".join(lines)
