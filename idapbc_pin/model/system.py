@@ -70,6 +70,8 @@ class System:
     x_star : (n,) target state (q*, 0).
     domain : (lo, hi), each (n,): the training box X.
     plant : back-end (Pinocchio or closed form); not part of the public API.
+    effort : (m,) actuator limits |u_i| ≤ effort_i of the actuated joints (N·m or N), in the order
+        of u; +inf where a joint has none (URDF ``<limit effort>`` of 0 or absent, built-in systems).
     """
 
     name: str
@@ -81,6 +83,23 @@ class System:
     x_star: np.ndarray
     domain: tuple[np.ndarray, np.ndarray]
     plant: object = field(repr=False)
+    effort: np.ndarray | None = None
+
+    def __post_init__(self):
+        effort = np.full(self.B.shape[1], np.inf) if self.effort is None else np.asarray(self.effort, dtype=np.float64).reshape(-1)
+        if effort.shape != (self.B.shape[1],) or np.any(~(effort > 0)):
+            raise IdapbcError(f"effort limits need {self.B.shape[1]} positive values (inf for none), got {self.effort!r}.")
+        effort.flags.writeable = False
+        object.__setattr__(self, "effort", effort)
+
+    @property
+    def limited(self) -> bool:
+        """True when at least one actuated joint has a finite effort limit."""
+        return bool(np.isfinite(self.effort).any())
+
+    def saturate(self, u) -> np.ndarray:
+        """u clipped to ±effort per input: (N, m) -> (N, m) (unchanged where unlimited)."""
+        return np.clip(np.asarray(u, dtype=np.float64), -self.effort, self.effort)
 
     # ------------------------------------------------------------------ dimensions and names
     @property
