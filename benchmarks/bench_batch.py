@@ -39,7 +39,7 @@ def pipeline_text() -> str:
 
 def run_once(pipeline: Path, workers: int, out: Path) -> tuple[float, float, float]:
     """(batch wall time, sum of the jobs' wall times, sum of the jobs' CPU times), seconds."""
-    code = "import sys; from idapbc_pin.batch.batch import run_batch; r = run_batch(sys.argv[1], workers=int(sys.argv[2]), out=sys.argv[3], smoke=True, progress=False); sys.exit(0 if r.ok else 1)"
+    code = "import sys; from idapbc_pin.batch import run_batch; r = run_batch(sys.argv[1], workers=int(sys.argv[2]), out=sys.argv[3], smoke=True, progress=False); sys.exit(0 if r.ok else 1)"
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", code, str(pipeline), str(workers), str(out)], capture_output=True, text=True)
     wall = time.perf_counter() - t0

@@ -1,32 +1,74 @@
-"""Goal: latency of `ctrl.torque(q, v)` for one state (what a robot's control loop calls).
+"""Goal: latency of the control law for one state (what a robot's control loop calls), per artifact.
 
-Target (issue #3): ≤ 1 ms, i.e. a 1 kHz loop. Uses freshly initialised networks of the fast and the
-paper sizes (latency does not depend on the weights' values). Prints median and 99th percentile.
-Run: python benchmarks/bench_controller.py [names ...]
+* `ctrl.torque(q, v)` in the library, fast and paper network sizes (target, issue #3: ≤ 1 ms);
+* the exported standalone `controller.torque(q, v)` (numpy + Pinocchio, `idapbc-pin export`) and
+  the exported `desired_flow.onnx` (f̃_d only) under onnxruntime on one thread, fast preset
+  (target, issue #14: ≤ 0.2 ms for the standalone torque).
+
+Latency does not depend on the weights' values: the library rows use freshly initialised networks,
+the exported rows a run trained for one epoch. Prints median and 99th percentile.
+Run: python benchmarks/bench_controller.py [names ...] [--repeat N]
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
-from idapbc_pin.control.controller import Controller, build_nets
+from idapbc_pin.control.controller import Controller
+from idapbc_pin.control.nets import build_nets
 
 
-def latency(ctrl: Controller, q: np.ndarray, v: np.ndarray, repeat: int) -> np.ndarray:
+def latency(fn, repeat: int) -> np.ndarray:
+    """Seconds per call of fn(), `repeat` calls after 20 warm-up calls."""
     for _ in range(20):
-        ctrl.torque(q, v)
+        fn()
     times = np.empty(repeat)
     for k in range(repeat):
         t0 = time.perf_counter()
-        ctrl.torque(q, v)
+        fn()
         times[k] = time.perf_counter() - t0
     return times
+
+
+def _row(name: str, what: str, t: np.ndarray) -> str:
+    return f"{name:<24}{what:<22}{np.median(t) * 1e3:>10.3f}{np.quantile(t, 0.99) * 1e3:>10.3f}"
+
+
+def _load_exported(folder: Path):
+    """The exported controller.py as a module (by path, as a robot's code would load it)."""
+    spec = importlib.util.spec_from_file_location(f"exported_{folder.name}", folder / "controller.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def exported_rows(system, q: np.ndarray, v: np.ndarray, repeat: int, tmp: Path) -> list[str]:
+    """Standalone torque and ONNX f̃_d latency of a fast-preset run trained for one epoch."""
+    if not (system.source.endswith(".urdf") and Path(system.source).is_file()):
+        return [f"{system.name:<24}(built-in system: no URDF, nothing to export)"]
+    run = ip.train(system, TrainConfig.fast(epochs=1), out=tmp / "runs", progress=False)
+    folder = ip.export(run, tmp / system.name)
+    standalone = _load_exported(folder)
+    rows = [_row(system.name, "export: controller.py", latency(lambda: standalone.torque(q, v), repeat))]
+    try:
+        import onnxruntime as ort
+    except ImportError:
+        return rows + [f"{system.name:<24}export: ONNX          (onnxruntime not installed: pip install 'idapbc-pin[export]')"]
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = options.inter_op_num_threads = 1
+    session = ort.InferenceSession(str(folder / "desired_flow.onnx"), options)
+    x = system.state_from(q, v)[None].astype(run.config.dtype)
+    rows.append(_row(system.name, "export: ONNX f_d", latency(lambda: session.run(None, {"x": x}), repeat)))
+    return rows
 
 
 def main() -> None:
@@ -35,15 +77,17 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=2000)
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print(f"{'system':<24}{'preset':<8}{'median ms':>10}{'p99 ms':>10}")
-    for name in args.names:
-        system = ip.load_system(name)
-        q, v = system.x_star[: system.nq] + 0.1, np.full(system.nq, 0.2)
-        for preset, config in (("fast", TrainConfig.fast()), ("paper", TrainConfig())):
-            torch.manual_seed(0)
-            ctrl = Controller(system, build_nets(system, config))
-            t = latency(ctrl, q, v, args.repeat)
-            print(f"{name:<24}{preset:<8}{np.median(t) * 1e3:>10.3f}{np.quantile(t, 0.99) * 1e3:>10.3f}")
+    print(f"{'system':<24}{'artifact':<22}{'median ms':>10}{'p99 ms':>10}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.names:
+            system = ip.load_system(name)
+            q, v = system.x_star[: system.nq] + 0.1, np.full(system.nq, 0.2)
+            for preset, config in (("fast", TrainConfig.fast()), ("paper", TrainConfig())):
+                torch.manual_seed(0)
+                ctrl = Controller(system, build_nets(system, config))
+                print(_row(name, f"ctrl.torque ({preset})", latency(lambda: ctrl.torque(q, v), args.repeat)))
+            for row in exported_rows(system, q, v, args.repeat, Path(tmp)):
+                print(row)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,9 @@ import os
 import time
 
 import idapbc_pin as ip
-from idapbc_pin.sim.simulate import DEFAULT_THREADS, LQRController, roa
+from idapbc_pin.control.baseline import LQRController
+from idapbc_pin.sim.judge import DEFAULT_THREADS
+from idapbc_pin.sim.roa import roa
 
 
 def main() -> None:

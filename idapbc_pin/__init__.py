@@ -12,18 +12,21 @@ Imported eagerly: several public functions share their module's name (train, sim
 report, view), and a lazy attribute would be shadowed by the submodule once it is imported.
 """
 
-from .batch.batch import run_batch
+from .batch.runner import run_batch
 from .certificate.certify import certify
 from .config import TrainConfig
+from .deploy.export import export
 from .errors import IdapbcError
 from .evaluation.evaluate import evaluate_run
 from .reporting.report import figure, report
 from .evaluation.robustness import perturbed_system, robustness_table
-from .sim.simulate import LQRController, roa, simulate
-from .model.system import System, load_system
+from .control.baseline import LQRController
+from .sim.integrate import simulate
+from .sim.roa import roa
+from .model import System, load_system
 from .training.run import Run, load_run
 from .training.train import train
-from .viewer.view import view, write_html
+from .viewer import view, write_html
 
 __version__ = "0.1.0"
 
@@ -35,6 +38,7 @@ __all__ = [
     "TrainConfig",
     "certify",
     "evaluate_run",
+    "export",
     "figure",
     "load_run",
     "load_system",

@@ -156,6 +156,11 @@ class TrainConfig:
     @classmethod
     def from_file(cls, path: str | Path) -> "TrainConfig":
         """Read a TOML (``[train]`` table or top level) or JSON config file."""
+        return cls(**cls.file_values(path))
+
+    @classmethod
+    def file_values(cls, path: str | Path) -> dict:
+        """The keys a config file sets, validated and typed (so a preset can be laid under them)."""
         path = Path(path)
         if not path.is_file():
             raise IdapbcError(f"config file '{path}' not found. Fix: check the path.")
@@ -163,4 +168,8 @@ class TrainConfig:
             data = tomllib.loads(path.read_text()) if path.suffix == ".toml" else json.loads(path.read_text())
         except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
             raise IdapbcError(f"cannot parse config file '{path}': {exc}. Fix: repair its syntax.") from None
-        return cls.from_dict(data.get("train", data))
+        data = data.get("train", data) if isinstance(data, dict) else data
+        if not isinstance(data, dict):
+            raise IdapbcError(f"config file '{path}' must hold a table of training settings. Fix: see `idapbc-pin train --help`.")
+        config = cls.from_dict(data)
+        return {k: getattr(config, k) for k in data}

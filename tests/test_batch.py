@@ -19,18 +19,19 @@ from pathlib import Path
 
 import pytest
 
-from idapbc_pin.batch.batch import (
+from idapbc_pin.batch import (
     SUMMARY_COLUMNS,
     VOLATILE_COLUMNS,
-    _train_or_resume,
-    add_batch_command,
+    PipelineError,
+    load_pipeline,
     read_summary,
     readme_zoo_block,
     replace_zoo_table,
     run_batch,
     zoo_table_markdown,
 )
-from idapbc_pin.batch.pipeline import PipelineError, load_pipeline
+from idapbc_pin.batch.job import _train_or_resume
+from idapbc_pin.cli.batch import add_batch_command
 from idapbc_pin.errors import IdapbcError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -138,6 +139,23 @@ def test_toml_syntax_errors_and_unknown_job_names_are_user_errors(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_missing_urdf_names_the_pipeline_folder_that_relative_paths_start_from(tmp_path, monkeypatch):
+    folder = tmp_path / "pipelines"
+    folder.mkdir()
+    path = _pipeline(folder, '[[job]]\nname = "gone"\nsource = "robots/gone.urdf"\n')
+    monkeypatch.chdir(tmp_path)  # the working directory is not the pipeline's folder
+    with pytest.raises(PipelineError) as err:
+        load_pipeline(path)
+    [(name, _, message)] = err.value.problems
+    assert name == "gone"
+    assert f"URDF file '{folder.resolve() / 'robots' / 'gone.urdf'}' not found" in message
+    assert f"relative paths in a pipeline start from its folder, {folder.resolve()}, then from the working directory, {tmp_path.resolve()}" in message
+    absolute = _pipeline(folder, f'[[job]]\nname = "abs"\nsource = "{tmp_path / "gone.urdf"}"\n', name="abs.toml")
+    with pytest.raises(PipelineError) as err:
+        load_pipeline(absolute)
+    assert err.value.problems[0][2].endswith("not found. Fix: check the path")  # no hint about relative paths
+
+
 def test_missing_ray_is_a_clear_error_before_anything_runs(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # as if not installed
     with pytest.raises(IdapbcError, match=r"Ray is not installed\. Fix: pip install 'idapbc-pin\[ray\]'"):
@@ -174,7 +192,7 @@ def test_smoke_pipeline_on_two_workers_gives_a_complete_summary(smoke_batch):
                 assert (row[f"{ctrl}_settle_{box}"] != "") == (float(row[f"{ctrl}_success_{box}"]) > 0)
         settle = {c for c in row if c.endswith(tuple(f"settle_{b}" for b in ("domain", "half")))}
         empty = {c for c, v in row.items() if v == ""} - MAY_BE_EMPTY - settle
-        if not _optional_module("certify"):
+        if not _optional_module("certificate"):
             empty -= {"dissipation_fraction", "sublevel_coverage", "certified"}
         assert not empty, f"{row['name']}: empty columns {sorted(empty)}"
         assert row["les"] in ("yes", "no") and int(row["roa_n"]) == 8
@@ -185,8 +203,8 @@ def test_smoke_pipeline_on_two_workers_gives_a_complete_summary(smoke_batch):
         assert record["status"] == "done" and record["error"] is None
         assert {"load", "train", "evaluate", "certify", "figure", "html", "total"} <= set(record["timings"])
         assert (run_dir / "evaluation.json").is_file() and (run_dir / "replay.html").is_file()
-        assert (run_dir / "certificate.json").is_file() == _optional_module("certify")
-        assert (run_dir / "figure.png").is_file() == _optional_module("report")
+        assert (run_dir / "certificate.json").is_file() == _optional_module("certificate")
+        assert (run_dir / "figure.png").is_file() == _optional_module("reporting")
         assert json.loads((result.path / name / "job.json").read_text())["row"]["status"] == "done"
 
 
@@ -218,7 +236,7 @@ def test_a_job_failing_at_run_time_is_recorded_and_the_others_finish(tmp_path):
 @pytest.mark.slow
 def test_a_killed_batch_resumes_with_only_the_remaining_jobs(tmp_path):
     out = tmp_path / "batch"
-    code = "import sys; from idapbc_pin.batch.batch import run_batch; run_batch(sys.argv[1], workers=1, out=sys.argv[2], progress=False)"
+    code = "import sys; from idapbc_pin.batch import run_batch; run_batch(sys.argv[1], workers=1, out=sys.argv[2], progress=False)"
     proc = subprocess.Popen([sys.executable, "-c", code, str(SMOKE), str(out)], cwd=tmp_path, start_new_session=True,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
     first = out / "furuta" / "job.json"
@@ -245,7 +263,7 @@ def test_a_killed_batch_resumes_with_only_the_remaining_jobs(tmp_path):
 
 
 def test_a_job_killed_during_training_resumes_from_its_last_checkpoint(tmp_path):
-    from idapbc_pin.model.system import load_system
+    from idapbc_pin.model import load_system
     from idapbc_pin.training.train import train
 
     job = load_pipeline(SMOKE).jobs[1]
@@ -269,7 +287,8 @@ def test_a_job_killed_during_training_resumes_from_its_last_checkpoint(tmp_path)
 def test_a_worker_that_cannot_see_the_batch_directory_ships_its_files_back(tmp_path):
     # a Ray node without the shared filesystem: the batch token is not there, so the job runs in a
     # temporary folder and returns it as an archive, which the driver unpacks into the job dir
-    from idapbc_pin.batch.batch import _unpack, run_job
+    from idapbc_pin.batch import run_job
+    from idapbc_pin.batch._shipping import unpack_dir as _unpack
 
     path = _pipeline(tmp_path, '[[job]]\nname = "far"\nsource = "furuta"\ntrain = { device = "cuda:99" }\n')
     job = load_pipeline(path).jobs[0]
@@ -301,6 +320,6 @@ def test_readme_zoo_table_matches_the_committed_zoo_summary():
         pytest.skip("pipelines/results/zoo-summary.csv is not committed yet (copy a zoo batch's summary.csv there)")
     assert block == zoo_table_markdown(summary).strip(), (
         "README's zoo table is out of step with pipelines/results/zoo-summary.csv. Fix: "
-        "python -c \"from pathlib import Path; from idapbc_pin.batch.batch import replace_zoo_table, zoo_table_markdown; "
+        "python -c \"from pathlib import Path; from idapbc_pin.batch import replace_zoo_table, zoo_table_markdown; "
         "p = Path('README.md'); p.write_text(replace_zoo_table(p.read_text(), zoo_table_markdown('pipelines/results/zoo-summary.csv')))\""
     )

@@ -19,7 +19,9 @@ import scipy.linalg
 import torch
 
 import idapbc_pin as ip
-from idapbc_pin.certificate.certify import LABEL, Certificate, certify, closed_loop_terms
+from idapbc_pin.certificate.certify import certify
+from idapbc_pin.certificate.result import LABEL, Certificate
+from idapbc_pin.certificate.terms import closed_loop_terms
 
 
 # ====================================================================== stand-in controllers

@@ -15,18 +15,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from idapbc_pin.control.linear import lqr_anchor
-from idapbc_pin.control.networks import (
-    ICNN,
-    DampingNet,
-    EnergyNet,
-    InterconnectionNet,
-    lower_tri,
-    n_lower,
-    n_skew,
-    psi,
-    skew,
-    unskew,
-)
+from idapbc_pin.control.damping import DampingNet
+from idapbc_pin.control.energy import EnergyNet
+from idapbc_pin.control.icnn import ICNN
+from idapbc_pin.control.interconnection import InterconnectionNet
+from idapbc_pin.control.layers import psi
+from idapbc_pin.control.structure import lower_tri, n_lower, n_skew, skew, unskew
 
 FAST = settings(max_examples=25, deadline=None)
 f64 = torch.float64

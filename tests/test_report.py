@@ -11,9 +11,14 @@ import pytest
 import torch
 
 import idapbc_pin as ip
-from idapbc_pin.reporting.report import MARGIN_FLOOR, add_eval_commands, extra_damping_rho, figure, figure_data, plot, report
+from idapbc_pin.cli.evaluate import add_eval_commands
+from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.evaluation.robustness import MeasuredController, default_conditions, parse_mismatch, perturbed_system, robustness_table
-from idapbc_pin.sim.simulate import LQRController, simulate, uniform_states
+from idapbc_pin.reporting.figure_data import figure_data
+from idapbc_pin.reporting.plot import MARGIN_FLOOR, plot
+from idapbc_pin.reporting.report import extra_damping_rho, figure, report
+from idapbc_pin.sim.integrate import simulate
+from idapbc_pin.sim.states import uniform_states
 
 
 @pytest.fixture(scope="module")

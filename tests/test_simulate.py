@@ -15,20 +15,15 @@ import pytest
 import scipy.linalg as sla
 
 import idapbc_pin as ip
-from idapbc_pin.sim.simulate import (
-    LQRController,
-    Trajectory,
-    equilibrium_offset,
-    evaluation_box,
-    half_box,
-    peak_input,
-    roa,
-    settling_time,
-    simulate,
-    success,
-    uniform_states,
-    wrap_angles,
-)
+from idapbc_pin.control.baseline import LQRController
+from idapbc_pin.model.angles import wrap_angles
+from idapbc_pin.sim.integrate import simulate
+from idapbc_pin.sim.metrics import equilibrium_offset, peak_input, settling_time, success
+from idapbc_pin.sim.limits import input_limits
+from idapbc_pin.sim.radius import roa_radius, scaled_box
+from idapbc_pin.sim.roa import roa, score
+from idapbc_pin.sim.states import evaluation_box, half_box, uniform_states
+from idapbc_pin.sim.trajectory import Trajectory
 
 
 @pytest.fixture(scope="module")
@@ -350,3 +345,164 @@ def test_roa_runs_every_controller_from_the_same_states(systems):
     assert math.isnan(result["open loop"].median_settling_time)
     table = result.table()
     assert "lqr" in table and "open loop" in table and "100.0%" in table
+
+
+# ------------------------------------------------------------------ effort limits
+def _unlimited(system):
+    """The same system with its effort limits removed (what every evaluation did before limits)."""
+    import dataclasses
+
+    return dataclasses.replace(system, effort=None)
+
+
+def test_effort_limits_clip_the_recorded_input_by_default(systems):
+    system = systems("pendubot")  # URDF <limit effort="20"> on the shoulder
+    assert system.limited and system.effort.tolist() == [20.0]
+    x0 = system.x_star + np.array([[0.3, 0.3, 0.0, 0.0], [0.02, 0.0, 0.0, 0.0]])  # LQR asks 38 N·m, then 1.3
+    ctrl = LQRController(system)
+    limited = simulate(system, ctrl, x0, T=3.0)
+    free = simulate(system, ctrl, x0, T=3.0, limits=False)
+    assert np.abs(limited.u).max() == pytest.approx(20.0)  # the limit binds and is respected
+    assert peak_input(free)[0] > 20.0  # without it LQR asks for more
+    assert np.abs(limited.x[0, -1] - free.x[0, -1]).max() > 1e-3  # and the motion differs
+    # the recorded input is the applied one: the clip of the law at the recorded states
+    np.testing.assert_allclose(limited.u[0], np.clip(ctrl(limited.x[0]), -20.0, 20.0), rtol=0, atol=1e-12)
+    # limits=False gives exactly what an unlimited system gives (the numbers before limits existed)
+    old = simulate(_unlimited(system), ctrl, x0, T=3.0)
+    np.testing.assert_array_equal(free.x, old.x)
+    np.testing.assert_array_equal(free.u, old.u)
+
+
+def test_systems_without_limits_are_unchanged_by_the_flag(systems):
+    system = systems("paper_cartpole")  # analytic: no effort limits
+    assert not system.limited
+    x0 = uniform_states(system, 3, "half", seed=4)
+    a = simulate(system, LQRController(system), x0, T=1.0)
+    b = simulate(system, LQRController(system), x0, T=1.0, limits=False)
+    np.testing.assert_array_equal(a.x, b.x)
+    assert input_limits(LinearOscillator()).bound is None  # duck-typed, no `effort`: unlimited
+
+
+def test_saturation_and_effort_combine_to_the_smaller_bound(systems):
+    system = systems("pendubot")
+    ctrl = LQRController(system)
+    x0 = system.x_star + [0.3, 0.3, 0.0, 0.0]  # LQR asks 38 N·m at the start
+    assert peak_input(simulate(system, ctrl, x0, T=1.0, saturation=50.0))[0] == pytest.approx(20.0)
+    assert peak_input(simulate(system, ctrl, x0, T=1.0, saturation=5.0))[0] == pytest.approx(5.0)
+    assert peak_input(simulate(system, ctrl, x0, T=1.0, saturation=30.0, limits=False))[0] == pytest.approx(30.0)
+
+    @dataclass(frozen=True)
+    class TwoInputs:
+        m: int = 2
+        effort: np.ndarray = field(default_factory=lambda: np.array([1.0, np.inf]))
+
+    lim = input_limits(TwoInputs(), saturation=[3.0, 2.0])
+    np.testing.assert_array_equal(lim.bound, [1.0, 2.0])
+    assert lim.applied and not lim.lifted and lim.peak_text(0.5) == "0.5 / 1|2"
+    lifted = input_limits(TwoInputs(), limits=False)
+    assert lifted.bound is None and lifted.lifted and "lifted" in lifted.describe()
+    with pytest.raises(ValueError, match="saturation"):
+        input_limits(TwoInputs(), saturation=[1.0, 0.0])
+
+
+def test_roa_under_limits_differs_when_they_bind_and_shows_the_limit(systems):
+    system = systems("pendubot")
+    ctrls = {"LQR": LQRController(system)}
+    limited = roa(system, ctrls, n=12, box="domain", T=6.0, seed=1)
+    free = roa(system, ctrls, n=12, box="domain", T=6.0, seed=1, limits=False)
+    assert np.abs(limited["LQR"].peak_input).max() <= 20.0 + 1e-12
+    assert free["LQR"].peak_input.max() > 20.0
+    assert not np.array_equal(limited["LQR"].success, free["LQR"].success) or not np.allclose(
+        limited["LQR"].settling_time, free["LQR"].settling_time, equal_nan=True
+    )
+    assert " / 20" in limited.table() and "|u| ≤ 20" in limited.table()
+    assert " / 20" not in free.table() and "lifted" in free.table()
+
+
+# ------------------------------------------------------------------ ROA radius
+@dataclass(frozen=True)
+class SaturatedUnstable:
+    """q̈ = q + u with |u| ≤ 1 (duck-typed, p = v).
+
+    With z = q + v, ż = z + u. The law u = −3z (clipped to ±1) gives ż = −2z where it does not
+    saturate and ż = z − sign(z) where it does, so z → 0 exactly when |z| < 1; then w = q − v
+    obeys ẇ = −w − u and follows. The region of attraction is the strip |q + v| < 1: in the box
+    [−s, s]² it holds the share 1 − (2s − 1)²/(4s²) for s > ½, which is 90 % at s = 0.731.
+    """
+
+    nq: int = 1
+    n: int = 2
+    m: int = 1
+    name: str = "saturated_unstable"
+    B: np.ndarray = field(default_factory=lambda: np.ones((1, 1)))
+    x_star: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    angle_mask: np.ndarray = field(default_factory=lambda: np.zeros(2, bool))
+    domain: tuple = (np.array([-1.0, -1.0]), np.array([1.0, 1.0]))
+    effort: np.ndarray = field(default_factory=lambda: np.ones(1))
+
+    def split(self, x):
+        x = np.atleast_2d(x)
+        return x[:, :1].copy(), x[:, 1:].copy()
+
+    def state_from(self, q, v):
+        return np.concatenate([q, v], axis=1)
+
+    def forward_dynamics(self, q, v, tau):
+        return q + tau
+
+
+def strip_law(x):
+    return -3.0 * (x[:, :1] + x[:, 1:])
+
+
+def test_radius_is_the_largest_passing_scale_on_the_same_states():
+    system = SaturatedUnstable()
+    result = roa_radius(system, {"sat": strip_law}, n=200, T=20.0, dt=0.05)
+    s, (a, b) = result.radius["sat"], result.bracket["sat"]
+    assert s == a and 0 < b - a <= result.resolution
+    for scale, passes in ((a, True), (b, False)):
+        x0 = uniform_states(system, 200, scaled_box(system, scale), seed=0)
+        rate = score(system, "sat", strip_law, x0, 20.0, 0.05)[0].success_rate
+        assert (rate >= 0.9) == passes, (scale, rate)
+        # every state succeeds exactly when it starts in the strip |q + v| < 1 (the known ROA)
+        z = np.abs(x0.sum(axis=1))
+        ok = score(system, "sat", strip_law, x0, 20.0, 0.05)[0].success
+        clear = np.abs(z - 1.0) > 0.02
+        np.testing.assert_array_equal(ok[clear], (z < 1.0)[clear])
+    assert abs(s - 0.731) < 0.08  # the closed form, up to 200 samples' noise
+    assert "sat 0.78" in result.line() or f"sat {s:.2f}" in result.line()
+
+
+def test_radius_without_limits_and_below_the_range():
+    system = SaturatedUnstable()
+    free = roa_radius(system, {"sat": strip_law}, n=50, T=20.0, dt=0.05, limits=False)
+    assert free.above["sat"] and free.radius["sat"] == 2.0 and free.text("sat") == "≥ 2"  # linear loop: global
+
+    def unstable(x):
+        return 3.0 * (x[:, :1] + x[:, 1:])
+
+    worst = roa_radius(system, {"bad": unstable}, n=20, T=5.0, dt=0.05)
+    assert worst.below["bad"] and worst.radius["bad"] == 0.05 and worst.text("bad") == "< 0.05"
+    assert worst.bracket["bad"] == (None, 0.05)
+
+
+def test_radius_states_are_the_roa_states_and_known_results_are_reused(systems):
+    system = systems("paper_mass_spring_damper")
+    np.testing.assert_array_equal(np.stack(scaled_box(system, 0.5)), np.stack(half_box(system)))
+    np.testing.assert_array_equal(np.stack(scaled_box(system, 1.0)), np.stack(evaluation_box(system, "domain")))
+    calls = []
+
+    def counting(x):
+        calls.append(x.shape[0])
+        return LQRController(system)(x)
+
+    domain = roa(system, {"LQR": counting}, n=20, box="domain", T=10.0, dt=0.02)
+    calls.clear()
+    result = roa_radius(system, {"LQR": counting}, n=20, T=10.0, dt=0.02, known={1.0: domain})
+    k = int(domain["LQR"].success.sum())
+    assert result.probes["LQR"][1.0] == (k, 20)
+    probed = [s for s in result.probes["LQR"] if s != 1.0]
+    assert probed and len(calls) > 0
+    # s = 1 was not simulated again: every simulated batch belongs to another scale
+    fresh = roa_radius(system, {"LQR": counting}, n=20, T=10.0, dt=0.02)
+    assert fresh.radius == result.radius and fresh.bracket == result.bracket

@@ -12,7 +12,9 @@ import torch
 
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
-from idapbc_pin.control.controller import Controller, build_nets
+from idapbc_pin.control.controller import Controller
+from idapbc_pin.control.nets import build_nets
+from idapbc_pin.training.loss import TERMS
 from idapbc_pin.training.run import load_run
 from idapbc_pin.training.train import TrainingDiverged, train
 
@@ -70,8 +72,26 @@ def test_nan_guard_names_the_term_and_epoch_and_keeps_the_checkpoint(tmp_path):
     assert "epoch 7" in message and "'matching'" in message or "'dissipation'" in message
     run_dir = next(tmp_path.iterdir())
     state = torch.load(run_dir / "checkpoints" / "last.pt", weights_only=True)
-    assert state["epoch"] == 5
+    # last.pt holds the weights with the lowest summed loss before the failure: the weights the
+    # best metrics row was computed at (that row's epoch − 1 epochs done)
+    rows = [r.split(",") for r in (run_dir / "metrics.csv").read_text().splitlines()]
+    head, body = rows[0], rows[1:]
+    terms = [head.index(t) for t in TERMS]
+    best_row = min(body, key=lambda r: sum(float(r[i]) for i in terms))
+    assert state["epoch"] == int(best_row[0]) - 1 < 7
     assert all(torch.isfinite(v).all() for v in state["nets"].values() if v.is_floating_point())
+
+
+def test_after_a_divergence_the_suggested_resume_with_a_lower_lr_completes(tmp_path):
+    system = ip.load_system("paper_cartpole")
+    with pytest.raises(TrainingDiverged) as info:
+        train(system, TrainConfig(epochs=12, lr=1e6, **TINY), out=tmp_path, progress=False)
+    message = str(info.value)
+    assert "--resume" in message and "--lr 0.0005" in message
+    run_dir = next(tmp_path.iterdir())
+    run = train(system, TrainConfig(epochs=12, lr=5e-4), resume=run_dir, progress=False)
+    assert run.summary["status"] == "finished" and run.summary["epochs_done"] == 12
+    assert all(torch.isfinite(p).all() for p in run.nets.parameters())
 
 
 @pytest.mark.parametrize(
@@ -118,7 +138,8 @@ def test_short_training_of_each_paper_benchmark_decreases_the_loss(name, tmp_pat
 @pytest.mark.parametrize("name", ["paper_cartpole", "acrobot", "furuta"])
 def test_anchor_makes_the_closed_loop_linearisation_the_lqr_loop(name, energy_input):
     """For random weights, ∂(f + g u)/∂x at x* equals A − BK of the LQR anchor (Theorem 2, μ̄* = 0)."""
-    from idapbc_pin.control.controller import Controller, _anchor
+    from idapbc_pin.control.anchor import system_anchor as _anchor
+    from idapbc_pin.control.controller import Controller
 
     system = ip.load_system(name)
     config = TrainConfig(width=16, depth=2, energy_input=energy_input)
@@ -210,7 +231,8 @@ def test_true_closed_loop_is_desired_dynamics_plus_xi():
 @pytest.mark.parametrize("name", sorted(__import__("idapbc_pin.model.zoo", fromlist=["ZOO"]).ZOO))
 def test_fast_preset_networks_build_on_every_zoo_robot(name):
     """float32 networks anchored on each robot's LQR loop (the anchor is factored in float64)."""
-    from idapbc_pin.control.controller import Controller, _anchor
+    from idapbc_pin.control.anchor import system_anchor as _anchor
+    from idapbc_pin.control.controller import Controller
 
     system = ip.load_system(name)
     torch.manual_seed(0)
@@ -226,7 +248,9 @@ def test_fully_actuated_system_with_an_exact_solution_is_matched(tmp_path):
     """The mass-spring-damper is fully actuated (g⊥ = [1 0]: matching only asks q̇-row = p), so an
     exact solution exists. Training drives max ‖μ‖ below 1e-3 on fresh test samples of H_ε (where
     the paper's loss asks for matching) and the closed loop converges to x*."""
-    from idapbc_pin.sim.simulate import simulate, success, uniform_states
+    from idapbc_pin.sim.integrate import simulate
+    from idapbc_pin.sim.metrics import success
+    from idapbc_pin.sim.states import uniform_states
 
     system = ip.load_system("paper_mass_spring_damper")
     run = train(system, TrainConfig.fast(epochs=400, depth=2), out=tmp_path, progress=False)
@@ -280,7 +304,9 @@ def test_the_stiffness_note_blames_the_plant_when_its_own_pole_is_that_fast():
 def test_automatic_units_and_anchor_weight(name, scaling, anchor_q):
     """Box units where the box's half-widths span > 20× (light links), and the largest anchor weight whose
     LQR loop has no pole faster than 50 1/s; explicit values are kept as given."""
-    from idapbc_pin.control.controller import AUTO_MAX_POLE, _anchor, _half_widths, anchor_settings
+    from idapbc_pin.control.anchor import AUTO_MAX_POLE, anchor_settings
+    from idapbc_pin.control.anchor import half_widths as _half_widths
+    from idapbc_pin.control.anchor import system_anchor as _anchor
 
     system = ip.load_system(name)
     half = _half_widths(system)
@@ -306,6 +332,6 @@ def test_the_run_directory_holds_the_resolved_units_and_old_runs_load_in_physica
     raw = json.loads((legacy.path / "config.json").read_text())
     del raw["scaling"], raw["energy_input"]  # written before the options existed
     (legacy.path / "config.json").write_text(json.dumps(raw))
-    loaded = ip.load_run(legacy.path)
+    loaded = ip.load_run(legacy.path, checkpoint="last")  # the final weights (best.pt holds the best-scoring ones)
     assert (loaded.config.scaling, loaded.config.energy_input) == ("none", "box")
     np.testing.assert_allclose(loaded.controller(system.x_star[None] + 0.1), legacy.controller(system.x_star[None] + 0.1))

@@ -31,9 +31,10 @@ import pytest
 
 import idapbc_pin as ip
 from idapbc_pin.errors import IdapbcError
-from idapbc_pin.sim.simulate import LQRController, simulate
-from idapbc_pin.model.system import erd_robots_dir
-from idapbc_pin.viewer.view import SERVER_MARKER, MeshcatServer, Viewer, view, write_html
+from idapbc_pin.control.baseline import LQRController
+from idapbc_pin.sim.integrate import simulate
+from idapbc_pin.model import erd_robots_dir
+from idapbc_pin.viewer import SERVER_MARKER, MeshcatServer, Viewer, view, write_html
 
 WIDTH, HEIGHT = 800, 600
 CHROMIUM_FLAGS = (
@@ -269,7 +270,7 @@ def test_analytic_systems_are_drawn_from_their_coordinates(name):
 def test_a_run_without_trajectories_is_simulated_from_the_half_domain():
     from types import SimpleNamespace
 
-    from idapbc_pin.sim.simulate import uniform_states
+    from idapbc_pin.sim.states import uniform_states
 
     system = ip.load_system("pendubot")
     run = SimpleNamespace(system=system, controller=LQRController(system), path=None)  # stands in for a trained Run
@@ -286,8 +287,9 @@ def test_a_run_without_trajectories_is_simulated_from_the_half_domain():
 def test_pick_success_shows_rollouts_that_reach_the_target_and_says_how_many():
     from types import SimpleNamespace
 
-    from idapbc_pin.sim.simulate import success, uniform_states
-    from idapbc_pin.viewer.view import PICK_CANDIDATES
+    from idapbc_pin.sim.metrics import success
+    from idapbc_pin.sim.states import uniform_states
+    from idapbc_pin.viewer import PICK_CANDIDATES
 
     system = ip.load_system("pendubot")
     lqr = LQRController(system)
@@ -513,7 +515,7 @@ def test_port_in_use_is_a_clear_error_and_leaves_no_server():
 # ---------------------------------------------------------------------------------------- CLI
 _CLI = (
     "import argparse, sys\n"
-    "from idapbc_pin.viewer.view import add_view_command\n"
+    "from idapbc_pin.cli.view import add_view_command\n"
     "p = argparse.ArgumentParser(prog='idapbc-pin'); add_view_command(p.add_subparsers(dest='command', required=True))\n"
     "a = p.parse_args(sys.argv[1:]); sys.exit(a.func(a))\n"
 )

@@ -37,7 +37,7 @@ from pathlib import Path
 
 from ..config import TrainConfig
 from ..errors import IdapbcError
-from ..model.system import load_system
+from ..model import load_system
 
 __all__ = ["Job", "Pipeline", "PipelineError", "load_pipeline", "SMOKE_TRAIN", "SMOKE_EVALUATE", "SMOKE_CERTIFY", "SMOKE_FIGURE", "SMOKE_VIEW"]
 
@@ -184,27 +184,28 @@ def _check_keys(table: dict, allowed, what: str) -> None:
 
 
 def _resolve_source(source: str, base: Path) -> str:
-    """URDF paths relative to the pipeline file's folder (then the working directory)."""
+    """The `load_system` source of a job: names as written, URDF paths made absolute.
+
+    A relative path starts from `base`, the pipeline file's folder (then from the working
+    directory, where the file exists only there); a file found in neither is an error that names
+    both.
+    """
     looks_like_path = source.endswith(".urdf") or "/" in source or source.startswith(("~", "."))
     if not looks_like_path or source.startswith("erd:"):
         return source
     path = Path(source).expanduser()
-    if not path.is_absolute():
+    relative = not path.is_absolute()
+    if relative:
         candidate = base / path
         path = candidate if candidate.exists() or not path.exists() else path
+    if not path.is_file():
+        where = f" (relative paths in a pipeline start from its folder, {base.resolve()}, then from the working directory, {Path.cwd()})"
+        raise IdapbcError(f"URDF file '{path.resolve()}' not found. Fix: check the path{where if relative else ''}.")
     return str(path.resolve())
 
 
-def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
-    _check_keys(raw, JOB_KEYS, "the job")
-    if "name" not in raw:
-        raise IdapbcError("missing key 'name'")
-    name = _check_type(raw["name"], str, "'name'")
-    if not _NAME_RE.match(name):
-        raise IdapbcError(f"name {name!r} is not a valid directory name (letters, digits, '_', '-', '.')")
-    if "source" not in raw:
-        raise IdapbcError("missing key 'source' (zoo name, built-in name, erd:<stem> or URDF path)")
-    source = _check_type(raw["source"], str, "'source'")
+def _system_arguments(raw: dict) -> tuple:
+    """The job's ``actuated``, ``target`` and ``domain``, checked and cleaned (None where absent)."""
     actuated = raw.get("actuated")
     if actuated is not None:
         _check_type(actuated, list, "'actuated'")
@@ -224,10 +225,11 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
                 raise IdapbcError(f"domain.{k} must be [lo, hi], got {v!r}")
             clean[k] = [_check_type(b, float, f"domain.{k}") for b in v]
         domain = clean
-    preset = _check_type(raw.get("preset", "paper"), str, "'preset'")
-    if preset not in PRESETS:
-        raise IdapbcError(f"preset must be one of {', '.join(repr(p) for p in PRESETS)}, got {preset!r}")
-    train = dict(_check_type(raw.get("train", {}), dict, "'train'"))
+    return actuated, target, domain
+
+
+def _stage_tables(raw: dict) -> dict:
+    """The job's ``evaluate``, ``certify``, ``figure`` and ``view`` tables over their defaults, checked."""
     tables = {}
     for key, defaults in (("evaluate", EVALUATE_DEFAULTS), ("certify", CERTIFY_DEFAULTS), ("figure", FIGURE_DEFAULTS), ("view", VIEW_DEFAULTS)):
         table = _check_type(raw.get(key, {}), dict, f"'{key}'")
@@ -237,6 +239,26 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
         if table["n"] < least or table["T"] <= 0 or table.get("settle", 0) < 0:
             raise IdapbcError(f"{key}.n must be ≥ {least} and {key}.T > 0, got n = {table['n']}, T = {table['T']}")
         tables[key] = table
+    return tables
+
+
+def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
+    """One `Job` from a ``[[job]]`` table merged over ``[defaults]``; the first problem raises `IdapbcError`."""
+    _check_keys(raw, JOB_KEYS, "the job")
+    if "name" not in raw:
+        raise IdapbcError("missing key 'name'")
+    name = _check_type(raw["name"], str, "'name'")
+    if not _NAME_RE.match(name):
+        raise IdapbcError(f"name {name!r} is not a valid directory name (letters, digits, '_', '-', '.')")
+    if "source" not in raw:
+        raise IdapbcError("missing key 'source' (zoo name, built-in name, erd:<stem> or URDF path)")
+    source = _check_type(raw["source"], str, "'source'")
+    actuated, target, domain = _system_arguments(raw)
+    preset = _check_type(raw.get("preset", "paper"), str, "'preset'")
+    if preset not in PRESETS:
+        raise IdapbcError(f"preset must be one of {', '.join(repr(p) for p in PRESETS)}, got {preset!r}")
+    train = dict(_check_type(raw.get("train", {}), dict, "'train'"))
+    tables = _stage_tables(raw)
     description = _check_type(raw.get("description", ""), str, "'description'")
 
     # the training config: preset, then overrides, then smoke shrinking (TrainConfig validates)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["add_system_arguments", "key_range", "key_value", "positive_int", "system_kwargs"]
+__all__ = ["add_effort_argument", "add_system_arguments", "key_range", "key_value", "positive_int", "system_kwargs"]
 
 
 def key_value(text: str) -> tuple[str, float]:
@@ -47,6 +47,15 @@ def add_system_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--actuated", nargs="+", action="extend", metavar="JOINT", help="actuated joint(s); default: the zoo entry's")
     parser.add_argument("--target", type=key_value, action="append", metavar="JOINT=VALUE", help="target joint value (rad or m), repeatable; default 0 (upright)")
     parser.add_argument("--domain", type=key_range, action="append", metavar="NAME=LO:HI", help="training-box bounds of a coordinate (joint or p_<joint>), repeatable")
+    add_effort_argument(parser)
+
+
+def add_effort_argument(parser: argparse.ArgumentParser) -> None:
+    """--effort JOINT=VALUE: override the URDF's actuator limit of an actuated joint."""
+    parser.add_argument(
+        "--effort", type=key_value, action="append", metavar="JOINT=VALUE",
+        help="actuator limit |u| ≤ VALUE (N·m or N) of an actuated joint, overriding the URDF's <limit effort> (inf: none), repeatable",
+    )
 
 
 def system_kwargs(args: argparse.Namespace) -> dict:
@@ -55,4 +64,5 @@ def system_kwargs(args: argparse.Namespace) -> dict:
         "actuated": args.actuated,
         "target": dict(args.target) if args.target else None,
         "domain": dict(args.domain) if args.domain else None,
+        "effort": dict(args.effort) if getattr(args, "effort", None) else None,
     }

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 
 from ..errors import IdapbcError
 from .train import add_model_commands, add_train_command
@@ -22,22 +23,31 @@ def build_parser() -> argparse.ArgumentParser:
     add_model_commands(sub)
     add_train_command(sub)
 
-    from ..viewer.view import add_view_command
+    from .view import add_view_command
 
     add_view_command(sub)
 
-    from ..reporting.report import add_eval_commands
+    from .evaluate import add_eval_commands
 
     add_eval_commands(sub)
 
-    from ..batch.batch import add_batch_command
+    from .batch import add_batch_command
 
     add_batch_command(sub)
+
+    from .export import add_export_command
+
+    add_export_command(sub)
     return parser
+
+
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    return f"warning: {message}\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `idapbc-pin` console script; returns the exit status."""
+    warnings.formatwarning = _one_line_warning  # "warning: …" lines, no source paths
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)

@@ -6,7 +6,7 @@ import argparse
 
 from ..config import FIELD_HELP, TrainConfig
 from ..errors import IdapbcError
-from ._args import add_system_arguments, key_range, key_value, system_kwargs
+from ._args import add_effort_argument, add_system_arguments, key_range, key_value, system_kwargs
 
 __all__ = ["add_model_commands", "add_train_command"]
 
@@ -37,21 +37,21 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from ..model.system import load_system
-    from ..training.run import load_run_system
+    from ..model import load_system
+    from ..training.run import load_run_system, read_config
     from ..training.summary import format_train_summary
     from ..training.train import train
 
     overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth") if getattr(args, k) is not None}
     if args.resume:
-        run = train(load_run_system(args.resume), TrainConfig(epochs=args.epochs) if args.epochs else None, resume=args.resume)
+        saved = read_config(args.resume)
+        config = saved.replace(**{k: v for k, v in (("epochs", args.epochs), ("lr", args.lr)) if v is not None})
+        run = train(load_run_system(args.resume), config, resume=args.resume)
     else:
         if args.source is None:
             raise IdapbcError("train needs SOURCE (or --resume RUN). Fix: see `idapbc-pin train --help`.")
-        base = TrainConfig.from_file(args.config) if args.config else TrainConfig()
-        if args.fast:
-            base = TrainConfig.fast(**{k: v for k, v in base.to_dict().items() if v != getattr(TrainConfig(), k)})
-        config = base.replace(**overrides)
+        given = TrainConfig.file_values(args.config) if args.config else {}  # only the keys the file sets
+        config = (TrainConfig.fast(**given) if args.fast else TrainConfig(**given)).replace(**overrides)
         system = load_system(args.source, **system_kwargs(args))
         run = train(system, config, out=args.out)
     print(format_train_summary(run))
@@ -62,6 +62,10 @@ def _cmd_train(args: argparse.Namespace) -> int:
         from ..evaluation.evaluate import evaluate_run, format_evaluation
 
         print(format_evaluation(evaluate_run(run, n=args.evaluate)))
+    print(
+        f"next: idapbc-pin report {run.path}   (ROA vs LQR, certificate.json, figure.png, replay.html)\n"
+        f"      idapbc-pin view {run.path}     (3-D replay in the browser)"
+    )
     return 0
 
 
@@ -81,6 +85,7 @@ def add_train_command(sub) -> None:
     p.add_argument("--actuated", nargs="+", action="extend", metavar="JOINT", help="actuated joint(s); default: the zoo entry's")
     p.add_argument("--target", type=key_value, action="append", metavar="JOINT=VALUE", help="target joint value, repeatable")
     p.add_argument("--domain", type=key_range, action="append", metavar="NAME=LO:HI", help="training-box bounds, repeatable")
+    add_effort_argument(p)
     p.add_argument("--config", metavar="FILE", help="TOML ([train] table) or JSON training config")
     p.add_argument("--fast", action="store_true", help="fast preset: " + TrainConfig.fast.__doc__.splitlines()[0].split(": ", 1)[-1])
     p.add_argument("--out", metavar="DIR", help="parent of the run directory (default runs/<system>)")

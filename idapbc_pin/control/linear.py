@@ -7,7 +7,7 @@ LQR closed loop ``A_cl = A - B K``, a matrix ``P ≻ 0`` with ``A_clᵀ P + P A_
     Z = A_cl P⁻¹,   J = (Z - Zᵀ)/2 (skew),   R = -(Z + Zᵀ)/2 = ½ P⁻¹ Q' P⁻¹ ≻ 0,
 
 so that ``A_cl = (J - R) P`` exactly. Networks J_d, R_d, H_d taking the values J, R and Hessian P at
-x* (``networks.py``, anchored forms) have a closed loop ẋ = (J_d - R_d) ∇H_d whose linearisation
+x* (`nets.build_nets`, anchored forms) have a closed loop ẋ = (J_d - R_d) ∇H_d whose linearisation
 at x* *is* the LQR loop; and since ``g⊥ B = 0``, ``g⊥ (A_cl - A) = -g⊥ B K = 0``, i.e. the
 mismatch Jacobian ∂μ/∂x(x*) vanishes exactly.
 
@@ -344,7 +344,22 @@ def lqr_anchor(
     R_u = np.eye(m) if R_u is None else _as_matrix("R_u", R_u, (m, m))
     K, S = lqr(A, B, Q, R_u)
     A_cl = A - B @ K
+    P = _scaled(_energy_hessian(A_cl, K, S, Q, R_u, P_mode, Q_lyap), scale)
+    if not _is_spd(P, _PD_RTOL):
+        raise ValueError(
+            f"P is not positive definite (P_mode={P_mode!r}, λ_min = "
+            f"{np.linalg.eigvalsh(P).min():.3g}); use Q positive definite"
+        )
+    J, R = _ph_split(A_cl, P)
+    return LinearAnchor(P=_readonly(P), J=_readonly(J), R=_readonly(R), K=_readonly(K), A_cl=_readonly(A_cl))
 
+
+def _energy_hessian(A_cl, K, S, Q, R_u, P_mode: str, Q_lyap) -> np.ndarray:
+    """P (n, n), the Hessian of H_d at x* before scaling: symmetric, A_clᵀP + PA_cl = −Q' with Q' ≻ 0.
+
+    ``"riccati"``: P = S, Q' = Q + KᵀR_uK; ``"lyapunov"``: A_clᵀP + PA_cl = −Q' with Q' = Q_lyap or Q.
+    """
+    n = A_cl.shape[0]
     if P_mode == "riccati":
         P, Q_eff = S, Q + K.T @ R_u @ K
     elif P_mode == "lyapunov":
@@ -359,24 +374,26 @@ def lqr_anchor(
             f"Q' = {name} is singular (P_mode={P_mode!r}), so R = ½P⁻¹Q'P⁻¹ would not be positive "
             f"definite; use Q positive definite"
         )
-    P = _sym(P)
+    return _sym(P)
 
-    if scale is not None:
-        if isinstance(scale, str):
-            if scale != "unit":
-                raise ValueError(f"scale must be a positive float, 'unit' or None, got {scale!r}")
-            c = 1.0 / np.linalg.eigvalsh(P).max()
-        else:
-            c = float(scale)
-            if not (np.isfinite(c) and c > 0.0):
-                raise ValueError(f"scale must be positive, got {scale!r}")
-        P = c * P
 
-    if not _is_spd(P, _PD_RTOL):
-        raise ValueError(
-            f"P is not positive definite (P_mode={P_mode!r}, λ_min = "
-            f"{np.linalg.eigvalsh(P).min():.3g}); use Q positive definite"
-        )
+def _scaled(P: np.ndarray, scale: float | Literal["unit"] | None) -> np.ndarray:
+    """cP for `lqr_anchor`'s ``scale``: c = scale, c = 1/λ_max(P) for ``"unit"``, P itself for None."""
+    if scale is None:
+        return P
+    if isinstance(scale, str):
+        if scale != "unit":
+            raise ValueError(f"scale must be a positive float, 'unit' or None, got {scale!r}")
+        c = 1.0 / np.linalg.eigvalsh(P).max()
+    else:
+        c = float(scale)
+        if not (np.isfinite(c) and c > 0.0):
+            raise ValueError(f"scale must be positive, got {scale!r}")
+    return c * P
+
+
+def _ph_split(A_cl: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(J, R), both (n, n): the skew and the negated symmetric part of Z = A_cl P⁻¹, so A_cl = (J − R)P."""
     # Z = A_cl P⁻¹, computed as (P⁻¹ A_clᵀ)ᵀ with P symmetric.
     Z = sla.solve(P, A_cl.T, assume_a="pos").T
     J = 0.5 * (Z - Z.T)
@@ -387,4 +404,4 @@ def lqr_anchor(
             f"{np.linalg.eigvalsh(R).min():.3g}, cond(P) = {np.linalg.cond(P):.3g}); try "
             f"P_mode='riccati' or a better scaled Q"
         )
-    return LinearAnchor(P=_readonly(P), J=_readonly(J), R=_readonly(R), K=_readonly(K), A_cl=_readonly(A_cl))
+    return J, R

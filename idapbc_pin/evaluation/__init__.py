@@ -1,1 +1,6 @@
-"""evaluation."""
+"""Closed-loop evaluation of a run against the LQR baseline.
+
+* `evaluate`: `evaluate_run`, ROA on the domain and the half box (evaluation.json).
+* `robustness`: perturbed judge plants, the measured-state sensor, `robustness_table` (robustness.json).
+* `closed_loop`: `simulate_run`, the ``idapbc-pin simulate`` command (simulation.json / .png).
+"""

@@ -2,16 +2,20 @@
 
 `evaluate_run` simulates the true plant (DESIGN §4) from the same uniform states of the training
 domain and of its half-size box under the learned controller and the LQR baseline (Q = I, R = I),
-and writes ``evaluation.json`` into the run directory.
+with the actuators' effort limits applied to both unless lifted, finds both ROA radii
+(`idapbc_pin.sim.radius`, reusing those two boxes' rollouts) and writes ``evaluation.json`` into the
+run directory.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
-from ..sim.simulate import LQRController, RoaResult, roa
-from .._io import write_json as _write_json
+from .._io import finite_or_none, write_json
+from ..control.baseline import LQRController
+from ..sim.limits import input_limits
+from ..sim.radius import RadiusResult, roa_radius
+from ..sim.roa import RoaResult, roa
 from ..training.run import Run
 
 __all__ = ["Evaluation", "evaluate_run", "format_evaluation"]
@@ -19,21 +23,28 @@ __all__ = ["Evaluation", "evaluate_run", "format_evaluation"]
 
 @dataclass(frozen=True)
 class Evaluation:
-    """ROA results per box ("domain", "half"), for the controllers "NIDA-PBC" and "LQR"."""
+    """ROA results per box ("domain", "half") and the ROA radii, for "NIDA-PBC" and "LQR".
+
+    radius : the `RadiusResult` (None when skipped).  limits : whether the effort limits applied.
+    """
 
     run: Run
     results: dict[str, RoaResult]
+    radius: RadiusResult | None = None
+    limits: bool = True
 
     def record(self) -> dict:
-        """JSON-ready summary: per box and controller, success rate and medians."""
+        """JSON-ready summary: per box and controller, success rate and medians; the radii
+        ``"radius": {controller: s}`` (with ``"radius_search"``: settings, brackets, probes) and the
+        input bound applied (``"limits"``)."""
         out = {}
         for box, res in self.results.items():
             out[box] = {
                 name: {
                     "success_rate": s.success_rate,
-                    "median_settling_time": _num(s.median_settling_time),
-                    "median_offset": _num(s.median_offset),
-                    "median_peak_input": _num(s.median_peak_input),
+                    "median_settling_time": finite_or_none(s.median_settling_time),
+                    "median_offset": finite_or_none(s.median_offset),
+                    "median_peak_input": finite_or_none(s.median_peak_input),
                     "diverged": s.n_diverged,
                     "wall_time": s.wall_time,
                 }
@@ -42,25 +53,48 @@ class Evaluation:
             out[box]["n"] = int(res.x0.shape[0])
             out[box]["seed"] = res.seed
             out[box]["T"] = res.T
+        out["limits"] = input_limits(self.run.system, self.limits).to_json()
+        if self.radius is not None:
+            out["radius"] = dict(self.radius.radius)
+            out["radius_search"] = self.radius.to_dict()
         return out
 
 
-def _num(v: float):
-    return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
+def evaluate_run(
+    run: Run,
+    n: int = 200,
+    T: float = 20.0,
+    dt: float = 0.01,
+    seed: int = 0,
+    rho: float | None = None,
+    boxes=("domain", "half"),
+    *,
+    limits: bool = True,
+    radius: bool = True,
+) -> Evaluation:
+    """ROA of the run's controller (optionally with extra damping ρ) and LQR on `n` states per box,
+    and their ROA radii on `n` states per scale (the boxes' rollouts reused at s = 1 and 0.5).
 
-
-def evaluate_run(run: Run, n: int = 200, T: float = 20.0, dt: float = 0.01, seed: int = 0, rho: float | None = None, boxes=("domain", "half")) -> Evaluation:
-    """ROA of the run's controller (optionally with extra damping ρ) and LQR on `n` states per box."""
+    limits : apply the system's effort limits to both controllers (False lifts them).
+    radius : find the ROA radii (False skips them; they cost a few more ROA evaluations).
+    """
     ctrl = run.controller if rho is None else run.controller.with_damping(rho)
     controllers = {"NIDA-PBC": ctrl, "LQR": LQRController(run.system)}
-    results = {box: roa(run.system, controllers, n=n, box=box, seed=seed, T=T, dt=dt) for box in boxes}
-    evaluation = Evaluation(run, results)
+    results = {box: roa(run.system, controllers, n=n, box=box, seed=seed, T=T, dt=dt, limits=limits) for box in boxes}
+    found = None
+    if radius:
+        known = {scale: results[box] for scale, box in ((1.0, "domain"), (0.5, "half")) if box in results}
+        found = roa_radius(run.system, controllers, n=n, seed=seed, T=T, dt=dt, known=known, limits=limits)
+    evaluation = Evaluation(run, results, found, bool(limits))
     record = evaluation.record()
     record["rho"] = ctrl.rho
-    _write_json(run.path / "evaluation.json", record)
+    write_json(run.path / "evaluation.json", record)
     return evaluation
 
 
 def format_evaluation(evaluation: Evaluation) -> str:
-    """The ROA tables, one per box."""
-    return "\n\n".join(res.table() for res in evaluation.results.values())
+    """The ROA tables, one per box, and the ROA radii."""
+    parts = [res.table() for res in evaluation.results.values()]
+    if evaluation.radius is not None:
+        parts.append(evaluation.radius.line())
+    return "\n\n".join(parts)

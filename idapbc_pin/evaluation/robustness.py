@@ -14,7 +14,8 @@ The controller keeps its nominal model (the one it was trained on); only the *ju
 * `MeasuredController` models the sensor: it takes the true state x = (q, M_true(q) v), measures
   (q, v) (plus Gaussian noise, seeded), and gives the controller x = (q, M_nominal(q) v), the
   momentum the controller's own model computes from the measurement.
-* Saturation is `simulate`'s ``saturation`` argument.
+* Saturation is `simulate`'s ``saturation`` argument; the actuators' effort limits apply in every
+  row unless lifted (``limits=False``), the smaller bound winning where both are given.
 
 `robustness_table` runs Neural IDA-PBC and the LQR baseline side by side from the same uniform
 states under: nominal, link mass ×(1 ± 20 %), torque saturation and measurement noise.
@@ -22,7 +23,6 @@ states under: nominal, link mass ×(1 ± 20 %), torque saturation and measuremen
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import time
@@ -31,7 +31,12 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from .._io import finite_or_none, write_json
+from ..control.baseline import LQRController
 from ..errors import IdapbcError
+from ..sim.limits import InputLimits, input_limits
+from ..sim.roa import roa
+from ..training.run import resolve_run
 
 __all__ = [
     "MISMATCH_KINDS",
@@ -86,52 +91,6 @@ def parse_mismatch(spec) -> dict[str, float]:
     return out
 
 
-def _scaled_pinocchio(plant, mass: float, length: float, damping: float):
-    import pinocchio as pin
-
-    from ..model._pinocchio import PinocchioPlant
-
-    model = plant.model.copy()
-    for jid in range(1, model.njoints):
-        I = model.inertias[jid]
-        model.inertias[jid] = pin.Inertia(
-            float(I.mass) * mass,
-            np.array(I.lever) * length,
-            np.array(I.inertia) * (mass * length**2),
-        )
-        placement = model.jointPlacements[jid]
-        model.jointPlacements[jid] = pin.SE3(np.array(placement.rotation), np.array(placement.translation) * length)
-    if damping != 1.0:
-        if not np.any(np.asarray(model.damping) != 0):
-            raise IdapbcError("the plant has no joint damping to scale. Fix: drop damping=... or add <dynamics damping> to the URDF.")
-        model.damping = np.asarray(model.damping) * damping
-    return PinocchioPlant(model, plant.path)
-
-
-def _scaled_analytic(plant, joints, mass: float, length: float, damping: float):
-    from ..model.analytic import CosCoupledPlant, MassSpringDamperPlant
-
-    if isinstance(plant, CosCoupledPlant):
-        new = copy.copy(plant)
-        a = np.array([1.0 if j.is_angle else 0.0 for j in joints])  # length exponent / 2 of each coordinate
-        new.diag = plant.diag * mass * length ** (2 * a)
-        new.k = plant.k * mass * length ** (a[0] + a[1])
-        new.c = plant.c * mass * length
-        if damping != 1.0:
-            if not np.any(plant.damping != 0):
-                raise IdapbcError("the plant has no damping to scale (the paper's mechanical benchmarks have R = 0). Fix: drop damping=....")
-        new.damping = plant.damping * damping
-        return new
-    if isinstance(plant, MassSpringDamperPlant):
-        if length != 1.0:
-            raise IdapbcError("the mass-spring-damper has no length to scale. Fix: use mass=... or damping=....")
-        new = copy.copy(plant)
-        new.m = plant.m * mass
-        new.b = plant.b * damping
-        return new
-    raise IdapbcError(f"cannot perturb a plant of type {type(plant).__name__}. Fix: use a URDF robot or a built-in paper_* system.")
-
-
 def perturbed_system(system, mass: float = 1.0, length: float = 1.0, damping: float = 1.0):
     """A copy of `system` whose plant (the judge) has scaled masses, lengths or damping.
 
@@ -152,12 +111,7 @@ def perturbed_system(system, mass: float = 1.0, length: float = 1.0, damping: fl
         ok = value >= 0 if name == "damping" else value > 0
         if not (math.isfinite(value) and ok):
             raise IdapbcError(f"{name} scale must be finite and {'≥' if name == 'damping' else '>'} 0, got {value}. Fix: e.g. {name}=1.2.")
-    plant = system.plant
-    if hasattr(plant, "model") and hasattr(plant, "config"):
-        new = _scaled_pinocchio(plant, float(mass), float(length), float(damping))
-    else:
-        new = _scaled_analytic(plant, system.joints, float(mass), float(length), float(damping))
-    return dataclasses.replace(system, plant=new)
+    return system.with_plant(system.plant.scaled(float(mass), float(length), float(damping)))
 
 
 # ====================================================================== the sensor
@@ -263,6 +217,7 @@ class RobustnessResult:
     conditions : the rows, with "auto" saturation resolved to its value.
     results : one `RoaResult` per condition (controllers "NIDA-PBC" and "LQR").
     wall_time : seconds.
+    limits : the effort limits applied in every row (`InputLimits` of the nominal system).
     """
 
     system: str
@@ -274,6 +229,7 @@ class RobustnessResult:
     conditions: tuple
     results: tuple
     wall_time: float
+    limits: InputLimits | None = None
 
     def to_dict(self) -> dict:
         rows = []
@@ -282,17 +238,23 @@ class RobustnessResult:
             for name, s in res.scores.items():
                 row[name] = {
                     "success_rate": s.success_rate,
-                    "median_settling_time": _num(s.median_settling_time),
-                    "median_peak_input": _num(s.median_peak_input),
+                    "median_settling_time": finite_or_none(s.median_settling_time),
+                    "median_peak_input": finite_or_none(s.median_peak_input),
                     "diverged": s.n_diverged,
                 }
             rows.append(row)
-        return {"system": self.system, "box": self.box, "n": self.n, "seed": self.seed, "T": self.T, "dt": self.dt, "rows": rows}
+        limits = None if self.limits is None else self.limits.to_json()
+        return {"system": self.system, "box": self.box, "n": self.n, "seed": self.seed, "T": self.T, "dt": self.dt, "limits": limits, "rows": rows}
 
     def table(self) -> str:
         names = list(self.results[0].scores) if self.results else []
-        head = f"robustness of {self.system}: {self.n} states uniform in the {self.box} box (seed {self.seed}), T = {self.T:g} s; success % (median settle s)"
-        cols = f"{'condition':<22}" + "".join(f"{nm:>22}" for nm in names)
+        head = (
+            f"robustness of {self.system}: {self.n} states uniform in the {self.box} box (seed {self.seed}), T = {self.T:g} s; "
+            f"success % (median settle s, median peak |u| / limit)"
+        )
+        if self.limits is not None:
+            head += f"\nin every row: {self.limits.describe()}"
+        cols = f"{'condition':<22}" + "".join(f"{nm:>32}" for nm in names)
         lines = [head, cols, "-" * len(cols)]
         for cond, res in zip(self.conditions, self.results):
             label = cond.label + (f" (|u|≤{cond.saturation:.3g})" if isinstance(cond.saturation, float) and cond.label == "saturation" else "")
@@ -300,14 +262,11 @@ class RobustnessResult:
             for nm in names:
                 s = res.scores[nm]
                 st = s.median_settling_time
-                cells.append(f"{100 * s.success_rate:5.1f} %" + (f" ({st:5.2f})" if math.isfinite(st) else " (  -  )"))
-            lines.append(f"{label:<22}" + "".join(f"{c:>22}" for c in cells))
+                peak = res.limits.peak_text(s.median_peak_input) if res.limits is not None else f"{s.median_peak_input:.3g}"
+                cells.append(f"{100 * s.success_rate:5.1f} %" + (f" ({st:5.2f}, " if math.isfinite(st) else " (  -  , ") + f"{peak})")
+            lines.append(f"{label:<22}" + "".join(f"{c:>32}" for c in cells))
         lines.append(f"{self.wall_time:.0f} s; noise on (q, v), resampled at every RK4 stage; mismatch of the judge plant only")
         return "\n".join(lines)
-
-
-def _num(v):
-    return None if v is None or not math.isfinite(v) else float(v)
 
 
 def robustness_table(
@@ -322,23 +281,22 @@ def robustness_table(
     saturation_factor: float = 2.0,
     rho: float | None = None,
     write: bool = True,
+    limits: bool = True,
 ) -> RobustnessResult:
     """Success rates of Neural IDA-PBC and LQR under model mismatch, saturation and noise.
 
     Parameters
     ----------
     run : a `Run` or a run directory (its controller, optionally with extra damping `rho`).
-    n, T, dt, seed, box : the ROA settings (`idapbc_pin.sim.simulate.roa`); the same states in every row.
+    n, T, dt, seed, box : the ROA settings (`idapbc_pin.sim.roa.roa`); the same states in every row.
     conditions : rows (default `default_conditions()`: nominal, mass ×0.8 and ×1.2, saturation at
         `saturation_factor` × LQR's median nominal peak |u|, noise σ = 0.01).
     write : write ``robustness.json`` into the run directory.
+    limits : apply the system's effort limits in every row (False lifts them; a saturation row
+        then clips to its own bound only).
     """
-    from ..sim.simulate import LQRController, roa
-    from ..training.run import load_run
-
     t0 = time.perf_counter()
-    if not hasattr(run, "controller"):
-        run = load_run(run)
+    run = resolve_run(run)
     nominal = run.system
     nida = run.controller if rho is None else run.controller.with_damping(rho)
     lqr = LQRController(nominal)
@@ -358,7 +316,7 @@ def robustness_table(
             "NIDA-PBC": MeasuredController(nida, plant=plant, model=nominal, noise=cond.noise, seed=seed + 1000 * k),
             "LQR": MeasuredController(lqr, plant=plant, model=nominal, noise=cond.noise, seed=seed + 1000 * k),
         }
-        res = roa(plant, controllers, n=n, box=box, seed=seed, T=T, dt=dt, saturation=sat)
+        res = roa(plant, controllers, n=n, box=box, seed=seed, T=T, dt=dt, saturation=sat, limits=limits)
         if lqr_peak is None and not cond.mismatch and cond.saturation is None and not cond.noise:
             lqr_peak = res["LQR"].median_peak_input
         resolved.append(dataclasses.replace(cond, saturation=None if sat is None else float(np.max(sat))))
@@ -366,15 +324,8 @@ def robustness_table(
     result = RobustnessResult(
         system=nominal.name, box=box, n=int(n), seed=int(seed), T=float(T), dt=float(dt),
         conditions=tuple(resolved), results=tuple(results), wall_time=time.perf_counter() - t0,
+        limits=input_limits(nominal, limits),
     )
     if write and getattr(run, "path", None) is not None:
-        from ..certificate.certify import write_json_atomic
-
-        write_json_atomic(run.path / "robustness.json", _clean(result.to_dict()))
+        write_json(run.path / "robustness.json", result.to_dict(), sort_keys=False)
     return result
-
-
-def _clean(obj):
-    from ..certificate.certify import _clean as clean
-
-    return clean(obj)

@@ -8,17 +8,18 @@ per 1-DoF joint (revolute, prismatic, continuous); continuous joints, which Pino
 from __future__ import annotations
 
 import math
+import warnings
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from ._mechanics import mechanical_f, mechanical_jacobian
+from .joint import JointInfo
 from ..errors import IdapbcError
 
-__all__ = ["JointInfo", "PinocchioPlant", "load_urdf_plant"]
+__all__ = ["PinocchioPlant", "load_urdf_plant"]
 
 #: Step of the central difference that gives Φ = vᵀ(∂²M/∂q²)v from Pinocchio's exact first-order
 #: Coriolis matrix; truncation ~h², round-off ~1e-16/h: both ≈1e-11 relative.
@@ -48,34 +49,6 @@ _MULTI_DOF_FIX = {
 }
 
 
-@dataclass(frozen=True)
-class JointInfo:
-    """One minimal coordinate: a 1-DoF joint of the model.
-
-    Attributes
-    ----------
-    name : joint name in the URDF.
-    kind : "revolute" | "continuous" | "prismatic"; built-in models use "analytic-angle" | "analytic-linear".
-    axis : (3,) joint axis in the joint frame.
-    lower, upper : position limits (rad or m); ±inf when the joint has none.
-    damping : viscous joint damping (N·m·s/rad or N·s/m) from the URDF `<dynamics damping>`.
-    mass : mass of the body this joint moves, fixed children lumped in (kg).
-    """
-
-    name: str
-    kind: str
-    axis: tuple[float, float, float]
-    lower: float
-    upper: float
-    damping: float
-    mass: float
-
-    @property
-    def is_angle(self) -> bool:
-        """True for rotational coordinates (wrapped to (−π, π] when judging success)."""
-        return self.kind in ("revolute", "continuous", "analytic-angle")
-
-
 def _check_xml(path: Path) -> None:
     try:
         root = ET.parse(path).getroot()
@@ -85,6 +58,8 @@ def _check_xml(path: Path) -> None:
         ) from None
     if root.tag != "robot":
         raise IdapbcError(f"'{path}' is XML but not a URDF (root element <{root.tag}>, expected <robot>). Fix: pass a .urdf file.")
+    for link in root.iter("link"):
+        _check_inertial(link, path)
     for joint in root.iter("joint"):
         jtype = joint.get("type", "")
         if jtype in ("floating", "planar"):
@@ -94,6 +69,47 @@ def _check_xml(path: Path) -> None:
             )
 
 
+#: Relative slack of the inertia checks (rounding in hand-written URDFs).
+_INERTIA_RTOL = 1e-9
+
+
+def _check_inertial(link: ET.Element, path: Path) -> None:
+    """A link's <inertial>: an error for a negative mass or an inertia that is not positive
+    semi-definite; a warning for moments that break the triangle inequality or zero mass with inertia."""
+    inertial = link.find("inertial")
+    if inertial is None:
+        return
+    name = link.get("name", "?")
+    fix = f"Fix: correct the <inertial> of link '{name}' in '{path}'."
+    mass_el, inertia_el = inertial.find("mass"), inertial.find("inertia")
+    try:
+        mass = float(mass_el.get("value", "0")) if mass_el is not None else 0.0
+        keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+        ixx, ixy, ixz, iyy, iyz, izz = (float(inertia_el.get(k, "0")) if inertia_el is not None else 0.0 for k in keys)
+    except ValueError as exc:
+        raise IdapbcError(f"link '{name}' has a non-numeric inertial value ({exc}). {fix}") from None
+    if not math.isfinite(mass) or mass < 0:
+        raise IdapbcError(f"link '{name}' has mass {mass:g} kg: a mass must be finite and ≥ 0. {fix}")
+    I = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    if not np.all(np.isfinite(I)):
+        raise IdapbcError(f"link '{name}' has a non-finite inertia. {fix}")
+    moments = np.linalg.eigvalsh(I)
+    scale = max(float(np.abs(moments).max()), 1e-300)
+    if moments[0] < -_INERTIA_RTOL * scale:
+        raise IdapbcError(f"link '{name}' has an inertia that is not positive semi-definite (principal moments {', '.join(f'{m:.3g}' for m in moments)} kg·m²). {fix}")
+    a, b, c = moments
+    # Many published URDFs (10 of example-robot-data's 45) break the next two slightly: warn, and let
+    # the mass-matrix check of `load_system` refuse what actually makes M(q) singular.
+    if c > a + b + _INERTIA_RTOL * scale:
+        warnings.warn(
+            f"link '{name}' in '{path}' has principal moments {a:.3g}, {b:.3g}, {c:.3g} kg·m² that break the triangle "
+            f"inequality ({c:.3g} > {a:.3g} + {b:.3g}): no rigid body has them; check its <inertial>",
+            stacklevel=4,
+        )
+    if mass == 0 and moments[-1] > 0:
+        warnings.warn(f"link '{name}' in '{path}' has zero mass but a non-zero inertia; check its <inertial>", stacklevel=4)
+
+
 def _build_model(path: Path) -> pin.Model:
     _check_xml(path)
     try:
@@ -101,6 +117,11 @@ def _build_model(path: Path) -> pin.Model:
     except (RuntimeError, ValueError) as exc:
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise IdapbcError(f"Pinocchio could not build a model from '{path}': {msg}. Fix: check the URDF's links and joints.") from None
+
+
+def _effort(value: float) -> float:
+    """A URDF effort limit: 0 (Pinocchio's value when `<limit effort>` is absent) means none."""
+    return value if math.isfinite(value) and value > 0 else math.inf
 
 
 def _joint_infos(model: pin.Model) -> tuple[JointInfo, ...]:
@@ -129,6 +150,7 @@ def _joint_infos(model: pin.Model) -> tuple[JointInfo, ...]:
                 upper=upper,
                 damping=float(model.damping[joint.idx_v]),
                 mass=float(model.inertias[jid].mass),
+                effort=_effort(float(model.effortLimit[joint.idx_v])),
             )
         )
     if not infos:
@@ -166,10 +188,21 @@ class PinocchioPlant:
         self._permuted = direct_q != direct_v
         # Batched v = M⁻¹p (ABA of a gravity-free copy at zero velocity) and ∇U (RNEA at rest):
         # Pinocchio's pooled algorithms, one thread, no Python loop (see `f`).
-        free = model.copy()
-        free.gravity = pin.Motion.Zero()
-        self._pool = pin.ModelPool(model, 1)
-        self._free_pool = pin.ModelPool(free, 1)
+        self._free = model.copy()
+        self._free.gravity = pin.Motion.Zero()
+        self._pools: dict[int, tuple] = {}
+        self._pool, self._free_pool = self._pools_for(1)
+
+    @property
+    def nq_config(self) -> int:
+        """Size of Pinocchio's configuration vector (continuous joints count 2: cos, sin)."""
+        return int(self.model.nq)
+
+    def _pools_for(self, threads: int) -> tuple:
+        """(pool of the model, pool of its gravity-free copy) for `threads` threads, built once."""
+        if threads not in self._pools:
+            self._pools[threads] = (pin.ModelPool(self.model, threads), pin.ModelPool(self._free, threads))
+        return self._pools[threads]
 
     def __reduce__(self):  # Model pickles; Data is rebuilt (worker processes).
         return (PinocchioPlant, (self.model, self.path))
@@ -282,11 +315,42 @@ class PinocchioPlant:
         f = mechanical_f(v, W, grad_U, self.damping)
         return f, mechanical_jacobian(M_inv, v, W, Phi, hess_U, self.damping)
 
-    def forward_dynamics(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """Accelerations from Pinocchio's `aba` with joint damping: (N, nv) ×3 -> (N, nv)."""
-        m, d = self.model, self.data
-        tau_total = tau - self.damping * v
-        return np.stack([np.array(pin.aba(m, d, qc, vk, tk)) for qc, vk, tk in zip(self.config(q), v, tau_total)])
+    def forward_dynamics(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, threads: int = 1) -> np.ndarray:
+        """Accelerations from Pinocchio's ABA with joint damping (`abaInParallel`, which ignores
+        `model.damping`, so −D v is added to τ): (N, nv) ×3 -> (N, nv)."""
+        q, v, tau = (np.asarray(a, float) for a in (q, v, tau))
+        if q.shape[0] == 0:
+            return np.zeros_like(q)
+        pool, _ = self._pools_for(int(threads))
+        qc = np.asfortranarray(self.config(q).T)
+        a = pin.abaInParallel(int(threads), pool, qc, np.asfortranarray(v.T), np.asfortranarray((tau - self.damping * v).T))
+        return np.array(a).reshape(q.shape[1], q.shape[0]).T
+
+    def momenta(self, q: np.ndarray, v: np.ndarray, threads: int = 1) -> np.ndarray:
+        """p = M(q) v as the RNEA of the gravity-free model at zero velocity: (N, nv) ×2 -> (N, nv)."""
+        q, v = np.asarray(q, float), np.asarray(v, float)
+        if q.shape[0] == 0:
+            return np.zeros_like(q)
+        _, free_pool = self._pools_for(int(threads))
+        qc = np.asfortranarray(self.config(q).T)
+        zeros = np.zeros((v.shape[1], v.shape[0]), order="F")
+        p = pin.rneaInParallel(int(threads), free_pool, qc, zeros, np.asfortranarray(v.T))
+        return np.array(p).reshape(q.shape[1], q.shape[0]).T
+
+    def scaled(self, mass: float = 1.0, length: float = 1.0, damping: float = 1.0) -> "PinocchioPlant":
+        """Every link's mass and rotational inertia × mass, joint placements and levers × length
+        (inertia × length²: geometric similarity), joint damping × damping."""
+        model = self.model.copy()
+        for jid in range(1, model.njoints):
+            I = model.inertias[jid]
+            model.inertias[jid] = pin.Inertia(float(I.mass) * mass, np.array(I.lever) * length, np.array(I.inertia) * (mass * length**2))
+            placement = model.jointPlacements[jid]
+            model.jointPlacements[jid] = pin.SE3(np.array(placement.rotation), np.array(placement.translation) * length)
+        if damping != 1.0:
+            if not np.any(np.asarray(model.damping) != 0):
+                raise IdapbcError("the plant has no joint damping to scale. Fix: drop damping=... or add <dynamics damping> to the URDF.")
+            model.damping = np.asarray(model.damping) * damping
+        return PinocchioPlant(model, self.path)
 
 
 def load_urdf_plant(path: str | Path) -> PinocchioPlant:

@@ -17,15 +17,17 @@ below; tests hold them against autograd of the formulas.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._mechanics import mechanical_f, mechanical_jacobian
-from ._pinocchio import JointInfo
+from ..errors import IdapbcError
+from .joint import JointInfo
 
-__all__ = ["ANALYTIC", "AnalyticSpec", "analytic_names", "analytic_spec"]
+__all__ = ["ANALYTIC", "AnalyticSpec", "CosCoupledPlant", "MassSpringDamperPlant", "analytic_names"]
 
 GRAVITY = 9.81
 
@@ -40,7 +42,7 @@ class CosCoupledPlant:
     Same back-end interface as `PinocchioPlant`; q (N, 2), p (N, 2). No damping (paper: R = 0).
     """
 
-    nv = 2
+    nv = nq_config = 2
 
     def __init__(self, joints, diag, k, a, c):
         self.joints = tuple(joints)
@@ -96,7 +98,24 @@ class CosCoupledPlant:
         hess_U[:, 0, 0], hess_U[:, 1, 1] = (-self.c * np.cos(q)).T
         return mechanical_f(v, W, self.gravity(q), self.damping), mechanical_jacobian(M_inv, v, W, Phi, hess_U, self.damping)
 
-    def forward_dynamics(self, q, v, tau):
+    def momenta(self, q, v, threads: int = 1):
+        """p = M(q) v (threads: unused, the protocol's signature)."""
+        return np.einsum("nij,nj->ni", self.mass_matrix(q), v)
+
+    def scaled(self, mass: float = 1.0, length: float = 1.0, damping: float = 1.0) -> "CosCoupledPlant":
+        """Masses × mass, lengths × length (inertia terms × length², couplings × length per angle),
+        damping × damping (an error: the paper's benchmarks have none)."""
+        if damping != 1.0 and not np.any(self.damping != 0):
+            raise IdapbcError("the plant has no damping to scale (the paper's mechanical benchmarks have R = 0). Fix: drop damping=....")
+        new = copy.copy(self)
+        a = np.array([1.0 if j.is_angle else 0.0 for j in self.joints])  # length exponent / 2 of each coordinate
+        new.diag = self.diag * mass * length ** (2 * a)
+        new.k = self.k * mass * length ** (a[0] + a[1])
+        new.c = self.c * mass * length
+        new.damping = self.damping * damping
+        return new
+
+    def forward_dynamics(self, q, v, tau, threads: int = 1):
         """Lagrange: M a = τ − D v − W v + ½ Wᵀ v − ∇U."""
         W = self._W(q, v)
         rhs = tau - self.damping * v - np.einsum("nij,nj->ni", W, v) + 0.5 * np.einsum("nkj,nk->nj", W, v) - self.gravity(q)
@@ -110,7 +129,7 @@ class MassSpringDamperPlant:
     `hamiltonian` ½p² + ½kq² + q⁴/8 is informational (the system is not written port-Hamiltonian).
     """
 
-    nv = 1
+    nv = nq_config = 1
 
     def __init__(self, m=1.0, k=1.0, b=0.5):
         self.m, self.k, self.b = float(m), float(k), float(b)
@@ -142,7 +161,17 @@ class MassSpringDamperPlant:
         J[:, 1, 1] = -self.b * (2.0 * p[:, 0] + 3.0 * p[:, 0] * np.abs(p[:, 0])) / self.m
         return self.f(q, p), J
 
-    def forward_dynamics(self, q, v, tau):
+    def momenta(self, q, v, threads: int = 1):
+        """p = v (the paper writes this system with q̇ = p)."""
+        return np.array(v, dtype=float)
+
+    def scaled(self, mass: float = 1.0, length: float = 1.0, damping: float = 1.0) -> "MassSpringDamperPlant":
+        """Mass × mass, damping b × damping; there is no length to scale."""
+        if length != 1.0:
+            raise IdapbcError("the mass-spring-damper has no length to scale. Fix: use mass=... or damping=....")
+        return MassSpringDamperPlant(m=self.m * mass, k=self.k, b=self.b * damping)
+
+    def forward_dynamics(self, q, v, tau, threads: int = 1):
         return self._accel(q, v) + tau
 
 
@@ -200,11 +229,3 @@ ANALYTIC: dict[str, AnalyticSpec] = {
 def analytic_names() -> list[str]:
     """Names of the built-in analytic systems."""
     return list(ANALYTIC)
-
-
-def analytic_spec(name: str) -> AnalyticSpec:
-    """The built-in analytic system `name`; `ValueError` listing the valid names otherwise."""
-    try:
-        return ANALYTIC[name]
-    except KeyError:
-        raise ValueError(f"unknown built-in system '{name}'. Valid names: {', '.join(ANALYTIC)}") from None

@@ -14,7 +14,8 @@ import numpy as np
 
 from ..errors import IdapbcError, NotAnEquilibriumError
 from ..control.linear import controllability_rank
-from .system import System, load_system
+from .loading import load_system
+from .system import System
 
 __all__ = ["Candidate", "ModelReport", "format_report", "inspect_system"]
 
@@ -49,13 +50,13 @@ def _controllable_rank(system: System) -> int:
     return controllability_rank(A, Bx)
 
 
-def inspect_system(source, actuated=None, target=None, domain=None) -> ModelReport:
+def inspect_system(source, actuated=None, target=None, domain=None, effort=None) -> ModelReport:
     """Build the report for `source` (anything `load_system` accepts).
 
     With `actuated` None and no registry default, each joint alone is tried as the actuated one.
     """
     try:
-        system = load_system(source, actuated=actuated, target=target, domain=domain)
+        system = load_system(source, actuated=actuated, target=target, domain=domain, effort=effort)
     except IdapbcError as exc:
         if actuated is not None or "no actuated joint" not in str(exc):
             raise
@@ -82,12 +83,11 @@ def inspect_system(source, actuated=None, target=None, domain=None) -> ModelRepo
         ref = system
     q_star = ref.x_star[: ref.nq]
     M_star = ref.mass_matrix(q_star)
-    model = getattr(ref.plant, "model", None)
     A = ref.df_dx(ref.x_star)
     return ModelReport(
         source=ref.source,
         name=ref.name,
-        pinocchio_nq=None if model is None else int(model.nq),
+        pinocchio_nq=int(ref.plant.nq_config),
         joints=ref.joints,
         system=system,
         cond_M=float(np.linalg.cond(M_star)),
@@ -100,9 +100,9 @@ def inspect_system(source, actuated=None, target=None, domain=None) -> ModelRepo
 def _joint_names(source) -> list[str]:
     # load_system needs an actuated joint; a fully actuated probe only reads the joint list.
     from ._pinocchio import load_urdf_plant
-    from .system import _resolve
+    from .loading import resolve_source
 
-    _, plant, path, _ = _resolve(source)
+    _, plant, path, _ = resolve_source(source)
     plant = plant if plant is not None else load_urdf_plant(path)
     return [j.name for j in plant.joints]
 
@@ -120,15 +120,19 @@ def format_report(r: ModelReport) -> str:
         dims += f"; Pinocchio nq = {r.pinocchio_nq} (continuous joints as cos/sin)"
     lines.append(dims)
     lines.append("")
-    lines.append(f"  {'joint':<14}{'type':<16}{'axis':<18}{'limits':<20}{'damping':>9}{'mass kg':>10}")
+    w = 2 + max(len(j.name) for j in r.joints)
+    lines.append(f"  {'joint':<{w}}{'type':<16}{'axis':<18}{'limits':<20}{'damping':>9}{'mass kg':>10}{'effort':>9}")
     for j in r.joints:
         axis = "(" + ", ".join(f"{a:g}" for a in j.axis) + ")"
-        lines.append(f"  {j.name:<14}{j.kind:<16}{axis:<18}{_fmt_limit(j.lower, j.upper):<20}{j.damping:>9.3g}{j.mass:>10.4g}")
+        effort = "none" if not np.isfinite(j.effort) else f"{j.effort:.4g}"
+        lines.append(f"  {j.name:<{w}}{j.kind:<16}{axis:<18}{_fmt_limit(j.lower, j.upper):<20}{j.damping:>9.3g}{j.mass:>10.4g}{effort:>9}")
     lines.append("")
     lines.append(f"cond(M(q*)) = {r.cond_M:.4g}")
     s = r.system
     if s is not None:
         lines.append(f"actuated: {', '.join(s.actuated)}   unactuated: {', '.join(s.unactuated) or '-'}   underactuation degree: {s.nv - s.m}")
+        limits = ", ".join(f"{nm} {'unlimited' if not np.isfinite(e) else f'|u| ≤ {e:.4g}'}" for nm, e in zip(s.actuated, s.effort))
+        lines.append(f"effort limits (applied in every evaluation; --no-limits lifts them): {limits}")
         q_star = ", ".join(f"{nm}={v:g}" for nm, v in zip(s.coordinate_names, s.x_star[: s.nq]))
         lines.append(f"target x*: {q_star}, at rest  ->  assignable equilibrium: yes (|g⊥f(x*)| = {np.abs(s.equilibrium_residual()).max():.2g})")
         eig = r.open_loop_eigenvalues

@@ -1,1 +1,14 @@
-"""sim."""
+"""Closed-loop simulation on the true plant, the DESIGN §4 metrics and the region of attraction.
+
+One concept per module, in the order a rollout uses them:
+
+* `states`: evaluation boxes around x* and seeded uniform initial states.
+* `judge`: the true plant in (q, v) (Pinocchio's forward dynamics, or the closed form).
+* `limits`: the input bound a rollout applies (effort limits, saturation), `input_limits`.
+* `integrate`: the closed-loop vector field, RK4 / RK45 steps, `simulate`.
+* `trajectory`: `Trajectory`, what `simulate` returns.
+* `metrics`: success, settling time, equilibrium offset, peak input of a `Trajectory`.
+* `roa`: `score` (one controller's rollouts → `ControllerScore`) and `roa` (several controllers
+  from the same states → `RoaResult`).
+* `radius`: `roa_radius`, the largest scale of the training box at which 90 % of the states succeed.
+"""

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..control.controller import IdaPbcNets
+from ..control.nets import IdaPbcNets
 
 __all__ = ["TERMS", "AdaptiveWeights", "loss_terms"]
 

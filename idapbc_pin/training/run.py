@@ -24,9 +24,10 @@ import torch
 
 from .._io import DamagedFileError, atomic_write_bytes, read_json
 from ..config import TrainConfig
-from ..control.controller import Controller, IdaPbcNets, build_nets
+from ..control.controller import Controller
+from ..control.nets import IdaPbcNets, build_nets
 from ..errors import IdapbcError
-from ..model.system import System, load_system
+from ..model import System, load_system
 
 __all__ = [
     "CHECKPOINTS",
@@ -122,6 +123,7 @@ def system_record(system: System, run_dir: Path) -> dict:
         "target": {nm: float(v) for nm, v in zip(system.coordinate_names, system.x_star[: system.nq])},
         "domain": {"lo": system.domain[0].tolist(), "hi": system.domain[1].tolist()},
         "state_names": list(system.state_names),
+        "effort": {nm: (float(e) if e < float("inf") else None) for nm, e in zip(system.actuated, system.effort)},  # None: unlimited
         "urdf": None,
     }
     src = Path(system.source)
@@ -142,7 +144,9 @@ def _system_from_record(record: dict, run_dir: Path) -> System:
         if not copy.is_file() or hashlib.sha256(copy.read_bytes()).hexdigest() != record["urdf"]["sha256"]:
             raise IdapbcError(f"'{copy}' does not match the hash recorded at training time. Fix: restore the run's robot.urdf.")
         source = str(copy)
-    system = load_system(source, actuated=actuated, target=target, domain=domain)
+    effort = record.get("effort")  # absent in runs written before limits were data: the URDF's
+    effort = None if effort is None else {nm: (float("inf") if e is None else float(e)) for nm, e in effort.items()}
+    system = load_system(source, actuated=actuated, target=target, domain=domain, effort=effort)
     return replace(system, name=record.get("name", system.name), source=record["source"])
 
 

@@ -5,10 +5,12 @@ described in `training.run`.
 
 from __future__ import annotations
 
+import copy
 import csv
 import datetime as _dt
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,35 +19,58 @@ from tqdm.auto import tqdm
 
 from .._io import write_json
 from ..config import TrainConfig
-from ..control.controller import anchor_settings, build_nets
-from ..errors import IdapbcError
-from .loss import TERMS, AdaptiveWeights, loss_terms
+from ..control.anchor import anchor_settings
 from ..control.linear import fastest_pole
-from ..model.system import System
+from ..control.nets import IdaPbcNets, build_nets
+from ..errors import IdapbcError
+from ..model import System
+from .loss import TERMS, AdaptiveWeights, loss_terms
 from .run import Run, read_checkpoint, read_config, save_checkpoint, system_record
 
 __all__ = ["TrainingDiverged", "train"]
 
 
+#: The learning rate a resume after a divergence is offered at most (the presets' own, measured).
+SAFE_LR = 5e-4
+
+
 class TrainingDiverged(IdapbcError):
-    """A loss term or gradient became NaN or inf; the last good checkpoint is kept."""
+    """A training step failed (a non-finite term, gradient or weight, or a linear-algebra error on
+    such values); `train` then saves the last finite state as last.pt and says how to resume."""
+
+    def __init__(self, message: str, last_good: dict | None = None):
+        super().__init__(message)
+        self.last_good = last_good
 
 
-def _new_run_dir(out: Path) -> Path:
-    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    run_dir = out / stamp
-    k = 1
-    while run_dir.exists():
-        run_dir = out / f"{stamp}-{k}"
-        k += 1
-    (run_dir / "checkpoints").mkdir(parents=True)
-    return run_dir
+def _snapshot(trainer: "_Trainer") -> dict:
+    """A copy of everything an epoch changes (weights, Adam, adaptive weights, generator, counters)."""
+    return {
+        "nets": {k: v.detach().clone() for k, v in trainer.nets.state_dict().items()},
+        "optimizer": copy.deepcopy(trainer.optimizer.state_dict()),
+        "weights": dict(trainer.weights.weights),
+        "generator": trainer.gen.get_state(),
+        "epoch": trainer.epoch,
+        "best": trainer.best,
+        "eps_ema": trainer.eps_ema,
+    }
 
 
-# ---------------------------------------------------------------------------------------- loop
-def _sample(system: System, n: int, gen: torch.Generator) -> np.ndarray:
-    lo, hi = (torch.as_tensor(b, dtype=torch.float64) for b in system.domain)
-    return (lo + (hi - lo) * torch.rand(n, system.n, generator=gen, dtype=torch.float64)).numpy()
+def _restore(trainer: "_Trainer", snap: dict | None) -> None:
+    """Put a `_snapshot` back (no-op for None)."""
+    if snap is None:
+        return
+    snap = copy.deepcopy(snap)
+    trainer.nets.load_state_dict(snap["nets"])
+    trainer.optimizer.load_state_dict(snap["optimizer"])
+    trainer.weights.weights = dict(snap["weights"])
+    trainer.gen.set_state(snap["generator"])
+    trainer.epoch, trainer.best, trainer.eps_ema = snap["epoch"], snap["best"], snap["eps_ema"]
+
+
+#: metrics.csv columns: the epoch (1-based), the weighted loss, each term and its adaptive weight r_,
+#: the level ε of H_ε, the loss diagnostics, and the training seconds so far.
+_COLUMNS = ["epoch", "loss", *TERMS, *(f"r_{t}" for t in TERMS), "epsilon", "inside_share", "dissipation_ok", "max_mu", "seconds"]
 
 
 def train(
@@ -61,24 +86,96 @@ def train(
     Parameters
     ----------
     system : from `load_system`.
-    config : `TrainConfig` (paper defaults if None). With `resume`, only `epochs` is taken from it
-        (to extend a run); everything else comes from the run directory.
+    config : `TrainConfig` (paper defaults if None). With `resume`, only `epochs` (to extend a run)
+        and `lr` (to continue more gently after a divergence) are taken from it; everything else
+        comes from the run directory.
     out : parent of the new run directory (default ``runs/<system name>``).
     resume : an existing run directory to continue from its last checkpoint; the result equals an
         uninterrupted run with the same config (same seed, same machine).
     progress : show a tqdm progress bar with the named loss terms and ETA.
     """
+    config, run_dir, state = _resolve(system, config, out, resume)
+    if progress:
+        print(f"run directory: {run_dir}", flush=True)
+    trainer = _start(system, config, run_dir, state)
+    _open_metrics(run_dir / "metrics.csv", state is None, trainer.epoch)
+    status = "finished"
+    try:
+        _run_epochs(trainer, progress)
+    except KeyboardInterrupt:
+        status = "interrupted"
+        _checkpoint(trainer, "last", trainer.epoch)
+    except TrainingDiverged as exc:
+        _restore(trainer, exc.last_good)
+        _checkpoint(trainer, "last", trainer.epoch)
+        raise TrainingDiverged(
+            f"{exc} The weights with the lowest loss before that (after epoch {trainer.epoch}) are kept as "
+            f"{run_dir / 'checkpoints' / 'last.pt'}. Fix: idapbc-pin train --resume {run_dir} --lr {min(config.lr / 10, SAFE_LR):g}"
+        ) from None
+    run = Run(run_dir, system, config, trainer.nets)
+    run.summary = _summarise(run, status, trainer.epoch, trainer.eps_ema, trainer.elapsed)
+    write_json(run_dir / "summary.json", run.summary)
+    return run
+
+
+# --------------------------------------------------------------------------------------- setup
+def _resolve(system: System, config: TrainConfig | None, out, resume) -> tuple[TrainConfig, Path, dict | None]:
+    """(config, run directory, last checkpoint's state): the run to resume, or a new one (state None).
+
+    A new run's "auto" values are resolved here, so config.json holds what ran.
+    """
     if resume is not None:
         run_dir = Path(resume)
         saved = read_config(run_dir)
-        config = saved if config is None else saved.replace(epochs=config.epochs)
-        state = read_checkpoint(run_dir, "last", map_location=config.device)
-    else:
-        config = config or TrainConfig()
-        scaling, anchor_q = anchor_settings(system, config)  # "auto" values resolved: config.json holds what ran
-        config = config.replace(scaling=scaling, anchor_q=anchor_q)
-        run_dir = _new_run_dir(Path(out) if out is not None else Path("runs") / system.name)
-        state = None
+        config = saved if config is None else saved.replace(epochs=config.epochs, lr=config.lr)
+        return config, run_dir, read_checkpoint(run_dir, "last", map_location=config.device)
+    config = config or TrainConfig()
+    scaling, anchor_q = anchor_settings(system, config)
+    config = config.replace(scaling=scaling, anchor_q=anchor_q)
+    return config, _new_run_dir(Path(out) if out is not None else Path("runs") / system.name), None
+
+
+def _new_run_dir(out: Path) -> Path:
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    run_dir = out / stamp
+    k = 1
+    while run_dir.exists():
+        run_dir = out / f"{stamp}-{k}"
+        k += 1
+    (run_dir / "checkpoints").mkdir(parents=True)
+    return run_dir
+
+
+@dataclass
+class _Trainer:
+    """What the epochs read and advance; a checkpoint saves all of it but system, config and run_dir.
+
+    ``epoch``: the epochs done, or during an epoch its 0-based index (what Ctrl-C saves).
+    ``best``: the lowest summed loss terms so far; ``eps_ema``: moving average of ε;
+    ``elapsed``: training seconds, summed over resumed sessions.
+    """
+
+    system: System
+    config: TrainConfig
+    run_dir: Path
+    nets: IdaPbcNets
+    optimizer: torch.optim.Optimizer
+    weights: AdaptiveWeights
+    gen: torch.Generator
+    epoch: int = 0
+    best: float = math.inf
+    eps_ema: float | None = None
+    elapsed: float = 0.0
+    best_state: dict | None = None  #: `_snapshot` of the weights with the lowest loss so far
+
+    def tensor(self, a) -> torch.Tensor:
+        """`a` in the networks' dtype and device."""
+        return torch.as_tensor(a, dtype=getattr(torch, self.config.dtype), device=torch.device(self.config.device))
+
+
+def _start(system: System, config: TrainConfig, run_dir: Path, state: dict | None) -> _Trainer:
+    """Seeded networks, Adam and sample generator; restored from `state`, else config.json and
+    system.json written."""
     if config.device.startswith("cuda") and not torch.cuda.is_available():
         raise IdapbcError(f"device '{config.device}' requested but torch sees no CUDA device. Fix: use --device cpu.")
     torch.set_num_threads(config.threads)
@@ -87,105 +184,145 @@ def train(
     optimizer = torch.optim.Adam(nets.parameters(), lr=config.lr)
     weights = AdaptiveWeights.start(config.gamma, config.alpha)
     gen = torch.Generator().manual_seed(config.seed)
-    start_epoch, best, eps_ema, elapsed = 0, math.inf, None, 0.0
+    trainer = _Trainer(system, config, run_dir, nets, optimizer, weights, gen)
     if state is not None:
         nets.load_state_dict(state["nets"])
         optimizer.load_state_dict(state["optimizer"])
+        for group in optimizer.param_groups:  # a resume may lower the learning rate
+            group["lr"] = config.lr
         weights.weights = dict(state["weights"])
         gen.set_state(state["generator"])
-        start_epoch, best, eps_ema, elapsed = int(state["epoch"]), float(state["best"]), state["epsilon"], float(state["elapsed"])
+        trainer.epoch, trainer.best, trainer.eps_ema, trainer.elapsed = int(state["epoch"]), float(state["best"]), state["epsilon"], float(state["elapsed"])
     else:
         write_json(run_dir / "config.json", config.to_dict())
         write_json(run_dir / "system.json", system_record(system, run_dir))
-    dtype, device = getattr(torch, config.dtype), torch.device(config.device)
-    as_t = lambda a: torch.as_tensor(a, dtype=dtype, device=device)  # noqa: E731
+    return trainer
 
-    metrics_path = run_dir / "metrics.csv"
-    columns = ["epoch", "loss", *TERMS, *(f"r_{t}" for t in TERMS), "epsilon", "inside_share", "dissipation_ok", "max_mu", "seconds"]
-    if state is None or not metrics_path.exists():
-        metrics_path.write_text(",".join(columns) + "\n")
-    else:  # drop rows past the checkpoint (they will be recomputed identically)
-        lines = metrics_path.read_text().splitlines()
-        metrics_path.write_text("\n".join(lines[: start_epoch + 1]) + "\n")
 
-    def checkpoint(name: str, epoch: int) -> None:
-        save_checkpoint(
-            run_dir / "checkpoints" / f"{name}.pt",
-            {
-                "epoch": epoch,
-                "nets": nets.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "weights": dict(weights.weights),
-                "generator": gen.get_state(),
-                "best": best,
-                "epsilon": eps_ema,
-                "elapsed": elapsed,
-            },
-        )
+def _open_metrics(path: Path, fresh: bool, epochs_done: int) -> None:
+    """Write metrics.csv's header for a fresh run; when resuming, drop the rows past the checkpoint
+    (they will be recomputed identically)."""
+    if fresh or not path.exists():
+        path.write_text(",".join(_COLUMNS) + "\n")
+    else:
+        lines = path.read_text().splitlines()
+        path.write_text("\n".join(lines[: epochs_done + 1]) + "\n")
 
-    status = "finished"
-    bar = tqdm(range(start_epoch, config.epochs), initial=start_epoch, total=config.epochs, disable=not progress, desc=f"train {system.name}", unit="epoch", dynamic_ncols=True)
-    epoch = start_epoch
+
+def _save_snapshot(trainer: _Trainer, name: str, snap: dict) -> None:
+    """Save checkpoints/<name>.pt from a `_snapshot` (same fields as `_checkpoint`)."""
+    save_checkpoint(
+        trainer.run_dir / "checkpoints" / f"{name}.pt",
+        {"epoch": snap["epoch"], "nets": snap["nets"], "optimizer": snap["optimizer"], "weights": snap["weights"], "generator": snap["generator"],
+         "best": snap["best"], "epsilon": snap["eps_ema"], "elapsed": trainer.elapsed},
+    )
+
+
+def _checkpoint(trainer: _Trainer, name: str, epoch: int) -> None:
+    """Save checkpoints/<name>.pt: everything `_start` restores, at `epoch` epochs done."""
+    save_checkpoint(
+        trainer.run_dir / "checkpoints" / f"{name}.pt",
+        {
+            "epoch": epoch,
+            "nets": trainer.nets.state_dict(),
+            "optimizer": trainer.optimizer.state_dict(),
+            "weights": dict(trainer.weights.weights),
+            "generator": trainer.gen.get_state(),
+            "best": trainer.best,
+            "epsilon": trainer.eps_ema,
+            "elapsed": trainer.elapsed,
+        },
+    )
+
+
+# ---------------------------------------------------------------------------------------- loop
+def _run_epochs(trainer: _Trainer, progress: bool) -> None:
+    """From `trainer.epoch` to `config.epochs`: one step, one metrics row and the due checkpoints each."""
+    config, system = trainer.config, trainer.system
+    start = trainer.epoch
+    bar = tqdm(range(start, config.epochs), initial=start, total=config.epochs, disable=not progress, desc=f"train {system.name}", unit="epoch", dynamic_ncols=True)
     t_last = time.perf_counter()
     try:
-        with open(metrics_path, "a", newline="") as mfile:
+        with open(trainer.run_dir / "metrics.csv", "a", newline="") as mfile:
             writer = csv.writer(mfile)
             for epoch in bar:
-                x = _sample(system, config.samples, gen)
-                xt = as_t(x)
-                with torch.no_grad():
-                    H = nets.H(xt)
-                eps = as_t(config.epsilon) if config.epsilon > 0 else torch.quantile(H.double(), config.inside_fraction).to(dtype)
-                inside = H < eps
-                f = as_t(system.f(x))
-                df_in = None
-                if config.local_stability and bool(inside.any()):
-                    df_in = as_t(system.df_dx(x[inside.cpu().numpy()]))
-                terms, diag = loss_terms(nets, xt, f, eps, config.kappa, df_in, inside)
-                values = {k: float(v.detach()) for k, v in terms.items()}
-                bad = [k for k, v in values.items() if not math.isfinite(v)]
-                if bad:
-                    raise TrainingDiverged(
-                        f"loss term '{bad[0]}' became {values[bad[0]]} at epoch {epoch}; the last good checkpoint is kept in "
-                        f"{run_dir / 'checkpoints'}. Fix: lower --lr, check the domain, or resume from the checkpoint."
-                    )
-                total = weights.total(terms)
-                optimizer.zero_grad(set_to_none=True)
-                total.backward()
-                for name, p in nets.named_parameters():
-                    if p.grad is not None and not bool(torch.isfinite(p.grad).all()):
-                        raise TrainingDiverged(f"gradient of '{name}' became non-finite at epoch {epoch}. Fix: lower --lr, or resume from the last checkpoint.")
-                optimizer.step()
-                weights.update(values)
-                eps_value = float(eps)
-                eps_ema = eps_value if eps_ema is None else 0.95 * eps_ema + 0.05 * eps_value
+                trainer.epoch = epoch
+                before = _snapshot(trainer)  # the weights this epoch's loss is computed at
+                try:
+                    total, values, diag, eps_value = _step(trainer, epoch)
+                except TrainingDiverged as exc:
+                    raise TrainingDiverged(str(exc), trainer.best_state or before) from None
+                except (RuntimeError, ValueError, FloatingPointError) as exc:  # e.g. torch.linalg errors on NaN/inf
+                    reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                    raise TrainingDiverged(f"the training step of epoch {epoch} failed ({reason[:160]}).", trainer.best_state or before) from None
                 now = time.perf_counter()
-                elapsed += now - t_last
+                trainer.elapsed += now - t_last
                 t_last = now
                 raw = sum(values.values())
-                writer.writerow(
-                    [epoch + 1, f"{float(total.detach()):.6g}", *(f"{values[t]:.6g}" for t in TERMS), *(f"{weights.weights[t]:.6g}" for t in TERMS),
-                     f"{eps_value:.6g}", f"{float(diag['inside_share']):.4g}", f"{float(diag['dissipation_ok']):.4g}", f"{float(diag['max_mu']):.4g}", f"{elapsed:.3f}"]
-                )
-                if raw < best:
-                    best = raw
-                    checkpoint("best", epoch + 1)
+                writer.writerow(_metrics_row(epoch + 1, total, values, trainer.weights, eps_value, diag, trainer.elapsed))
+                if raw < trainer.best:  # best.pt holds the weights that scored it (before this step)
+                    trainer.best = before["best"] = raw
+                    trainer.best_state = before
+                    _save_snapshot(trainer, "best", before)
                 if (epoch + 1) % config.checkpoint_every == 0 or epoch + 1 == config.epochs:
                     mfile.flush()
-                    checkpoint("last", epoch + 1)
+                    _checkpoint(trainer, "last", epoch + 1)
                 if progress:
-                    bar.set_postfix({k[:6]: f"{v:.2e}" for k, v in values.items()} | {"diss_ok": f"{float(diag['dissipation_ok']):.2f}"}, refresh=False)
-            epoch = config.epochs
-    except KeyboardInterrupt:
-        status = "interrupted"
-        checkpoint("last", epoch)
+                    bar.set_postfix({k: f"{v:.2e}" for k, v in values.items()} | {"dissipation_ok": f"{float(diag['dissipation_ok']):.2f}"}, refresh=False)
+            trainer.epoch = config.epochs
     finally:
         bar.close()
 
-    run = Run(run_dir, system, config, nets)
-    run.summary = _summarise(run, status, epoch, eps_ema, elapsed)
-    write_json(run_dir / "summary.json", run.summary)
-    return run
+
+def _sample(system: System, n: int, gen: torch.Generator) -> np.ndarray:
+    lo, hi = (torch.as_tensor(b, dtype=torch.float64) for b in system.domain)
+    return (lo + (hi - lo) * torch.rand(n, system.n, generator=gen, dtype=torch.float64)).numpy()
+
+
+def _step(trainer: _Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor], float]:
+    """One epoch: fresh samples, ε, the loss terms, one Adam step, the adaptive weights' update.
+
+    Returns the weighted loss (scalar tensor), the terms' values by name, the diagnostics of
+    `loss_terms` and ε. Raises `TrainingDiverged` on a non-finite term or gradient.
+    """
+    config, system, nets = trainer.config, trainer.system, trainer.nets
+    x = _sample(system, config.samples, trainer.gen)
+    xt = trainer.tensor(x)
+    with torch.no_grad():
+        H = nets.H(xt)
+    eps = trainer.tensor(config.epsilon) if config.epsilon > 0 else torch.quantile(H.double(), config.inside_fraction).to(xt.dtype)
+    inside = H < eps
+    f = trainer.tensor(system.f(x))
+    df_in = None
+    if config.local_stability and bool(inside.any()):
+        df_in = trainer.tensor(system.df_dx(x[inside.cpu().numpy()]))
+    terms, diag = loss_terms(nets, xt, f, eps, config.kappa, df_in, inside)
+    values = {k: float(v.detach()) for k, v in terms.items()}
+    bad = [k for k, v in values.items() if not math.isfinite(v)]
+    if bad:
+        raise TrainingDiverged(f"loss term '{bad[0]}' became {values[bad[0]]} at epoch {epoch}.")
+    total = trainer.weights.total(terms)
+    trainer.optimizer.zero_grad(set_to_none=True)
+    total.backward()
+    for name, p in nets.named_parameters():
+        if p.grad is not None and not bool(torch.isfinite(p.grad).all()):
+            raise TrainingDiverged(f"gradient of '{name}' became non-finite at epoch {epoch}.")
+    trainer.optimizer.step()
+    for name, p in nets.named_parameters():
+        if not bool(torch.isfinite(p).all()):
+            raise TrainingDiverged(f"weights of '{name}' became non-finite at epoch {epoch}.")
+    trainer.weights.update(values)
+    eps_value = float(eps)
+    trainer.eps_ema = eps_value if trainer.eps_ema is None else 0.95 * trainer.eps_ema + 0.05 * eps_value
+    return total, values, diag, eps_value
+
+
+def _metrics_row(done: int, total: torch.Tensor, values: dict[str, float], weights: AdaptiveWeights, eps: float, diag: dict, elapsed: float) -> list:
+    """One metrics.csv row (`_COLUMNS`) after `done` epochs."""
+    return [
+        done, f"{float(total.detach()):.6g}", *(f"{values[t]:.6g}" for t in TERMS), *(f"{weights.weights[t]:.6g}" for t in TERMS),
+        f"{eps:.6g}", f"{float(diag['inside_share']):.4g}", f"{float(diag['dissipation_ok']):.4g}", f"{float(diag['max_mu']):.4g}", f"{elapsed:.3f}",
+    ]
 
 
 def _summarise(run: Run, status: str, epoch: int, eps_ema, elapsed: float) -> dict:

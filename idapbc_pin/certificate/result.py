@@ -1,0 +1,247 @@
+"""What `certify` found: one frozen dataclass per condition and the `Certificate` that holds them,
+with its verdicts (`Certificate.checks`), its table and what ``certificate.json`` holds."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from .._io import to_json
+
+__all__ = ["LABEL", "BaselineCertificate", "Certificate", "Dissipation", "Equilibrium", "LocalStability", "Structural", "Sublevel"]
+
+#: How the certificate labels itself in its table and JSON.
+LABEL = "sampled certificate, not a proof"
+
+
+@dataclass(frozen=True)
+class Structural:
+    """Conditions (i)–(iii) on the samples (Hessian on a subsample of `n_hessian`)."""
+
+    max_J_skew_error: float  #: max |J_d + J_dᵀ| over samples and entries
+    max_J: float  #: max |J_d| (scale of the skew check)
+    min_eig_R: float  #: min over samples of λ_min(R_d)
+    max_R_asymmetry: float  #: max |R_d − R_dᵀ|
+    min_eig_hessian: float  #: min over the subsample of λ_min(∇²H_d)
+    n_hessian: int
+    hessian_source: str  #: "autograd", "controller" or "finite differences"
+    H_at_target: float  #: H_d(x*)
+    grad_norm_at_target: float  #: ‖∇H_d(x*)‖
+    min_H_off_target: float  #: min over samples of H_d
+    min_H_over_dist2: float  #: min over samples of H_d / ‖x − x*‖² (0 would mean a flat direction)
+    median_H: float
+    median_grad_norm: float
+
+
+@dataclass(frozen=True)
+class Dissipation:
+    """Eq. damping_assign_relax_tilde on the samples with H_d ≥ `level` (Theorem 2's set D)."""
+
+    level: float  #: ε (0: every sample)
+    n_checked: int
+    fraction_satisfied: float  #: share with ∇H_dᵀR_d∇H_d − ∇H_dᵀξ > 0
+    worst_margin: float  #: min of that margin (nan if no sample)
+    worst_state: list | None  #: (n,) state of the worst margin
+    fraction_literal_sign: float  #: share satisfied with ξ = +G⁻¹(0; μ) (eq. mismatch's sign, see module doc)
+
+
+@dataclass(frozen=True)
+class LocalStability:
+    """Eigenvalues of the true closed loop's Jacobian at x*."""
+
+    eigenvalues: list  #: [[re, im], ...]
+    max_real: float
+    source: str
+
+
+@dataclass(frozen=True)
+class Equilibrium:
+    """Where the true closed loop settles (simulated), x̄ = mean over the last window."""
+
+    n_near: int  #: trajectories started within 5 % of the half-widths around x*
+    n_half_box: int  #: trajectories started in the half-size box
+    n_settled: int  #: at rest (‖v‖∞ ≤ 0.05) over the last window, out of n_near + n_half_box
+    n_success: int  #: DESIGN §4 success (in the 0.05 box around x* over the last 2 s)
+    x_bar: list | None  #: (n,) mean settled state of the near-x* trajectories (None if none settled)
+    offset: float  #: ‖x̄ − x*‖ (angles wrapped)
+    max_offset: float  #: max over every settled trajectory of ‖x̄_k − x*‖
+    T: float
+
+
+@dataclass(frozen=True)
+class Sublevel:
+    """Largest sampled sublevel set {H_d < c} with Ḣ_d < 0 (true loop) outside {H_d < exclude}."""
+
+    c: float  #: min(c_violation, c_boundary)
+    exclude: float  #: violations with H_d below this are tolerated (ε; 0: none)
+    c_violation: float  #: min H_d over the violating samples (inf if none)
+    n_violations: int
+    c_boundary: float  #: min of H_d on the faces of the box (sampled, refined per face)
+    boundary_state: list  #: (n,) where that minimum sits
+    covered_fraction: float  #: share of the domain samples inside {H_d < c}
+    contains_E: bool  #: c > ε: the set holds E = H_ε (else the certificate is vacuous)
+
+
+@dataclass(frozen=True)
+class BaselineCertificate:
+    """The LQR baseline's sampled certificate (the ``"baseline"`` entry of certificate.json).
+
+    controller : "LQR".  function : what V is.
+    n_samples : the domain samples (the run certificate's own).
+    limits_applied : the effort limits clipped the LQR input.
+    saturated_fraction : share of the samples where they did.
+    max_real : max Re of the eigenvalues of the LQR loop's linearisation A − BK.
+    sublevel : the largest {V < c} with V̇ < 0 on its samples that stays inside the box
+        (``exclude = 0``: no violation tolerated); ``covered_fraction`` is the certified share.
+    """
+
+    controller: str
+    function: str
+    n_samples: int
+    limits_applied: bool
+    saturated_fraction: float
+    max_real: float
+    sublevel: Sublevel
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """Everything `certify` found; ``to_dict()`` is what ``certificate.json`` holds.
+
+    Attributes
+    ----------
+    label : always `LABEL` ("sampled certificate, not a proof").
+    system : system name.  n_samples, seed : the uniform domain samples.
+    box : (lo, hi) lists, the training domain X.
+    epsilon : ε of H_ε (the run's estimate; 0 if none).  inside_fraction : share of samples in E.
+    max_mu, max_xi : max ‖μ‖, ‖ξ‖ over the samples.
+    max_hdot_identity_error : max |Ḣ_d + margin| / (1 + |Ḣ_d|) (Proposition 1 consistency).
+    structural, dissipation_outside_E, dissipation_everywhere, local_stability, equilibrium,
+    sublevel, sublevel_strict : see their classes (sublevel_strict tolerates no violation).
+    rho : the controller's ρ, if it has one.  wall_time : seconds.
+    limits : the input bound the true loop was checked with (`InputLimits.to_json()`: applied,
+        lifted, effort, bound); None for a certificate made before limits were recorded.
+    saturated_fraction : share of the samples where the law's input exceeds the bound (Ḣ_d is
+        taken along f + g·sat(u) there).
+    baseline : the LQR baseline's certificate on the same samples (None when not computed).
+    """
+
+    label: str
+    system: str
+    n_samples: int
+    seed: int
+    box: tuple
+    epsilon: float
+    inside_fraction: float
+    max_mu: float
+    max_xi: float
+    max_hdot_identity_error: float
+    structural: Structural
+    dissipation_outside_E: Dissipation
+    dissipation_everywhere: Dissipation
+    local_stability: LocalStability
+    equilibrium: Equilibrium | None
+    sublevel: Sublevel
+    sublevel_strict: Sublevel
+    rho: float | None
+    wall_time: float
+    limits: dict | None = None
+    saturated_fraction: float = 0.0
+    baseline: BaselineCertificate | None = None
+
+    # ---------------------------------------------------------------- verdicts
+    def checks(self) -> list[tuple[str, bool, str]]:
+        """(name, passed, detail) for each condition, in the order of the table."""
+        s = self.structural
+        tol_H = 1e-6 * max(s.median_H, 1e-300)
+        tol_g = 1e-6 * max(s.median_grad_norm, 1e-300)
+        d_out, d_all = self.dissipation_outside_E, self.dissipation_everywhere
+        les = self.local_stability
+        out = [
+            ("J_d skew-symmetric", s.max_J_skew_error <= 1e-9 * max(1.0, s.max_J), f"max |J_d + J_dᵀ| = {s.max_J_skew_error:.2e}"),
+            ("R_d positive definite", s.min_eig_R > 0, f"min λ(R_d) = {s.min_eig_R:.3e}"),
+            ("∇²H_d positive definite", s.min_eig_hessian > 0, f"min λ(∇²H_d) = {s.min_eig_hessian:.3e} on {s.n_hessian} samples ({s.hessian_source})"),
+            ("H_d(x*) = 0, ∇H_d(x*) = 0", abs(s.H_at_target) <= tol_H and s.grad_norm_at_target <= tol_g,
+             f"H_d(x*) = {s.H_at_target:.2e}, ‖∇H_d(x*)‖ = {s.grad_norm_at_target:.2e}"),
+            ("H_d > 0 off x*", s.min_H_off_target > 0, f"min H_d = {s.min_H_off_target:.3e}, min H_d/‖δ‖² = {s.min_H_over_dist2:.3e}"),
+            (f"dissipation outside E (ε = {self.epsilon:.3g})", d_out.fraction_satisfied == 1.0,
+             f"{100 * d_out.fraction_satisfied:.2f} % of {d_out.n_checked}, worst margin {d_out.worst_margin:.3e} "
+             f"(literal sign of eq. mismatch: {100 * d_out.fraction_literal_sign:.1f} %)"),
+            ("dissipation everywhere (ε = 0)", d_all.fraction_satisfied == 1.0,
+             f"{100 * d_all.fraction_satisfied:.2f} % of {d_all.n_checked}, worst margin {d_all.worst_margin:.3e} "
+             f"(literal sign: {100 * d_all.fraction_literal_sign:.1f} %)"),
+            ("x* locally exponentially stable", les.max_real < 0, f"max Re λ = {les.max_real:.4g} ({les.source})"),
+        ]
+        if self.equilibrium is not None:
+            e = self.equilibrium
+            n_sim = e.n_near + e.n_half_box
+            out.append(("settles at x*", e.n_settled == n_sim and e.offset <= 0.05 and e.max_offset <= 0.05,
+                        f"{e.n_settled}/{n_sim} settled, ‖x̄ − x*‖ = {e.offset:.2e} (near x*), max {e.max_offset:.2e}"))
+        sl = self.sublevel
+        out.append(("sublevel set {H_d < c} ⊃ E", sl.contains_E,
+                    f"c = {sl.c:.4g} (ε = {self.epsilon:.3g}), {100 * sl.covered_fraction:.1f} % of the domain"))
+        return out
+
+    @property
+    def certified(self) -> bool:
+        """Every check passed (on the samples: still not a proof)."""
+        return all(ok for _, ok, _ in self.checks())
+
+    # ---------------------------------------------------------------- output
+    def to_dict(self) -> dict:
+        """JSON-ready (inf and nan become None)."""
+        d = dataclasses.asdict(self)
+        d["checks"] = [{"name": n, "passed": bool(ok), "detail": det} for n, ok, det in self.checks()]
+        d["certified"] = self.certified
+        return to_json(d)
+
+    def _limits_line(self) -> str:
+        """Whether the true loop was checked with the effort limits, and how often they bind."""
+        lim = self.limits or {}
+        bound = lim.get("bound")
+        if bound is None:
+            what = "lifted (--no-limits)" if lim.get("lifted") else "none (the system has none)"
+            return f"torque limits: {what}; Ḣ_d along f + g·u"
+        text = "|".join("∞" if b is None else f"{b:.3g}" for b in bound)
+        return (f"torque limits applied: |u| ≤ {text}; Ḣ_d along f + g·sat(u), "
+                f"the law saturates on {100 * self.saturated_fraction:.1f} % of the samples")
+
+    def _shares_line(self) -> str:
+        """Both certified shares side by side (Neural IDA-PBC's H_d, LQR's δᵀSδ)."""
+        line = f"certified share of the domain: NIDA-PBC {{H_d < {self.sublevel.c:.3g}}} {100 * self.sublevel.covered_fraction:.2f} %"
+        if self.baseline is not None:
+            b = self.baseline.sublevel
+            line += (f"  |  LQR {{δᵀSδ < {b.c:.3g}}} {100 * b.covered_fraction:.2f} % "
+                     f"({b.n_violations} samples with V̇ ≥ 0; box faces: min V = {b.c_boundary:.3g})")
+        return line
+
+    def table(self) -> str:
+        """A short human-readable table."""
+        sl, st = self.sublevel, self.sublevel_strict
+        lines = [
+            f"certificate of {self.system}: {LABEL}",
+            f"{self.n_samples} uniform samples of the training box (seed {self.seed}); ε = {self.epsilon:.4g}, "
+            f"E = H_ε holds {100 * self.inside_fraction:.1f} % of them; max ‖μ‖ = {self.max_mu:.3g}, max ‖ξ‖ = {self.max_xi:.3g}",
+            self._limits_line(),
+            f"{'condition':<38}{'':>6}  detail",
+            "-" * 100,
+        ]
+        for name, ok, detail in self.checks():
+            lines.append(f"{name:<38}{'ok' if ok else 'FAIL':>6}  {detail}")
+        lines.append("-" * 100)
+        lines.append(
+            f"largest sublevel set with Ḣ_d < 0 outside E and inside the box: {{H_d < {sl.c:.4g}}}, "
+            f"{100 * sl.covered_fraction:.1f} % of the domain ({sl.n_violations} violations outside E; box faces: min H_d = {sl.c_boundary:.4g})"
+        )
+        lines.append(
+            f"  tolerating no violation at all: {{H_d < {st.c:.4g}}}, {100 * st.covered_fraction:.1f} % of the domain ({st.n_violations} samples with Ḣ_d ≥ 0)"
+        )
+        lines.append(self._shares_line())
+        if self.local_stability.eigenvalues:
+            eig = ", ".join(f"{re:.3g}" + (f"{im:+.3g}j" if abs(im) > 1e-12 else "") for re, im in self.local_stability.eigenvalues)
+            lines.append(f"closed-loop eigenvalues at x*: {eig}")
+        if self.equilibrium is not None and self.equilibrium.x_bar is not None:
+            lines.append("x̄ (near x*): [" + ", ".join(f"{v:.3g}" for v in self.equilibrium.x_bar) + "]")
+        lines.append(f"consistency: max |Ḣ_d + margin| / (1 + |Ḣ_d|) = {self.max_hdot_identity_error:.1e}; {self.wall_time:.1f} s")
+        lines.append(f"verdict: {'all conditions hold on the samples' if self.certified else 'NOT certified'} ({LABEL})")
+        return "\n".join(lines)

@@ -1,0 +1,133 @@
+"""Neural IDA-PBC controller written by `idapbc-pin export`: standalone, numpy and Pinocchio only.
+
+    import controller                       # this folder on sys.path (or load the file by its path)
+    tau = controller.torque(q, v)           # (nv,) -> (nv,) or (N, nv) -> (N, nv); N·m or N per joint
+    controller.EFFORT                       # (m,) limit of each actuated input, inf where none
+    controller.JOINTS, controller.ACTUATED  # order of q, v and tau; order of u and EFFORT
+
+q holds one coordinate per joint in JOINTS order (rad or m; a continuous joint's angle itself, not
+its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde_u, g = [0; B]):
+
+    x = (q, p), p = M(q) v;   f(x) = (v, C(q, v)ᵀv − ∇U(q) − D v)   (Pinocchio on robot.urdf)
+    u = (BᵀB)⁻¹Bᵀ (f̃_d(x) − f(x))_p;   u ← clip(u, −EFFORT, EFFORT);   τ = B u
+
+f̃_d = (J_d − R_d)∇H_d comes from desired_flow.py with weights.npz (the same function as
+desired_flow.onnx); D is the URDF's joint damping. The folder's controller.json holds the rest.
+`python controller.py` prints the torque at the target (≈ 0) and the latency of one state.
+(In idapbc-pin this file is `idapbc_pin/deploy/_standalone.py`, copied verbatim by the export.)
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+__all__ = ["ACTUATED", "EFFORT", "JOINTS", "ExportedController", "torque"]
+
+HERE = Path(__file__).resolve().parent
+
+
+def _load_sibling(directory: Path, stem: str):
+    """The module in ``directory/<stem>.py``, whether or not the folder is on sys.path."""
+    name = f"{__name__}_{stem}"
+    spec = importlib.util.spec_from_file_location(name, directory / f"{stem}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up while the file runs
+    spec.loader.exec_module(module)
+    return module
+
+
+class ExportedController:
+    """The exported law, loaded from a folder written by `idapbc-pin export`.
+
+    Holds its own `pinocchio.Data`: use one instance per thread.
+    """
+
+    def __init__(self, directory=HERE):
+        directory = Path(directory)
+        meta = json.loads((directory / "controller.json").read_text())
+        self.joints = tuple(meta["joints"])
+        self.actuated = tuple(meta["actuated"])
+        self.B = np.array(meta["B"], dtype=np.float64).reshape(len(self.joints), len(self.actuated))  # (nv, m)
+        self.B_pinv_T = np.linalg.solve(self.B.T @ self.B, self.B.T).T  # ((BᵀB)⁻¹Bᵀ)ᵀ, (nv, m)
+        self.effort = np.array([np.inf if e is None else e for e in meta["effort"]], dtype=np.float64)  # (m,)
+        self.damping = np.array(meta["damping"], dtype=np.float64)  # (nv,)
+        self.x_star = np.array(meta["x_star"], dtype=np.float64)  # (2 nv,)
+        self.flow = _load_sibling(directory, "desired_flow").load_flow(directory / meta["weights"])
+        self.model = pin.buildModelFromUrdf(str(directory / meta["urdf"]))
+        self.data = self.model.createData()
+        if tuple(self.model.names[1:]) != self.joints:
+            raise ValueError(f"{meta['urdf']} has joints {list(self.model.names[1:])}, controller.json {list(self.joints)}")
+        # minimal coordinate i is the joint whose velocity index is i; continuous joints store (cos, sin)
+        joints = [self.model.joints[j] for j in range(1, self.model.njoints)]
+        self._direct = [(j.idx_q, j.idx_v) for j in joints if j.nq == 1]
+        self._circular = [(j.idx_q, j.idx_v) for j in joints if j.nq == 2]
+
+    @property
+    def nv(self) -> int:
+        return len(self.joints)
+
+    def configuration(self, q: np.ndarray) -> np.ndarray:
+        """Minimal coordinates (N, nv) -> Pinocchio configurations (N, model.nq)."""
+        out = np.empty((len(q), self.model.nq))
+        for iq, iv in self._direct:
+            out[:, iq] = q[:, iv]
+        for iq, iv in self._circular:
+            out[:, iq], out[:, iq + 1] = np.cos(q[:, iv]), np.sin(q[:, iv])
+        return out
+
+    def momentum_and_drift(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """p = M(q) v and ṗ = C(q, v)ᵀv − ∇U(q) − D v, the momentum half of f(x): (N, nv) ×2 -> (N, nv) ×2.
+
+        (The position half of f is v itself; the control law does not use it, g = [0; B].)
+        """
+        model, data = self.model, self.data
+        M = np.empty((len(q), self.nv, self.nv))
+        p_dot = np.empty((len(q), self.nv))
+        for k, qc in enumerate(self.configuration(q)):
+            M[k] = pin.crba(model, data, qc)
+            C = pin.computeCoriolisMatrix(model, data, qc, v[k])
+            p_dot[k] = C.T @ v[k] - pin.computeGeneralizedGravity(model, data, qc)
+        p_dot -= self.damping * v
+        return np.einsum("nij,nj->ni", M, v), p_dot
+
+    def control(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """u = (gᵀg)⁻¹gᵀ(f̃_d − f) = (BᵀB)⁻¹Bᵀ(f̃_d − f)_p before saturation: (N, nv) ×2 -> (N, m), N·m or N."""
+        p, p_dot = self.momentum_and_drift(q, v)
+        f_d = self.flow(np.concatenate([q, p], axis=1))
+        return (f_d[:, self.nv :] - p_dot) @ self.B_pinv_T
+
+    def torque(self, q, v) -> np.ndarray:
+        """τ = B clip(u, ±EFFORT): (N, nv) ×2 -> (N, nv), or (nv,) ×2 -> (nv,)."""
+        q, v = np.asarray(q, dtype=np.float64), np.asarray(v, dtype=np.float64)
+        single = q.ndim == 1
+        q, v = (q[None], v[None]) if single else (q, v)
+        if q.shape != v.shape or q.ndim != 2 or q.shape[1] != self.nv:
+            raise ValueError(f"q and v must both have shape ({self.nv},) or (N, {self.nv}), got {q.shape} and {v.shape}")
+        u = np.minimum(np.maximum(self.control(q, v), -self.effort), self.effort)  # = np.clip, faster
+        tau = u @ self.B.T
+        return tau[0] if single else tau
+
+
+_CONTROLLER = ExportedController(HERE)
+JOINTS, ACTUATED, EFFORT = _CONTROLLER.joints, _CONTROLLER.actuated, _CONTROLLER.effort
+torque = _CONTROLLER.torque
+
+
+if __name__ == "__main__":
+    import time
+
+    q_star, v_zero = _CONTROLLER.x_star[: _CONTROLLER.nv], np.zeros(_CONTROLLER.nv)
+    print("joints:", ", ".join(JOINTS), "| actuated:", ", ".join(ACTUATED), "| effort:", EFFORT)
+    print("torque at the target (≈ 0):", torque(q_star, v_zero))
+    times = []
+    for _ in range(1000):
+        t0 = time.perf_counter()
+        torque(q_star + 0.1, v_zero + 0.2)
+        times.append(time.perf_counter() - t0)
+    print(f"one state: median {np.median(times) * 1e3:.3f} ms, p99 {np.quantile(times, 0.99) * 1e3:.3f} ms")

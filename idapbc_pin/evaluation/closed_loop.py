@@ -1,0 +1,176 @@
+"""`simulate_run`: a run's controller next to LQR from the same states, under optional conditions
+(mismatch of the judge plant, saturation, measurement noise), with the actuators' effort limits
+applied to both unless lifted; the ``idapbc-pin simulate`` command.
+
+Writes ``simulation.json`` (settings, scores and both ROA radii under the same conditions) and
+``simulation.png`` (the figure's panels for the first few states, Neural IDA-PBC) into the run
+directory.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from .._io import write_json
+from ..control.baseline import LQRController
+from ..errors import IdapbcError
+from ..reporting.figure_data import figure_data, horizon
+from ..reporting.plot import plot, save_png
+from ..sim.limits import input_limits
+from ..sim.radius import RadiusResult, roa_radius
+from ..sim.roa import RoaResult, score
+from ..sim.states import evaluation_box, initial_states, uniform_states
+from ..sim.trajectory import Trajectory
+from ..training.run import resolve_run
+from .robustness import MeasuredController, parse_mismatch, perturbed_system
+
+__all__ = ["SimulationResult", "simulate_run"]
+
+
+@dataclass(frozen=True, eq=False)
+class SimulationResult:
+    """`simulate_run`'s outcome: the scores side by side and where things were written."""
+
+    roa: object  #: `RoaResult` (NIDA-PBC, LQR)
+    settings: dict
+    json_path: Path | None
+    figure_path: Path | None
+    radius: RadiusResult | None = None  #: both ROA radii under the same conditions (None: skipped)
+
+    def table(self) -> str:
+        s = self.settings
+        conds = [f"{k}={v:g}" for k, v in (s.get("mismatch") or {}).items()]
+        if s.get("saturation") is not None:
+            conds.append(f"|u| ≤ {s['saturation']:g}")
+        if s.get("noise"):
+            conds.append(f"noise σ = {s['noise']:g}")
+        lines = [self.roa.table()]
+        if self.radius is not None:
+            lines.append(self.radius.line())
+        if conds:
+            lines.append("conditions: " + ", ".join(conds))
+        for p in (self.json_path, self.figure_path):
+            if p is not None:
+                lines.append(f"wrote {p}")
+        return "\n".join(lines)
+
+
+def _scores(system, controllers, x0, T, dt, saturation, limits, box_name, box, seed):
+    """Every controller from x0 on the judge `system`, scored by `idapbc_pin.sim.roa.score`;
+    -> (RoaResult, {name: Trajectory})."""
+    scores, trajs = {}, {}
+    for name, ctrl in controllers.items():
+        scores[name], trajs[name] = score(system, name, ctrl, x0, T, dt, saturation=saturation, limits=limits)
+    res = RoaResult(system=system.name, box=box, box_name=box_name, x0=x0, T=float(T), dt=float(dt), seed=int(seed), scores=scores,
+                    limits=input_limits(system, limits, saturation))
+    return res, trajs
+
+
+def _start_states(system, n, x0, box: str, seed: int):
+    """(x0 (N, n), box name, (lo, hi)): `n` uniform states of `box`, or the given `x0` ("custom")."""
+    if box not in ("domain", "half"):
+        raise IdapbcError(f"box must be 'domain' or 'half', got {box!r}.")
+    if x0 is None:
+        if int(n) < 1:
+            raise IdapbcError(f"n must be at least 1, got {n}. Fix: --n 100.")
+        return uniform_states(system, int(n), box, seed), box, evaluation_box(system, box)
+    x0 = initial_states(system, x0, 0, seed)
+    return x0, "custom", (x0.min(axis=0), x0.max(axis=0))
+
+
+def _check_conditions(saturation, noise, rho) -> None:
+    if saturation is not None and not (math.isfinite(saturation) and saturation > 0):
+        raise IdapbcError(f"saturation must be a positive max |u|, got {saturation}. Fix: e.g. --saturation 20.")
+    if not (math.isfinite(noise) and noise >= 0):
+        raise IdapbcError(f"noise must be ≥ 0, got {noise}. Fix: e.g. --noise 0.01.")
+    if rho is not None and not (math.isfinite(rho) and rho >= 0):
+        raise IdapbcError(f"ρ must be finite and ≥ 0, got {rho}. Fix: e.g. --rho 1.")
+
+
+def _write(run, res: RoaResult, trajs, settings: dict, x0, nida, n_figure: int, radius: RadiusResult | None):
+    """simulation.json (settings, scores, radii, x0) and simulation.png (the first `n_figure`
+    rollouts of Neural IDA-PBC); -> (json path, png path or None)."""
+    record = dict(settings)
+    if radius is not None:
+        record["radius"], record["radius_search"] = dict(radius.radius), radius.to_dict()
+    for name, s in res.scores.items():
+        record[name] = {
+            "success_rate": s.success_rate, "median_settling_time": s.median_settling_time, "median_offset": s.median_offset,
+            "median_peak_input": s.median_peak_input, "diverged": s.n_diverged, "wall_time": s.wall_time,
+            "success": s.success.tolist(), "settling_time": s.settling_time.tolist(),
+        }
+    record["x0"] = x0.tolist()
+    json_path = write_json(run.path / "simulation.json", record, sort_keys=False)
+    k = min(int(n_figure), x0.shape[0])
+    if k <= 0:
+        return json_path, None
+    tr = trajs["NIDA-PBC"]
+    sub = Trajectory(t=tr.t, x=tr.x[:k], q=tr.q[:k], v=tr.v[:k], u=tr.u[:k], diverged=tr.diverged[:k])
+    scales, noise = settings["mismatch"], settings["noise"]
+    bound = res.limits.bound_text() if res.limits is not None else ""
+    conds = ", ".join([f"{a}×{b:g}" for a, b in scales.items()] + ([f"|u|≤{bound}"] if bound else []) + ([f"σ={noise:g}"] if noise else []))
+    label = f"{run.system.name}, ρ = {nida.rho:g}" + (f", {conds}" if conds else "")
+    row = figure_data(nida, traj=sub, epsilon=run.summary.get("epsilon"), label=label)
+    return json_path, save_png(plot([row]), run.path / "simulation.png")
+
+
+def simulate_run(
+    run,
+    n: int = 100,
+    T: float = 20.0,
+    dt: float = 0.01,
+    x0=None,
+    *,
+    rho: float | None = None,
+    mismatch=None,
+    saturation: float | None = None,
+    noise: float = 0.0,
+    seed: int = 0,
+    box: str = "domain",
+    write: bool = True,
+    n_figure: int = 4,
+    limits: bool = True,
+    radius: bool = True,
+) -> SimulationResult:
+    """Closed loop of a run's controller next to LQR from the same states, under optional conditions.
+
+    Writes ``simulation.json`` (settings, scores and radii) and ``simulation.png`` (the figure's
+    panels for the first `n_figure` states, Neural IDA-PBC) into the run directory.
+
+    Parameters
+    ----------
+    run : a `Run` or a run directory.
+    n : uniform states of `box` ("domain" or "half"), seed `seed`; or `x0` (N, n) / (N, nq).
+    T, dt : horizon and RK4 step, s.
+    rho : extra damping ρ for Neural IDA-PBC.
+    mismatch : {kind: scale} or "mass=1.2,..." for the judge plant (`perturbed_system`).
+    saturation : max |u| per input (with the effort limits: the smaller bound applies).
+    noise : σ of the (q, v) measurement noise.
+    limits : apply the system's effort limits to both controllers (False lifts them).
+    radius : also find both ROA radii under the same conditions, `n` states per scale (the
+        rollouts from the domain or half box reused); False skips them, and so does a given `x0`.
+    """
+    run = resolve_run(run)
+    nominal = run.system
+    T = horizon(T, dt)
+    x0, box_name, bounds = _start_states(nominal, n, x0, box, seed)
+    _check_conditions(saturation, noise, rho)
+    scales = parse_mismatch(mismatch)
+    plant = perturbed_system(nominal, **scales) if scales else nominal
+    nida = run.controller if rho is None else run.controller.with_damping(rho)
+    wrap = bool(scales) or noise > 0
+    controllers = {
+        "NIDA-PBC": MeasuredController(nida, plant=plant, model=nominal, noise=noise, seed=seed) if wrap else nida,
+        "LQR": MeasuredController(LQRController(nominal), plant=plant, model=nominal, noise=noise, seed=seed) if wrap else LQRController(nominal),
+    }
+    res, trajs = _scores(plant, controllers, x0, T, dt, saturation, limits, box_name, bounds, seed)
+    found = None
+    if radius and box_name != "custom":  # random states of a box, not given ones
+        known = {1.0: res} if box_name == "domain" else {0.5: res}
+        found = roa_radius(plant, controllers, n=int(n), seed=seed, T=T, dt=dt, known=known, saturation=saturation, limits=limits)
+    settings = {"n": int(x0.shape[0]), "T": T, "dt": dt, "seed": seed, "box": box_name, "rho": float(nida.rho),
+                "mismatch": scales, "saturation": saturation, "noise": noise, "limits": res.limits.to_json()}
+    json_path, fig_path = _write(run, res, trajs, settings, x0, nida, n_figure, found) if write else (None, None)
+    return SimulationResult(res, settings, json_path, fig_path, found)

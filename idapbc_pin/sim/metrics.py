@@ -1,0 +1,80 @@
+"""The closed-loop metrics of DESIGN §4, pure functions of a `Trajectory` (batched over its rows).
+
+Success: inside the box ‖wrap(q − q*)‖∞ ≤ `SUCCESS_TOL`, ‖v‖∞ ≤ `SUCCESS_TOL` at every sample of
+the last `SUCCESS_WINDOW` seconds, and not diverged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..model.angles import wrap_angles
+from .trajectory import Trajectory
+
+__all__ = [
+    "SUCCESS_TOL",
+    "SUCCESS_WINDOW",
+    "equilibrium_offset",
+    "in_target_box",
+    "peak_input",
+    "settled",
+    "settling_time",
+    "success",
+]
+
+#: DESIGN §4: success is judged over the last SUCCESS_WINDOW seconds ...
+SUCCESS_WINDOW = 2.0
+#: ... against the box ‖q − q*‖∞ ≤ SUCCESS_TOL (angles wrapped), ‖v‖∞ ≤ SUCCESS_TOL.
+SUCCESS_TOL = 0.05
+
+
+def _window(t: np.ndarray, window: float) -> np.ndarray:
+    return t >= t[-1] - window - 1e-9 * max(1.0, abs(t[-1]))
+
+
+def in_target_box(traj: Trajectory, system, tol: float = SUCCESS_TOL) -> np.ndarray:
+    """(N, T_k) bool: ‖wrap(q − q*)‖∞ ≤ tol and ‖v‖∞ ≤ tol at each sample (rad or m, per s)."""
+    nq = system.nq
+    dq = wrap_angles(traj.q - np.asarray(system.x_star)[:nq], np.asarray(system.angle_mask)[:nq])
+    return (np.abs(dq).max(axis=-1) <= tol) & (np.abs(traj.v).max(axis=-1) <= tol)
+
+
+def success(traj: Trajectory, system, window: float = SUCCESS_WINDOW, tol: float = SUCCESS_TOL) -> np.ndarray:
+    """(N,) bool: inside the target box (see `in_target_box`) at every sample of the last `window`
+    seconds, and not diverged (DESIGN §4)."""
+    box = in_target_box(traj, system, tol)[:, _window(traj.t, window)]
+    return box.all(axis=1) & ~traj.diverged
+
+
+def settled(traj: Trajectory, window: float = SUCCESS_WINDOW, tol: float = SUCCESS_TOL) -> np.ndarray:
+    """(N,) bool: at rest (‖v‖∞ ≤ tol) over the last `window` seconds and not diverged, wherever
+    that is (a controller may settle at a wrong equilibrium)."""
+    still = np.abs(traj.v[:, _window(traj.t, window)]).max(axis=-1) <= tol
+    return still.all(axis=1) & ~traj.diverged
+
+
+def settling_time(traj: Trajectory, system, tol: float = SUCCESS_TOL) -> np.ndarray:
+    """(N,) seconds: the first sample time after which the state stays in the target box until the
+    end; nan if it is not in the box at the end or the row diverged."""
+    box = in_target_box(traj, system, tol)
+    stays = np.flip(np.logical_and.accumulate(np.flip(box, axis=1), axis=1), axis=1)
+    first = np.argmax(stays, axis=1)
+    out = traj.t[first].astype(float)
+    out[~stays[:, -1] | traj.diverged] = np.nan
+    return out
+
+
+def equilibrium_offset(traj: Trajectory, system, window: float = SUCCESS_WINDOW) -> np.ndarray:
+    """(N,) ‖x̄ − x*‖₂ with x̄ the mean of x = (q, p) over the last `window` seconds (angle
+    components of x − x* wrapped sample by sample before averaging); nan for diverged rows."""
+    dx = wrap_angles(traj.x[:, _window(traj.t, window)] - np.asarray(system.x_star), system.angle_mask)
+    out = np.linalg.norm(dx.mean(axis=1), axis=-1)
+    out[traj.diverged] = np.nan
+    return out
+
+
+def peak_input(traj: Trajectory) -> np.ndarray:
+    """(N,) max over time and inputs of |u| (N·m or N) along each trajectory."""
+    if traj.u.shape[1] == 0 or traj.u.shape[2] == 0:
+        return np.zeros(traj.u.shape[0])
+    return np.abs(traj.u).max(axis=(1, 2))

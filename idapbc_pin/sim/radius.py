@@ -1,0 +1,233 @@
+"""ROA radius: a figure of a controller's basin that does not hinge on one arbitrary box (DESIGN §4).
+
+The radius of a controller is the largest scale s of the training box around x*,
+
+    X_s = x* + s·(X − x*),        s ∈ [0.05, 2],
+
+at which at least 90 % of n uniform states of X_s reach x* (DESIGN §4 success). The states of X_s
+are the same unit draws for every scale and every controller, ``uniform_states(system, n, X_s,
+seed)``; at s = 1 and s = 0.5 they are, bit for bit, the states `roa` draws from the domain and
+the half box, so an ROA already computed there is reused instead of simulated again.
+
+The search is a bisection per controller on those fixed states: s = 1 first, then s = 2 (if 1
+passes) or s = 0.5 and s = 0.05 (if not), then halving the bracket [passing s, failing s] down to
+the resolution. A probe simulates a quarter of its states first and stops there when more than
+10 % of all its states already failed. The success share need not be monotone in s; the result is a scale that
+passes with the next probed scale above it failing, on the same seeds.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from .integrate import Controller
+from .limits import InputLimits, input_limits
+from .roa import RoaResult, score
+from .states import evaluation_box, uniform_states
+
+__all__ = ["RADIUS_RANGE", "RADIUS_RESOLUTION", "RADIUS_THRESHOLD", "RadiusResult", "roa_radius", "scaled_box"]
+
+#: Scales searched: below the first the radius is reported as "< 0.05", at the last as "≥ 2".
+RADIUS_RANGE = (0.05, 2.0)
+#: Share of the states that must succeed (DESIGN §4).
+RADIUS_THRESHOLD = 0.9
+#: The bisection stops once the bracket [passing s, failing s] is at most this wide.
+RADIUS_RESOLUTION = 0.04
+#: A probe simulates this share of its states first and stops there when more than the allowed
+#: failures are already in (a batch of 50 states costs about a third of one of 200: the
+#: controllers' per-call overhead is a large part of a rollout).
+_FIRST_SHARE = 0.25
+
+
+def scaled_box(system, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """X_s = x* + s·(X − x*): (lo, hi), each (n,). s = 1 is the training domain itself and s = 0.5
+    equals `half_box` bit for bit."""
+    lo, hi = evaluation_box(system, "domain")
+    if s == 1.0:
+        return lo, hi
+    x_star = np.asarray(system.x_star, float)
+    return x_star + s * (lo - x_star), x_star + s * (hi - x_star)
+
+
+def _fmt(s: float, s_range: tuple[float, float], below: bool, above: bool) -> str:
+    if below:
+        return f"< {s_range[0]:g}"
+    if above:
+        return f"≥ {s_range[1]:g}"
+    return f"{s:.2f}"
+
+
+@dataclass(frozen=True, eq=False)
+class RadiusResult:
+    """The ROA radius of several controllers on the same states.
+
+    Attributes
+    ----------
+    system : system name.
+    radius : {controller: s}, the largest passing scale found; the lower end of the range when
+        even that fails (`below`), the upper end when it passes (`above`).
+    bracket : {controller: (s passing, s failing)}: the returned s and the next probed scale above
+        it (None where there is none: below the range, or at its top).
+    below, above : {controller: bool}, see `radius`.
+    probes : {controller: {s: (successes, states simulated)}}; a probe that failed early has
+        simulated fewer than n states.
+    n, seed, T, dt : the states per scale, their seed, the horizon and step (s).
+    threshold, resolution, s_range : the criterion and the search settings.
+    limits : the input bound the rollouts applied.
+    wall_time : seconds, simulations included.
+    """
+
+    system: str
+    radius: Mapping[str, float]
+    bracket: Mapping[str, tuple]
+    below: Mapping[str, bool]
+    above: Mapping[str, bool]
+    probes: Mapping[str, dict] = field(repr=False)
+    n: int
+    seed: int
+    T: float
+    dt: float
+    threshold: float
+    resolution: float
+    s_range: tuple
+    limits: InputLimits | None
+    wall_time: float
+
+    def text(self, name: str) -> str:
+        """The radius of one controller as printed: ``'0.73'``, ``'< 0.05'`` or ``'≥ 2'``."""
+        return _fmt(self.radius[name], self.s_range, self.below[name], self.above[name])
+
+    def line(self) -> str:
+        """One line for the tables: every controller's radius side by side."""
+        values = ", ".join(f"{name} {self.text(name)}" for name in self.radius)
+        return (
+            f"ROA radius (largest s with ≥ {100 * self.threshold:g} % of {self.n} states succeeding in x* + s·(box − x*), "
+            f"±{self.resolution:g}): {values}"
+        )
+
+    def to_dict(self) -> dict:
+        """The settings and the per-controller details (the radii themselves: `radius`)."""
+        return {
+            "n": self.n, "seed": self.seed, "T": self.T, "dt": self.dt, "threshold": self.threshold,
+            "resolution": self.resolution, "range": list(self.s_range),
+            "text": {name: self.text(name) for name in self.radius},
+            "bracket": {name: list(b) for name, b in self.bracket.items()},
+            "probes": {name: [[s, k, m] for s, (k, m) in sorted(p.items())] for name, p in self.probes.items()},
+            "limits": None if self.limits is None else self.limits.to_json(),
+            "wall_time": self.wall_time,
+        }
+
+
+def _known_successes(known, name: str, x0: np.ndarray) -> int | None:
+    """Successes of `name` in an already computed `RoaResult` drawn from exactly these states."""
+    if known is None or name not in known.scores or known.x0.shape != x0.shape or not np.array_equal(known.x0, x0):
+        return None
+    return int(np.count_nonzero(known[name].success))
+
+
+class _Prober:
+    """Whether one controller passes at scale s (cached per scale), simulating in batches."""
+
+    def __init__(self, system, name, ctrl, n, seed, need, known, sim_kw):
+        self.system, self.name, self.ctrl, self.n, self.seed, self.need = system, name, ctrl, n, seed, need
+        self.known, self.sim_kw, self.probes = known, sim_kw, {}
+
+    def passes(self, s: float) -> bool:
+        if s not in self.probes:
+            self.probes[s] = self._run(s)
+        return self.probes[s][0] >= self.need
+
+    def _run(self, s: float) -> tuple[int, int]:
+        x0 = uniform_states(self.system, self.n, scaled_box(self.system, s), self.seed)
+        k = _known_successes(self.known.get(s), self.name, x0)
+        if k is not None:
+            return k, self.n
+        ok, done = 0, 0
+        for end in sorted({math.ceil(_FIRST_SHARE * self.n), self.n}):
+            res = score(self.system, self.name, self.ctrl, x0[done:end], **self.sim_kw)[0]
+            ok, done = ok + int(np.count_nonzero(res.success)), end
+            if done - ok > self.n - self.need:  # too many failures already: decided
+                break
+        return ok, done
+
+
+def _search(probe: _Prober, s_lo: float, s_hi: float, resolution: float) -> tuple[float, tuple, bool, bool]:
+    """Bisection on `probe.passes`; -> (s, (s passing, s failing), below, above)."""
+    start = min(max(1.0, s_lo), s_hi)
+    if probe.passes(start):
+        if start == s_hi or probe.passes(s_hi):
+            return s_hi, (s_hi, None), False, True
+        a, b = start, s_hi
+    else:
+        a, b = None, start
+        for s in (0.5 * start, s_lo):  # the half box, then the bottom of the range
+            if s_lo <= s < b:
+                if probe.passes(s):
+                    a = s
+                    break
+                b = s
+        if a is None:
+            return s_lo, (None, s_lo), True, False
+    while b - a > resolution * (1 + 1e-9):
+        mid = 0.5 * (a + b)
+        a, b = (mid, b) if probe.passes(mid) else (a, mid)
+    return a, (a, b), False, False
+
+
+def roa_radius(
+    system,
+    controllers: Mapping[str, Controller],
+    n: int = 200,
+    seed: int = 0,
+    T: float = 20.0,
+    dt: float = 0.01,
+    *,
+    known: Mapping[float, RoaResult] | None = None,
+    s_range: tuple[float, float] = RADIUS_RANGE,
+    resolution: float = RADIUS_RESOLUTION,
+    threshold: float = RADIUS_THRESHOLD,
+    method: str = "rk4",
+    saturation=None,
+    limits: bool = True,
+    threads: int | None = None,
+) -> RadiusResult:
+    """The ROA radius of every controller (see the module docstring).
+
+    Parameters
+    ----------
+    system : the judge `System`.
+    controllers : {name: ctrl}, ctrl (N, n) -> (N, m).
+    n, seed : states per scale and their seed (the same unit draws at every scale).
+    T, dt, method, saturation, limits, threads : passed to `simulate` (effort limits apply unless
+        ``limits=False``).
+    known : {s: RoaResult} already simulated (e.g. ``{1.0: domain ROA, 0.5: half-box ROA}``),
+        reused where its states are exactly the states of that scale.
+    s_range, resolution, threshold : the search range, the bracket width at which it stops, the
+        share of states that must succeed.
+
+    Returns
+    -------
+    RadiusResult (``.line()`` prints it, ``.radius`` is {name: s}).
+    """
+    t0 = time.perf_counter()
+    n, (s_lo, s_hi) = int(n), (float(s_range[0]), float(s_range[1]))
+    if n < 1 or not (0 < s_lo < s_hi) or not (resolution > 0) or not (0 < threshold <= 1):
+        raise ValueError(f"need n ≥ 1, 0 < s_lo < s_hi, resolution > 0, 0 < threshold ≤ 1; got {n}, {s_range}, {resolution}, {threshold}")
+    need = math.ceil(threshold * n - 1e-9)
+    sim_kw = dict(T=T, dt=dt, method=method, saturation=saturation, limits=limits, threads=threads)
+    known = {float(s): r for s, r in (known or {}).items()}
+    radius, bracket, below, above, probes = {}, {}, {}, {}, {}
+    for name, ctrl in controllers.items():
+        probe = _Prober(system, name, ctrl, n, seed, need, known, sim_kw)
+        radius[name], bracket[name], below[name], above[name] = _search(probe, s_lo, s_hi, float(resolution))
+        probes[name] = probe.probes
+    return RadiusResult(
+        system=str(getattr(system, "name", type(system).__name__)), radius=radius, bracket=bracket, below=below, above=above,
+        probes=probes, n=n, seed=int(seed), T=float(T), dt=float(dt), threshold=float(threshold), resolution=float(resolution),
+        s_range=(s_lo, s_hi), limits=input_limits(system, limits, saturation), wall_time=time.perf_counter() - t0,
+    )

@@ -1,0 +1,209 @@
+"""Region of attraction: several controllers from the very same uniform initial states, scored by
+the DESIGN §4 metrics ("How we measure"). `score` is the one place a rollout becomes a score."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from .integrate import Controller, simulate
+from .limits import InputLimits, input_limits
+from .metrics import equilibrium_offset, peak_input, settled, settling_time, success
+from .states import evaluation_box, uniform_states
+from .trajectory import Trajectory
+
+__all__ = ["ControllerScore", "RoaResult", "roa", "score"]
+
+
+def _median(a: np.ndarray) -> float:
+    a = a[np.isfinite(a)]
+    return float(np.median(a)) if a.size else math.nan
+
+
+@dataclass(frozen=True, eq=False)
+class ControllerScore:
+    """One controller's results on the ROA states (per-state arrays (N,), summaries as properties).
+
+    Attributes
+    ----------
+    name : controller name.
+    success : (N,) bool, DESIGN §4 criterion.
+    settling_time : (N,) s, nan where never settled.
+    offset : (N,) ‖x̄ − x*‖ over the last window; nan where diverged.
+    settled : (N,) bool, at rest over the last window (anywhere).
+    peak_input : (N,) max |u|.
+    diverged : (N,) bool.
+    wall_time : simulation wall time, s.
+    """
+
+    name: str
+    success: np.ndarray
+    settling_time: np.ndarray
+    offset: np.ndarray
+    settled: np.ndarray
+    peak_input: np.ndarray
+    diverged: np.ndarray
+    wall_time: float
+
+    @property
+    def success_rate(self) -> float:
+        """Fraction of states that succeed."""
+        return float(self.success.mean()) if self.success.size else math.nan
+
+    @property
+    def median_settling_time(self) -> float:
+        """Median settling time of the successes, s (nan if none)."""
+        return _median(self.settling_time[self.success])
+
+    @property
+    def median_offset(self) -> float:
+        """Median equilibrium offset of the trajectories that settle (at rest over the last window)."""
+        return _median(self.offset[self.settled])
+
+    @property
+    def median_peak_input(self) -> float:
+        """Median peak |u| over all states."""
+        return _median(self.peak_input)
+
+    @property
+    def n_diverged(self) -> int:
+        """Number of diverged states."""
+        return int(self.diverged.sum())
+
+
+@dataclass(frozen=True, eq=False)
+class RoaResult:
+    """ROA estimate of several controllers from the same uniform initial states.
+
+    Attributes
+    ----------
+    system : system name.
+    box : (lo, hi) evaluation box, each (n,).
+    box_name : ``"domain"``, ``"half"`` or ``"custom"``.
+    x0 : (N, n) initial states.
+    T, dt : horizon and step, s.
+    seed : seed of the states.
+    scores : {controller name: ControllerScore}, in the order given.
+    limits : the input bound every controller was clipped to (`InputLimits`; None: not recorded).
+    """
+
+    system: str
+    box: tuple[np.ndarray, np.ndarray]
+    box_name: str
+    x0: np.ndarray
+    T: float
+    dt: float
+    seed: int
+    scores: Mapping[str, ControllerScore]
+    limits: InputLimits | None = None
+
+    def __getitem__(self, name: str) -> ControllerScore:
+        return self.scores[name]
+
+    def table(self) -> str:
+        """The scores side by side, one row per controller."""
+        head = (
+            f"ROA of {self.system}: {self.x0.shape[0]} states uniform in the {self.box_name} box "
+            f"(seed {self.seed}), T = {self.T:g} s, dt = {self.dt:g} s"
+        )
+        if self.limits is not None:
+            head += f"; {self.limits.describe()}"
+        peak = "peak |u|" if self.limits is None or self.limits.bound is None else "peak |u| / lim"
+        cols = f"{'controller':<16}{'success':>9}{'settle s':>10}{'offset':>10}{peak:>16}{'diverged':>10}{'wall s':>9}"
+        rows = [head, cols, "-" * len(cols)]
+        for s in self.scores.values():
+            peak_cell = self.limits.peak_text(s.median_peak_input) if self.limits is not None else f"{s.median_peak_input:.3g}"
+            rows.append(
+                f"{s.name:<16}{100 * s.success_rate:>8.1f}%{s.median_settling_time:>10.2f}{s.median_offset:>10.2e}"
+                f"{peak_cell:>16}{s.n_diverged:>10d}{s.wall_time:>9.1f}"
+            )
+        rows.append("settle, offset, peak |u|: medians over successes, settled states, all states")
+        return "\n".join(rows)
+
+
+def score(
+    system,
+    name: str,
+    ctrl: Controller,
+    x0: np.ndarray,
+    T: float,
+    dt: float,
+    *,
+    method: str = "rk4",
+    saturation=None,
+    limits: bool = True,
+    threads: int | None = None,
+) -> tuple[ControllerScore, Trajectory]:
+    """Simulate one controller from x0 (N, n) on `system` (the judge) and score the rollouts.
+
+    T, dt, method, saturation, limits, threads : passed to `simulate` (limits: the system's effort
+    limits apply unless False). Returns the score and the rollouts.
+    """
+    t0 = time.perf_counter()
+    traj = simulate(system, ctrl, x0, T=T, dt=dt, method=method, saturation=saturation, limits=limits, threads=threads)
+    wall = time.perf_counter() - t0
+    result = ControllerScore(
+        name=name,
+        success=success(traj, system),
+        settling_time=settling_time(traj, system),
+        offset=equilibrium_offset(traj, system),
+        settled=settled(traj),
+        peak_input=peak_input(traj),
+        diverged=traj.diverged.copy(),
+        wall_time=wall,
+    )
+    return result, traj
+
+
+def roa(
+    system,
+    controllers: Mapping[str, Controller],
+    n: int = 200,
+    box="domain",
+    seed: int = 0,
+    T: float = 20.0,
+    dt: float = 0.01,
+    *,
+    method: str = "rk4",
+    saturation=None,
+    limits: bool = True,
+    threads: int | None = None,
+) -> RoaResult:
+    """Region-of-attraction estimate: every controller from the very same `n` uniform states.
+
+    Parameters
+    ----------
+    system : the `System`.
+    controllers : {name: ctrl}, ctrl (N, n) -> (N, m).
+    n : number of initial states.
+    box : ``"domain"``, ``"half"`` or (lo, hi) (see `evaluation_box`).
+    seed : seed of the uniform states.
+    T, dt, method, saturation, limits, threads : passed to `simulate` (the system's effort limits
+        apply to every controller alike unless ``limits=False``).
+
+    Returns
+    -------
+    RoaResult (``.table()`` prints it).
+    """
+    lo, hi = evaluation_box(system, box)
+    x0 = uniform_states(system, n, (lo, hi), seed)
+    scores = {
+        name: score(system, name, ctrl, x0, T, dt, method=method, saturation=saturation, limits=limits, threads=threads)[0]
+        for name, ctrl in controllers.items()
+    }
+    box_name = box if isinstance(box, str) else "custom"
+    return RoaResult(
+        system=getattr(system, "name", type(system).__name__),
+        box=(lo, hi),
+        box_name=box_name,
+        x0=x0,
+        T=float(T),
+        dt=float(dt),
+        seed=int(seed),
+        scores=scores,
+        limits=input_limits(system, limits, saturation),
+    )

@@ -1,0 +1,260 @@
+"""`idapbc-pin export`: the exported controller is the trained law, and runs without idapbc_pin or torch.
+
+Claims (issue #14, item 4):
+* the standalone `controller.torque(q, v)`, run in a process that cannot import idapbc_pin or torch,
+  equals B·saturate(u(x)) of the library's controller on 1000 states, to 1e-9 (float64 networks;
+  float32 networks: the same numbers as the library's numpy one-state path), saturation included;
+* a continuous joint ((cos θ, sin θ) in Pinocchio) maps like the library's;
+* onnxruntime's desired_flow.onnx equals f̃_d = (J_d − R_d)∇H_d (autograd path) on 1000 states;
+* bad input exits 2 with one line, and nothing is half-written.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import idapbc_pin as ip
+from idapbc_pin.cli.main import main
+from idapbc_pin.control.controller import RUNTIME_MAX_BATCH, Controller
+from idapbc_pin.deploy.export import EXPORTED_FILES
+from idapbc_pin.model.zoo import zoo_urdf_path
+
+CHECKOUT = str(Path(ip.__file__).resolve().parents[1])
+
+#: Runs in a fresh interpreter (-I: no PYTHON* variables, no user site, no script folder on sys.path)
+#: with idapbc_pin and torch made unimportable: argv = export dir, states .npz, output .npz.
+STANDALONE = f"""
+import importlib.abc, runpy, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.partition(".")[0] in ("idapbc_pin", "torch"):
+            raise ModuleNotFoundError(f"{{name}} is blocked here", name=name)
+sys.meta_path.insert(0, Block())
+sys.path = [p for p in sys.path if p.rstrip('/') not in ({CHECKOUT!r}, '', '.')]
+folder, states, result = sys.argv[1:]
+sys.path.insert(0, folder)
+import numpy as np
+import controller
+data = np.load(states)
+q, v = data["q"], data["v"]
+single = np.array([controller.torque(qk, vk) for qk, vk in zip(q, v)])
+np.savez(result, batched=controller.torque(q, v), single=single, effort=controller.EFFORT)
+runpy.run_path(folder + "/controller.py", run_name="__main__")
+assert not any(m.partition(".")[0] in ("idapbc_pin", "torch") for m in sys.modules)
+"""
+
+
+def _train(source, dtype: str, out: Path, **system_kwargs) -> ip.Run:
+    system = ip.load_system(source, **system_kwargs)
+    config = ip.TrainConfig.fast(epochs=5, width=8, depth=1, samples=64, dtype=dtype)
+    return ip.train(system, config, out=out, progress=False)
+
+
+def _states(system, n: int = 1000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(q, v): n states of the training box (angles reach past ±π on the default box)."""
+    lo, hi = system.domain
+    x = lo + (hi - lo) * np.random.default_rng(seed).random((n, system.n))
+    return system.split(x)
+
+
+def _run_standalone(folder: Path, q, v, tmp: Path) -> dict:
+    np.savez(tmp / "states.npz", q=q, v=v)
+    result = subprocess.run(
+        [sys.executable, "-I", "-c", STANDALONE, str(folder), str(tmp / "states.npz"), str(tmp / "tau.npz")],
+        capture_output=True, text=True, timeout=300, cwd=tmp,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "torque at the target" in result.stdout and "one state: median" in result.stdout
+    with np.load(tmp / "tau.npz") as data:
+        return dict(data)
+
+
+def _close(a, b, tol: float) -> None:
+    """|a − b| ≤ tol · max|b| entry-wise (relative to the scale of b)."""
+    scale = max(np.abs(b).max(), 1e-12)
+    assert np.abs(a - b).max() <= tol * scale, (np.abs(a - b).max() / scale, tol)
+
+
+def _expected_torque(system, controller, q, v) -> np.ndarray:
+    """τ = B saturate(u(x)), x = (q, M(q)v): the library's law, written out."""
+    return system.saturate(controller(system.state_from(q, v))) @ system.B.T
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Tiny trained runs: pendubot (float64), cartpole (float32, the fast preset's dtype), and a
+    double pendulum whose elbow is continuous (float64)."""
+    tmp = tmp_path_factory.mktemp("runs")
+    urdf = zoo_urdf_path("pendubot").read_text().replace('name="elbow" type="revolute"', 'name="elbow" type="continuous"')
+    assert 'type="continuous"' in urdf
+    (tmp / "continuous.urdf").write_text(urdf)
+    return {
+        "pendubot": _train("pendubot", "float64", tmp),
+        "cartpole": _train("cartpole", "float32", tmp),
+        "continuous": _train(tmp / "continuous.urdf", "float64", tmp, actuated=["shoulder"]),
+    }
+
+
+@pytest.fixture(scope="module")
+def limited_pendubot(runs, tmp_path_factory):
+    """The pendubot run with a shoulder limit that half of the test states exceed, exported."""
+    run = runs["pendubot"]
+    q, v = _states(run.system)
+    u = run.controller(run.system.state_from(q, v))
+    system = dataclasses.replace(run.system, effort=[np.median(np.abs(u))])
+    limited = dataclasses.replace(run, system=system)
+    return limited, ip.export(limited, tmp_path_factory.mktemp("export") / "pendubot")
+
+
+def test_export_writes_every_file(limited_pendubot):
+    run, folder = limited_pendubot
+    assert sorted(p.name for p in folder.iterdir()) == sorted(EXPORTED_FILES)
+    record = json.loads((folder / "controller.json").read_text())
+    assert record["joints"] == list(run.system.coordinate_names) and record["actuated"] == ["shoulder"]
+    assert record["effort"] == pytest.approx(list(run.system.effort)) and record["dtype"] == "float64"
+    assert (folder / "robot.urdf").read_bytes() == (run.path / "robot.urdf").read_bytes()
+    readme = (folder / "README.md").read_text()
+    assert "1 kHz" in readme and "ROS 2" in readme and "ONNX Runtime" in readme and "shoulder" in readme
+
+
+def test_standalone_torque_equals_the_saturated_law(limited_pendubot, tmp_path):
+    """Float64 networks, finite effort limit: standalone τ = B saturate(u) to 1e-9, batched and per state."""
+    run, folder = limited_pendubot
+    system = run.system
+    q, v = _states(system)
+    expected = _expected_torque(system, run.controller, q, v)
+    saturated = np.isclose(np.abs(expected[:, 0]), system.effort[0])
+    assert 0.2 < saturated.mean() < 0.8  # the limit binds on part of the states only
+    out = _run_standalone(folder, q, v, tmp_path)
+    np.testing.assert_array_equal(out["effort"], system.effort)
+    _close(out["batched"], expected, 1e-9)
+    _close(out["single"], expected, 1e-9)
+    assert np.abs(out["batched"]).max() <= system.effort[0] * (1 + 1e-12)
+
+
+def test_standalone_torque_float32_networks(runs, tmp_path):
+    """Float32 networks (the fast preset): one state at a time, the standalone gives the library's
+    one-state numbers (both run desired_flow.py) to 1e-9; batched, float32 rounding separates them."""
+    run = runs["cartpole"]
+    system = run.system
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    assert not (folder / "desired_flow.onnx").exists()
+    q, v = _states(system, n=200)
+    x = system.state_from(q, v)
+    controller = run.controller
+    one_by_one = np.array([system.saturate(controller(xk)) @ system.B.T for xk in x])
+    assert len(x) > RUNTIME_MAX_BATCH  # the batched reference takes the torch path
+    out = _run_standalone(folder, q, v, tmp_path)
+    _close(out["single"], one_by_one, 1e-9)
+    _close(out["batched"], _expected_torque(system, controller, q, v), 2e-5)
+
+
+def test_continuous_joint_maps_like_the_library(runs, tmp_path):
+    """A continuous elbow is (cos θ, sin θ) in Pinocchio: the standalone maps it as the library does.
+    The shoulder is left unlimited here (null in controller.json, inf in EFFORT)."""
+    run = runs["continuous"]
+    run = dataclasses.replace(run, system=dataclasses.replace(run.system, effort=[np.inf]))
+    system = run.system
+    assert [j.kind for j in system.joints] == ["revolute", "continuous"]
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    assert json.loads((folder / "controller.json").read_text())["effort"] == [None]
+    q, v = _states(system)
+    q[:, 1] = np.random.default_rng(1).uniform(-7, 7, len(q))  # several turns
+    out = _run_standalone(folder, q, v, tmp_path)
+    assert np.isinf(out["effort"]).all()
+    _close(out["batched"], _expected_torque(system, run.controller, q, v), 1e-9)
+
+
+@pytest.mark.parametrize("name, tol", [("pendubot", 1e-9), ("cartpole", 2e-6)])
+def test_onnx_equals_the_desired_flow(runs, limited_pendubot, tmp_path, name, tol):
+    """onnxruntime on desired_flow.onnx = f̃_d(x) (autograd path) on 1000 states, N dynamic.
+
+    Float64 networks agree to rounding (measured 2e-14); float32 ones to float32 rounding of both
+    sides (measured 9e-7; the library's own numpy path is 7e-7 from the autograd one).
+    """
+    ort = pytest.importorskip("onnxruntime")
+    run = runs[name]
+    folder = limited_pendubot[1] if name == "pendubot" else ip.export(run, tmp_path / "export")
+    session = ort.InferenceSession(str(folder / "desired_flow.onnx"))
+    dtype = np.dtype(run.config.dtype)
+    x = run.system.state_from(*_states(run.system))
+    f_d = run.controller.f_d(x)
+    out = session.run(["f_d"], {"x": x.astype(dtype)})[0]
+    assert out.dtype == dtype
+    _close(out, f_d, tol)
+    _close(session.run(["f_d"], {"x": x[:1].astype(dtype)})[0], f_d[:1], tol)
+
+
+def test_onnx_free_form_with_extra_damping():
+    """The trained runs are anchored: the free form (softplus diagonal of L) with ρ > 0 and box units,
+    random weights, goes through the same graph."""
+    ort = pytest.importorskip("onnxruntime")
+    import torch
+
+    from idapbc_pin.control.nets import build_nets
+    from idapbc_pin.deploy.onnx_flow import onnx_model
+
+    system = ip.load_system("cartpole")
+    torch.manual_seed(3)
+    config = ip.TrainConfig(width=16, depth=2, form="free", rho=0.2, kappa=0.1, scaling="box")
+    controller = Controller(system, build_nets(system, config))
+    with torch.no_grad():
+        for p in controller.nets.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    session = ort.InferenceSession(onnx_model(controller.flow()))
+    x = system.state_from(*_states(system))
+    f_d = controller.f_d(x)
+    _close(session.run(["f_d"], {"x": x})[0], f_d, 1e-9)
+
+
+# ------------------------------------------------------------------------------------ bad input
+def _cli_error(capsys, *args) -> str:
+    assert main(["export", *map(str, args)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err and "Fix:" in err
+    return err
+
+
+def test_not_a_run_directory(tmp_path, capsys):
+    assert "not a run directory" in _cli_error(capsys, tmp_path, "--out", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_damaged_checkpoint(runs, tmp_path, capsys):
+    run_dir = shutil.copytree(runs["cartpole"].path, tmp_path / "run")
+    for name in ("best", "last"):
+        path = run_dir / "checkpoints" / f"{name}.pt"
+        path.write_bytes(path.read_bytes()[:100])
+    assert "damaged" in _cli_error(capsys, run_dir, "--out", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_analytic_system_is_refused(tmp_path, capsys):
+    run = _train("paper_mass_spring_damper", "float64", tmp_path)
+    err = _cli_error(capsys, run.path, "--out", tmp_path / "out")
+    assert "export needs a URDF robot" in err
+    with pytest.raises(ip.IdapbcError, match="export needs a URDF robot"):
+        ip.export(run, tmp_path / "out")
+
+
+def test_non_empty_folder_needs_force(runs, tmp_path, capsys):
+    """--force overwrites the exported files only, and drops an earlier export's ONNX with --no-onnx."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    (out / "desired_flow.onnx").write_bytes(b"an earlier export's")
+    assert "not empty" in _cli_error(capsys, runs["cartpole"].path, "--out", out)
+    assert sorted(p.name for p in out.iterdir()) == ["desired_flow.onnx", "notes.txt"]
+    assert "is a file" in _cli_error(capsys, runs["cartpole"].path, "--out", out / "notes.txt")
+    assert main(["export", str(runs["cartpole"].path), "--out", str(out), "--force", "--no-onnx"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert (out / "notes.txt").read_text() == "keep me" and (out / "controller.py").is_file()
+    assert not (out / "desired_flow.onnx").exists()
