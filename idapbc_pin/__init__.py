@@ -1,15 +1,17 @@
 """idapbc-pin: Neural IDA-PBC for underactuated robots, with port-Hamiltonian models from URDF.
 
-Public API (DESIGN §6)::
+Public API (see the README and docs/method.md)::
 
     import idapbc_pin as ip
     sys = ip.load_system("cartpole")                    # zoo name, built-in name, URDF path, erd:<stem>
     sys.f(x); sys.df_dx(x); sys.g(x); sys.g_perp(x)     # batched over a leading dimension
     run = ip.train(sys, ip.TrainConfig.fast(), out="runs/cartpole")
     ctrl = run.controller; ip.simulate(sys, ctrl, x0, T=20.0); ip.certify(run); ip.view(run)
+    ip.export(run, "deploy/")                           # standalone controller (numpy + pin), ONNX f̃_d
 
-Imported eagerly: several public functions share their module's name (train, simulate, certify,
-report, view), and a lazy attribute would be shadowed by the submodule once it is imported.
+Evaluations apply the actuators' effort limits (``sys.effort``) to every controller unless
+``limits=False``. The subpackages follow the data flow: model → control → training → sim →
+certificate → evaluation / reporting / viewer → deploy → batch → cli.
 """
 
 from .batch.runner import run_batch

@@ -60,6 +60,9 @@ CASES = {
     "floating base": (lambda w: w(_pendulum(joint_type="floating")), {"actuated": ["j1"]}, ["floating", "1-DoF"]),
     "planar joint": (lambda w: w(_pendulum(joint_type="planar")), {"actuated": ["j1"]}, ["planar", "Fix"]),
     "massless link": (lambda w: w(_pendulum(mass2=0.0, inertia2=0.0)), {"actuated": ["j1"]}, ["singular", "j2", "inertial"]),
+    "negative mass": (lambda w: w(_pendulum(mass2=-1.0)), {"actuated": ["j1"]}, ["link 'l2' has mass -1 kg", "<inertial> of link 'l2'"]),
+    "non-finite mass": (lambda w: w(_pendulum(mass2=float("nan"))), {"actuated": ["j1"]}, ["link 'l2' has mass nan kg"]),
+    "negative inertia": (lambda w: w(_pendulum(inertia2=-0.01)), {"actuated": ["j1"]}, ["link 'l2' has an inertia that is not positive semi-definite"]),
     "unknown actuated joint": (lambda w: w(_pendulum()), {"actuated": ["elbow"]}, ["unknown actuated joint 'elbow'", "j1, j2"]),
     "no actuated joint": (lambda w: w(_pendulum()), {"actuated": []}, ["no actuated joint", "j1, j2"]),
     "not an equilibrium": (lambda w: w(_pendulum()), {"actuated": ["j1"], "target": {"j2": 0.4}}, ["not an assignable equilibrium", "j2="]),
@@ -81,6 +84,13 @@ def test_bad_input_raises_a_one_line_error(case, write):
     assert "Fix" in message or "Valid" in message or "valid" in message
 
 
+def test_moments_that_no_rigid_body_has_are_a_warning_that_names_the_link(write):
+    """izz > ixx + iyy breaks the triangle inequality: the model still loads (M(q) may be regular)."""
+    text = _pendulum().replace('iyy="0.01" iyz="0" izz="0.01"', 'iyy="0.01" iyz="0" izz="0.05"')
+    with pytest.warns(UserWarning, match="link 'l2' .* break the triangle inequality"):
+        ip.load_system(write(text), actuated=["j1"])
+
+
 def test_non_equilibrium_target_reports_the_residual_torque(write):
     """Gravity torque on the unactuated elbow at j2 = 0.4 rad: m g l_c sin(0.4)."""
     with pytest.raises(NotAnEquilibriumError) as info:
@@ -99,7 +109,7 @@ def test_hanging_target_is_an_equilibrium(write):
         ip.load_system(write(_pendulum()), actuated=["j2"], target={"j1": 1.0})
 
 
-@pytest.mark.parametrize("case", ["missing file", "malformed xml", "floating base", "massless link", "unknown actuated joint", "not an equilibrium"])
+@pytest.mark.parametrize("case", ["missing file", "malformed xml", "floating base", "massless link", "negative mass", "unknown actuated joint", "not an equilibrium"])
 def test_cli_exits_2_with_one_line_and_no_traceback(case, write):
     source, kwargs, fragments = CASES[case]
     args = ["inspect", source(write)]

@@ -11,7 +11,9 @@ Stand-in controllers with hand-built (H_d, J_d, R_d) expose the controller inter
 
 from __future__ import annotations
 
+import dataclasses
 import json
+from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
@@ -20,6 +22,7 @@ import torch
 
 import idapbc_pin as ip
 from idapbc_pin.certificate.certify import certify
+from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.certificate.result import LABEL, Certificate
 from idapbc_pin.certificate.terms import closed_loop_terms
 
@@ -279,3 +282,110 @@ def test_certify_rejects_bad_input(tiny_run, tmp_path):
         certify(tiny_run, n=4)
     with pytest.raises(ip.IdapbcError):
         certify(tiny_run, epsilon=-1.0)
+
+
+# ====================================================================== torque limits and the LQR baseline
+@dataclass(frozen=True)
+class LinearPlant:
+    """q̇ = p, ṗ = a q − c p + u (unit mass, a > 0: unstable), duck-typed; `effort` None: unlimited."""
+
+    a: float = 1.0
+    c: float = 0.5
+    effort: object = None
+    name: str = "linear_plant"
+    nq: int = 1
+    n: int = 2
+    m: int = 1
+    x_star: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    angle_mask: np.ndarray = field(default_factory=lambda: np.zeros(2, bool))
+    domain: tuple = (np.array([-1.0, -1.5]), np.array([1.0, 1.5]))
+
+    @property
+    def A(self):
+        return np.array([[0.0, 1.0], [self.a, -self.c]])
+
+    def f(self, x):
+        return np.asarray(x, float) @ self.A.T  # (N, n) or (n,), like System.f
+
+    def g(self, x):
+        return np.broadcast_to(np.array([[0.0], [1.0]]), (np.atleast_2d(x).shape[0], 2, 1)).copy()
+
+    def g_perp(self, x):
+        return np.broadcast_to(np.array([[1.0, 0.0]]), (np.atleast_2d(x).shape[0], 1, 2)).copy()
+
+    def G(self, x):
+        return np.broadcast_to(np.array([[0.0, 1.0], [1.0, 0.0]]), (np.atleast_2d(x).shape[0], 2, 2)).copy()
+
+    def linearization(self):
+        return self.A, np.array([[0.0], [1.0]])
+
+
+def test_lqr_certificate_of_a_linear_plant_is_the_largest_ellipse_in_the_box():
+    """Without limits V̇ = −δᵀ(Q + KᵀRK)δ < 0 everywhere, so LQR's certified set {δᵀSδ < c} is the
+    largest ellipse inside the box: c = min over faces δ_i = a of a²/(S⁻¹)_ii."""
+    system = LinearPlant()
+    cert = certify(lqr_ida_pbc(system), n=4000, settle=0, write=False)
+    base = cert.baseline
+    assert base is not None and base.controller == "LQR" and not base.limits_applied
+    S = LQRController(system).S
+    Sinv = np.linalg.inv(S)
+    lo, hi = system.domain
+    candidates = []
+    for i in range(2):
+        for a in (lo[i], hi[i]):
+            d = a * Sinv[:, i] / Sinv[i, i]  # the minimiser on that face, inside it here
+            assert np.all(d >= lo - 1e-12) and np.all(d <= hi + 1e-12)
+            candidates.append(a * a / Sinv[i, i])
+    c_exact = min(candidates)
+    assert base.sublevel.n_violations == 0 and base.sublevel.c_violation == np.inf
+    assert base.sublevel.c == pytest.approx(c_exact, rel=1e-6)
+    x = lo + (hi - lo) * np.random.default_rng(0).random((4000, 2))  # certify's samples (seed 0)
+    V = np.einsum("ni,ij,nj->n", x, S, x)
+    assert base.sublevel.covered_fraction == pytest.approx(np.mean(V < c_exact), abs=1e-3)
+    area = np.pi * c_exact / np.sqrt(np.linalg.det(S))
+    assert base.sublevel.covered_fraction == pytest.approx(area / np.prod(hi - lo), abs=0.02)
+    # the exact linear IDA-PBC of the same loop has H_d = ½δᵀSδ: the same set, the same share
+    assert cert.sublevel.c == pytest.approx(c_exact / 2, rel=1e-6)
+    assert cert.sublevel.covered_fraction == pytest.approx(base.sublevel.covered_fraction, abs=1e-3)
+    data = cert.to_dict()
+    assert set(data["baseline"]["sublevel"]) >= {"c", "covered_fraction", "n_violations", "c_boundary"}
+    assert data["baseline"]["sublevel"]["covered_fraction"] == pytest.approx(base.sublevel.covered_fraction)
+    assert data["limits"]["applied"] is False and data["limits"]["bound"] is None
+    text = cert.table()
+    assert "LQR {δᵀSδ <" in text and "certified share" in text and "torque limits: none" in text
+
+
+def test_limits_certify_the_saturated_loop():
+    """With |u| ≤ 0.5 the unstable plant's loop is f + g·sat(u): Ḣ_d and V̇ are taken along it,
+    sets shrink, and limits=False gives back the unlimited numbers exactly."""
+    free_plant, limited_plant = LinearPlant(), LinearPlant(effort=np.array([0.5]))
+    ctrl = lqr_ida_pbc(limited_plant)
+    x = np.random.default_rng(5).uniform(*limited_plant.domain, size=(300, 2))
+    terms = closed_loop_terms(ctrl, x, bound=np.array([0.5]))
+    u_sat = np.clip(ctrl(x), -0.5, 0.5)
+    x_dot = limited_plant.f(x) + np.einsum("nim,nm->ni", limited_plant.g(x), u_sat)
+    h = 1e-6
+    fd = (ctrl.H_d(x + h * x_dot) - ctrl.H_d(x - h * x_dot)) / (2 * h)
+    np.testing.assert_allclose(terms.H_dot, fd, rtol=1e-6, atol=1e-8)
+    np.testing.assert_array_equal(terms.saturated, np.abs(ctrl(x)[:, 0]) > 0.5)
+    np.testing.assert_allclose(terms.H_dot_law, -terms.margin, rtol=1e-10, atol=1e-10)  # Proposition 1: the law itself
+
+    limited = certify(ctrl, n=3000, settle=0, write=False)
+    lifted = certify(ctrl, n=3000, settle=0, write=False, limits=False)
+    unlimited = certify(lqr_ida_pbc(free_plant), n=3000, settle=0, write=False)
+    assert limited.limits["applied"] and limited.limits["bound"] == [0.5] and limited.saturated_fraction > 0.2
+    assert limited.baseline.limits_applied and limited.baseline.saturated_fraction == pytest.approx(limited.saturated_fraction)
+    assert limited.sublevel.n_violations > 0 and limited.baseline.sublevel.n_violations > 0
+    assert limited.sublevel.covered_fraction < unlimited.sublevel.covered_fraction
+    assert limited.baseline.sublevel.covered_fraction < unlimited.baseline.sublevel.covered_fraction
+    assert lifted.limits["lifted"] and lifted.saturated_fraction == 0.0
+    assert dataclasses.asdict(lifted.sublevel) == dataclasses.asdict(unlimited.sublevel)
+    assert dataclasses.asdict(lifted.baseline.sublevel) == dataclasses.asdict(unlimited.baseline.sublevel)
+    assert "torque limits applied: |u| ≤ 0.5" in limited.table() and "lifted" in lifted.table()
+
+
+def test_certificate_json_of_a_run_has_the_baseline(tiny_run):
+    certify(tiny_run.path, n=1000, n_hessian=100, settle=0)
+    data = json.loads((tiny_run.path / "certificate.json").read_text())
+    assert 0.0 <= data["baseline"]["sublevel"]["covered_fraction"] <= 1.0
+    assert data["baseline"]["controller"] == "LQR" and data["limits"]["applied"] is False

@@ -137,6 +137,7 @@ def test_standalone_torque_equals_the_saturated_law(limited_pendubot, tmp_path):
     np.testing.assert_array_equal(out["effort"], system.effort)
     _close(out["batched"], expected, 1e-9)
     _close(out["single"], expected, 1e-9)
+    _close(out["batched"], run.controller.torque(q, v), 1e-9)  # the library's own saturated torque
     assert np.abs(out["batched"]).max() <= system.effort[0] * (1 + 1e-12)
 
 

@@ -13,6 +13,7 @@ import torch
 import idapbc_pin as ip
 from idapbc_pin.cli.evaluate import add_eval_commands
 from idapbc_pin.control.baseline import LQRController
+from idapbc_pin.evaluation.evaluate import evaluate_run, format_evaluation
 from idapbc_pin.evaluation.robustness import MeasuredController, default_conditions, parse_mismatch, perturbed_system, robustness_table
 from idapbc_pin.reporting.figure_data import figure_data
 from idapbc_pin.reporting.plot import MARGIN_FLOOR, plot
@@ -179,6 +180,9 @@ def test_report_writes_everything(tiny_run):
     for name in ("evaluation.json", "certificate.json", "figure.png", "replay.html", "report.txt"):
         assert (tiny_run.path / name).is_file(), name
     assert "sampled certificate, not a proof" in text and "LQR" in text
+    assert "ROA radius" in text and "certified share" in text
+    assert set(json.loads((tiny_run.path / "evaluation.json").read_text())["radius"]) == {"NIDA-PBC", "LQR"}
+    assert "baseline" in json.loads((tiny_run.path / "certificate.json").read_text())
 
 
 def _parser():
@@ -230,3 +234,53 @@ def test_cli_main_maps_errors_to_exit_2(tmp_path, capsys):
         pytest.skip("evaluation sub-commands not registered in cli.py yet")
     assert main(["certify", str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+
+
+# ====================================================================== limits and radii in the evaluation
+class _HeldLqr:
+    """LQR dressed as a run's controller (a ρ to record), for evaluations without training."""
+
+    rho = 0.0
+
+    def __init__(self, system):
+        self.lqr = LQRController(system)
+
+    def __call__(self, x):
+        return self.lqr(x)
+
+
+def test_evaluation_applies_limits_and_writes_the_radii(tmp_path):
+    from types import SimpleNamespace
+
+    system = ip.load_system("pendubot")  # |u| ≤ 20 N·m from the URDF
+    run = SimpleNamespace(controller=_HeldLqr(system), system=system, path=tmp_path)
+    ev = evaluate_run(run, n=8, T=4.0, dt=0.02)
+    data = json.loads((tmp_path / "evaluation.json").read_text())
+    assert set(data["radius"]) == {"NIDA-PBC", "LQR"} and all(0.05 <= s <= 2.0 for s in data["radius"].values())
+    assert data["radius"] == ev.radius.radius and data["radius_search"]["n"] == 8
+    assert data["limits"]["applied"] and data["limits"]["effort"] == [20.0]
+    assert max(data[box][name]["median_peak_input"] for box in ("domain", "half") for name in ("NIDA-PBC", "LQR")) <= 20.0
+    # the domain and half-box rollouts are the radius search's probes at s = 1 and 0.5
+    for scale, box in ((1.0, "domain"), (0.5, "half")):
+        assert ev.radius.probes["LQR"][scale] == (int(ev.results[box]["LQR"].success.sum()), 8)
+    text = format_evaluation(ev)
+    assert "ROA radius" in text and " / 20" in text and "|u| ≤ 20 (effort limits)" in text
+    free = evaluate_run(run, n=8, T=4.0, dt=0.02, limits=False, radius=False)
+    data = json.loads((tmp_path / "evaluation.json").read_text())
+    assert "radius" not in data and free.radius is None
+    assert data["limits"]["lifted"] and not data["limits"]["applied"] and "lifted" in format_evaluation(free)
+
+
+def test_cli_no_limits_flags(tiny_run, capsys):
+    run = str(tiny_run.path)
+    for command in ("simulate", "certify", "report", "robustness"):
+        assert _parser().parse_args([command, run, "--no-limits"]).no_limits
+    args = _parser().parse_args(["simulate", run, "--n", "3", "--T", "1", "--no-limits"])
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "ROA radius" in out and "no torque limits" in out  # the paper cartpole has none to lift
+    record = json.loads((tiny_run.path / "simulation.json").read_text())
+    assert set(record["radius"]) == {"NIDA-PBC", "LQR"} and record["limits"]["applied"] is False
+    args = _parser().parse_args(["simulate", run, "--n", "2", "--T", "1", "--no-radius"])
+    assert args.func(args) == 0
+    assert "ROA radius" not in capsys.readouterr().out

@@ -21,13 +21,15 @@ __all__ = ["SUMMARY_COLUMNS", "VOLATILE_COLUMNS", "crash_record", "new_record", 
 #: Columns of summary.csv. Success rates are fractions in [0, 1] of the ROA states (DESIGN §4);
 #: settling times are medians over the successful states (s), empty when none succeeded;
 #: dissipation_fraction, les, sublevel_coverage, certified come from `certify` (les falls back to
-#: the trainer's eigenvalue check); loss_* are the final epoch's loss terms.
+#: the trainer's eigenvalue check), lqr_sublevel_coverage from its LQR baseline (δᵀSδ); limit is the
+#: actuators' effort limits applied in the evaluation ("none" when unlimited or lifted); *_radius the
+#: ROA radii; *_peak_half the median peak |u| on the half box; loss_* the final epoch's loss terms.
 SUMMARY_COLUMNS = (
     "name", "system", "source", "actuated", "preset", "status",
     "nida_success_domain", "lqr_success_domain", "nida_success_half", "lqr_success_half",
     "nida_settle_domain", "lqr_settle_domain", "nida_settle_half", "lqr_settle_half",
-    "roa_n", "roa_T",
-    "dissipation_fraction", "les", "sublevel_coverage", "certified",
+    "roa_n", "roa_T", "limit", "nida_radius", "lqr_radius", "nida_peak_half", "lqr_peak_half",
+    "dissipation_fraction", "les", "sublevel_coverage", "lqr_sublevel_coverage", "certified",
     "epochs", "train_seconds", *(f"loss_{t}" for t in TERMS),
     "job_seconds", "run_dir", "error",
 )  # fmt: skip
@@ -83,8 +85,18 @@ def _certificate_figures(cert: dict | None) -> dict:
         "dissipation_fraction": _dig(cert, ("dissipation_outside_E", "fraction_satisfied")),
         "les": None if max_real is None else bool(max_real < 0),
         "sublevel_coverage": _dig(cert, ("sublevel", "covered_fraction")),
+        "lqr_sublevel_coverage": _dig(cert, ("baseline", "sublevel", "covered_fraction")),
         "certified": cert.get("certified"),
     }
+
+
+def _limit_text(job: Job, evaluation: dict) -> str:
+    """'joint=value …' of the effort limits the evaluation applied, or 'none'."""
+    limits = evaluation.get("limits")
+    bound = limits.get("bound") if isinstance(limits, dict) else None
+    if not bound or all(b is None for b in bound):
+        return "none"
+    return " ".join(f"{a}={b:g}" for a, b in zip(job.actuated_resolved, bound) if b is not None)
 
 
 def summary_row(job: Job, record: dict, run=None, evaluation: dict | None = None, cert: dict | None = None) -> dict:
@@ -104,6 +116,11 @@ def summary_row(job: Job, record: dict, run=None, evaluation: dict | None = None
                 row[f"{key}_settle_{box}"] = finite_or_none(score.get("median_settling_time"))
         row["roa_n"] = evaluation.get("domain", {}).get("n")
         row["roa_T"] = evaluation.get("domain", {}).get("T")
+        row["limit"] = _limit_text(job, evaluation)
+        radius = evaluation.get("radius") or {}
+        row["nida_radius"], row["lqr_radius"] = finite_or_none(radius.get("NIDA-PBC")), finite_or_none(radius.get("LQR"))
+        row["nida_peak_half"] = finite_or_none(_dig(evaluation, ("half", "NIDA-PBC", "median_peak_input")))
+        row["lqr_peak_half"] = finite_or_none(_dig(evaluation, ("half", "LQR", "median_peak_input")))
     if run is not None:
         s = run.summary
         row["epochs"] = s.get("epochs_done")

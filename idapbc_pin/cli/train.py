@@ -38,7 +38,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 def _cmd_train(args: argparse.Namespace) -> int:
     from ..model import load_system
-    from ..training.run import load_run_system, read_config
+    from ..training.run import check_checkpoints, load_run_system, read_config
     from ..training.summary import format_train_summary
     from ..training.train import train
 
@@ -46,7 +46,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
     if args.resume:
         saved = read_config(args.resume)
         config = saved.replace(**{k: v for k, v in (("epochs", args.epochs), ("lr", args.lr)) if v is not None})
-        run = train(load_run_system(args.resume), config, resume=args.resume)
+        system = load_run_system(args.resume)
+        check_checkpoints(args.resume, system, saved)  # else a damaged best.pt outlives the resume unnoticed
+        run = train(system, config, resume=args.resume)
     else:
         if args.source is None:
             raise IdapbcError("train needs SOURCE (or --resume RUN). Fix: see `idapbc-pin train --help`.")
@@ -61,7 +63,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     if args.evaluate > 0:
         from ..evaluation.evaluate import evaluate_run, format_evaluation
 
-        print(format_evaluation(evaluate_run(run, n=args.evaluate)))
+        print(format_evaluation(evaluate_run(run, n=args.evaluate, limits=not args.no_limits)))
     print(
         f"next: idapbc-pin report {run.path}   (ROA vs LQR, certificate.json, figure.png, replay.html)\n"
         f"      idapbc-pin view {run.path}     (3-D replay in the browser)"
@@ -80,17 +82,22 @@ def add_model_commands(sub) -> None:
 
 def add_train_command(sub) -> None:
     """`train`, its options named after `TrainConfig`'s fields (help from `FIELD_HELP`)."""
-    p = sub.add_parser("train", help="train Neural IDA-PBC; writes a run directory")
+    p = sub.add_parser(
+        "train", help="train Neural IDA-PBC; writes a run directory",
+        epilog="The networks, the anchored form and the loss terms are described in docs/method.md (in the source repository).",
+    )
     p.add_argument("source", metavar="SOURCE", nargs="?", help="URDF path, zoo name, built-in name or erd:<stem>")
     p.add_argument("--actuated", nargs="+", action="extend", metavar="JOINT", help="actuated joint(s); default: the zoo entry's")
     p.add_argument("--target", type=key_value, action="append", metavar="JOINT=VALUE", help="target joint value, repeatable")
     p.add_argument("--domain", type=key_range, action="append", metavar="NAME=LO:HI", help="training-box bounds, repeatable")
     add_effort_argument(p)
     p.add_argument("--config", metavar="FILE", help="TOML ([train] table) or JSON training config")
-    p.add_argument("--fast", action="store_true", help="fast preset: " + TrainConfig.fast.__doc__.splitlines()[0].split(": ", 1)[-1])
+    fast = TrainConfig.fast()
+    p.add_argument("--fast", action="store_true", help=f"fast preset: width {fast.width} × {fast.depth} layers, {fast.dtype}, {fast.epochs} epochs")
     p.add_argument("--out", metavar="DIR", help="parent of the run directory (default runs/<system>)")
     p.add_argument("--resume", metavar="RUN", help="continue RUN from its last checkpoint (same result as uninterrupted)")
     p.add_argument("--evaluate", type=int, default=100, metavar="N", help="closed-loop check vs LQR from N random states after training (0: skip)")
+    p.add_argument("--no-limits", action="store_true", help="evaluate without the actuators' effort limits (they apply to both controllers by default)")
     for name, kind in (("epochs", int), ("seed", int), ("lr", float), ("width", int), ("depth", int), ("rho", float), ("kappa", float)):
         p.add_argument(f"--{name}", type=kind, help=FIELD_HELP[name])
     p.add_argument("--device", help=FIELD_HELP["device"])

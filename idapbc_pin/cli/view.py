@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..errors import IdapbcError
 from ..model import load_system
-from ..training.run import resolve_run
+from ..training.run import CHECKPOINTS, resolve_run
 from ..viewer import PICK_CANDIDATES, view
 from ._args import key_range, key_value, system_kwargs
 
@@ -35,8 +35,8 @@ def add_view_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--n", type=int, default=3, metavar="K", help="rollouts from random states of the half-size training box (default 3)")
     p.add_argument("--T", type=float, default=10.0, metavar="SECONDS", help="duration of each rollout (default 10)")
     p.add_argument("--pick", choices=["random", "success"], default="random",
-                   help=f"random: the first K random half-box states (default); success: up to K rollouts that reach x*, "
-                        f"chosen among {PICK_CANDIDATES}·K random states")
+                   help=f"random: the first K random half-box states (default); success: up to K rollouts that reach x* "
+                        f"(the success criterion of docs/method.md), chosen among {PICK_CANDIDATES}·K random states")
     p.add_argument("--seed", type=int, default=0, help="seed of the random initial states (default 0)")
     p.add_argument("--html", metavar="FILE", help="write the standalone HTML replay (offline, one file)")
     p.add_argument("--port", type=int, metavar="P", help="HTTP port of the live page (default: first free from 7000)")
@@ -44,6 +44,8 @@ def add_view_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--layout", choices=["sequence", "side_by_side"], default="sequence", help="rollouts one after another (default) or side by side")
     p.add_argument("--trace-link", metavar="NAME", help="joint or link whose far end is traced (default: the last link)")
     p.add_argument("--no-trace", action="store_true", help="do not draw the end-link trace")
+    p.add_argument("--checkpoint", choices=list(CHECKPOINTS),
+                   help="which checkpoint of a RUN to animate: best (lowest loss, the default) or last (the latest epoch)")
     p.set_defaults(func=_cmd_view)
     return p
 
@@ -70,9 +72,16 @@ def _serve_until_stopped(viewer, port: int | None) -> None:
 def _cmd_view(args: argparse.Namespace) -> int:
     source = Path(args.source)
     if source.is_dir() and (source / "config.json").is_file():
-        target = resolve_run(source)
+        target = resolve_run(source, checkpoint=args.checkpoint)
+    elif args.checkpoint is not None:
+        raise IdapbcError(f"--checkpoint applies to a run directory, and '{args.source}' is not one. Fix: drop --checkpoint, or pass a run directory.")
     else:
-        target = load_system(args.source, **system_kwargs(args))
+        try:
+            target = load_system(args.source, **system_kwargs(args))
+        except IdapbcError:
+            if source.is_dir():  # meant as a run: say what it lacks
+                resolve_run(source)
+            raise
     serve = args.html is None or args.serve or args.port is not None
     x0 = args.x0
     if x0 is not None and len({len(v) for v in x0}) != 1:

@@ -8,7 +8,11 @@ units, weight ``anchor_q``), the shape of P (``config.anchor_p``), and the scale
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+import scipy.linalg as sla
+from scipy.optimize import minimize
 
 from ..config import TrainConfig
 from ..model import System
@@ -78,12 +82,57 @@ def _lqr_anchor(system: System, config: TrainConfig, scaling: str, anchor_q: flo
     Q = anchor_q * (np.diag(1.0 / half**2) if box else np.eye(system.n))
     if config.anchor_p == "riccati":
         kw = dict(P_mode="riccati")
+    elif config.anchor_p == "fit":
+        riccati = lqr_anchor(A, Bx, Q=Q, P_mode="riccati")
+        Q_fit = box_fitted_weight(riccati.A_cl, half)
+        P_fit = lqr_anchor(A, Bx, Q=Q, P_mode="lyapunov", Q_lyap=Q_fit).P
+        better = inscribed_share(P_fit, half) > inscribed_share(riccati.P, half)
+        kw = dict(P_mode="lyapunov", Q_lyap=Q_fit) if better else dict(P_mode="riccati")
     else:
         kw = dict(P_mode="lyapunov", Q_lyap=np.diag(1.0 / half**2) if config.anchor_p == "box" else None)
     if not box:
         return lqr_anchor(A, Bx, Q=Q, scale="unit", **kw)
     P = lqr_anchor(A, Bx, Q=Q, scale=None, **kw).P  # λ_max(SPS) = 1: H_d ≈ ½zᵀ(SPS)z ≤ ½‖z‖² in box units
     return lqr_anchor(A, Bx, Q=Q, scale=1.0 / np.linalg.eigvalsh(half[:, None] * P * half[None, :]).max(), **kw)
+
+
+def inscribed_share(P: np.ndarray, half: np.ndarray) -> float:
+    """Volume share of the box |δ_i| ≤ half_i taken by the largest ellipsoid {δᵀPδ ≤ c} whose
+    tangent points on the faces, δ_i = ±half_i, c = min_i half_i²/(P⁻¹)_ii, lie inside the box."""
+    n = len(half)
+    c = float(np.min(half**2 / np.diag(np.linalg.inv(P))))
+    unit_ball = math.pi ** (n / 2) / math.gamma(n / 2 + 1)
+    return unit_ball * c ** (n / 2) / math.sqrt(np.linalg.det(P)) / float(np.prod(2 * half))
+
+
+def box_fitted_weight(A_cl: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Q' = diag(w) (n, n) whose Lyapunov matrix P (A_clᵀP + PA_cl = −Q') has the ellipsoid of
+    largest volume share inside the training box (`inscribed_share`): Nelder–Mead over log w from
+    three starts around diag(1/half²). The loop A_cl is untouched; only H_d's shape ½δᵀPδ changes."""
+    def lyap(logw):
+        P = sla.solve_continuous_lyapunov(A_cl.T, -np.diag(np.exp(_floored(logw))))
+        return 0.5 * (P + P.T)
+
+    def cost(logw):
+        try:
+            share = inscribed_share(lyap(logw), half)
+        except np.linalg.LinAlgError:
+            return 1e9
+        return -math.log(share) if share > 0 and math.isfinite(share) else 1e9
+
+    start = -2.0 * np.log(half)
+    fits = [minimize(cost, start + shift, method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-4, "fatol": 1e-7}) for shift in (0.0, 1.0, -1.0)]
+    best = min(fits, key=lambda r: r.fun)
+    logw = best.x if best.fun < cost(start) else start
+    return np.diag(np.exp(_floored(logw)))
+
+
+#: The fitted weights span at most e^7 ≈ 1100×, so Q' (hence R_d(x*) = ½P⁻¹Q'P⁻¹) stays well conditioned.
+_LOG_SPAN = 7.0
+
+
+def _floored(logw: np.ndarray) -> np.ndarray:
+    return np.maximum(logw, logw.max() - _LOG_SPAN)
 
 
 def local_rate(anchor: LinearAnchor) -> float:

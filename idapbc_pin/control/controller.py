@@ -78,12 +78,17 @@ class Controller:
             self._flow = (key, snapshot(self.nets))
         return self._flow[1]
 
-    def torque(self, q, v) -> np.ndarray:
-        """Joint torques τ = B u(x(q, v)) for measured (q, v): (N, nv) ×2 -> (N, nv)."""
+    def torque(self, q, v, limits: bool = True) -> np.ndarray:
+        """Joint torques τ = B sat(u(x(q, v))) for measured (q, v): (N, nv) ×2 -> (N, nv), N·m or N.
+
+        limits : clip u to the actuators' effort limits (``system.effort``), as the robot would;
+            False gives the raw law B u.
+        """
         q = np.asarray(q, dtype=np.float64)
         single = q.ndim == 1
         x = self.system.state_from(np.atleast_2d(q), np.atleast_2d(v))
-        tau = self(x) @ self.system.B.T
+        u = self(x)
+        tau = (self.system.saturate(u) if limits else u) @ self.system.B.T
         return tau[0] if single else tau
 
     def _apply(self, fn, x) -> np.ndarray:

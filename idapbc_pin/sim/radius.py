@@ -9,11 +9,12 @@ are the same unit draws for every scale and every controller, ``uniform_states(s
 seed)``; at s = 1 and s = 0.5 they are, bit for bit, the states `roa` draws from the domain and
 the half box, so an ROA already computed there is reused instead of simulated again.
 
-The search is a bisection per controller on those fixed states: s = 1 first, then s = 2 (if 1
-passes) or s = 0.5 and s = 0.05 (if not), then halving the bracket [passing s, failing s] down to
-the resolution. A probe simulates a quarter of its states first and stops there when more than
-10 % of all its states already failed. The success share need not be monotone in s; the result is a scale that
-passes with the next probed scale above it failing, on the same seeds.
+The search is a bisection per controller on those fixed states: s = 1 first, then (if it fails)
+s = 0.5, then halving the bracket [passing s, failing s] down to the resolution; the ends of the
+range (0.05, 2) are probed only when the bracket ends next to them. A probe simulates a quarter
+of its states first and stops there when more than 10 % of all its states already failed. The
+success share need not be monotone in s; the result is a scale that passes with the next probed
+scale above it failing, on the same seeds.
 """
 
 from __future__ import annotations
@@ -157,25 +158,24 @@ class _Prober:
 
 
 def _search(probe: _Prober, s_lo: float, s_hi: float, resolution: float) -> tuple[float, tuple, bool, bool]:
-    """Bisection on `probe.passes`; -> (s, (s passing, s failing), below, above)."""
+    """Bisection on `probe.passes`; -> (s, (s passing, s failing), below, above).
+
+    The ends of the range are assumed to pass (s_lo) and fail (s_hi) and only probed when the
+    bisection ends next to them: most searches never simulate them.
+    """
     start = min(max(1.0, s_lo), s_hi)
     if probe.passes(start):
-        if start == s_hi or probe.passes(s_hi):
-            return s_hi, (s_hi, None), False, True
         a, b = start, s_hi
     else:
-        a, b = None, start
-        for s in (0.5 * start, s_lo):  # the half box, then the bottom of the range
-            if s_lo <= s < b:
-                if probe.passes(s):
-                    a = s
-                    break
-                b = s
-        if a is None:
-            return s_lo, (None, s_lo), True, False
+        half = max(s_lo, 0.5 * start)
+        a, b = (half, start) if half < start and probe.passes(half) else (s_lo, half)
     while b - a > resolution * (1 + 1e-9):
         mid = 0.5 * (a + b)
         a, b = (mid, b) if probe.passes(mid) else (a, mid)
+    if not probe.passes(a):  # only s_lo can still be unprobed here
+        return s_lo, (None, s_lo), True, False
+    if b == s_hi and probe.passes(s_hi):
+        return s_hi, (s_hi, None), False, True
     return a, (a, b), False, False
 
 

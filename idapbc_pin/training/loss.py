@@ -8,6 +8,10 @@ For samples x (N, n), with d = 1 where H_d(x) ≥ ε (outside H_ε, the dissipat
 * ``local_stability`` f_dm  = (1 − d)‖∂μ/∂x‖_F                  (Theorem 2, eq. mu_bound_les)
 * ``decay``           d·max(0, Ḣ_d/H_d + λ), Ḣ_d = ∇H_dᵀ(f̃_d + ξ) along the true closed loop
   (DESIGN §2 lesson 1: nothing in the paper's loss rewards speed).
+* ``effort``          Σ_i max(0, |u_i| − ū_i)/ū_i over the samples of the candidate certified set
+  {H_d < c}, c = min of H_d on samples of the box faces (the largest sublevel set that stays in the
+  box), ū the actuators' effort limits: the certificate is checked with the saturated law, so the
+  set it can certify is where u stays within the limits. Zero for robots without limits.
 
 Inside terms are averaged over the inside samples and outside terms over the outside ones
 (DESIGN lesson 3), so each term is a mean residual whatever ε is. ∂μ/∂x = g⊥(∂f̃_d/∂x − ∂f/∂x) is
@@ -25,7 +29,7 @@ from ..control.nets import IdaPbcNets
 
 __all__ = ["TERMS", "AdaptiveWeights", "loss_terms"]
 
-TERMS = ("matching", "dissipation", "damping_floor", "local_stability", "decay")
+TERMS = ("matching", "dissipation", "damping_floor", "local_stability", "decay", "effort")
 
 
 def _masked_mean(values: Tensor, mask: Tensor) -> Tensor:
@@ -46,6 +50,8 @@ def loss_terms(
     kappa: float,
     df_dx_inside: Tensor | None = None,
     inside: Tensor | None = None,
+    x_face: Tensor | None = None,
+    effort: Tensor | None = None,
 ) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
     """Residual terms (scalars, differentiable w.r.t. the weights) and diagnostics.
 
@@ -56,6 +62,8 @@ def loss_terms(
     kappa : κ of f_sd1 and f_sd2.
     df_dx_inside : (K, n, n) ∂f/∂x on the inside samples x[inside] (None: skip f_dm).
     inside : (N,) bool, the samples with H_d < ε used for df_dx_inside (recomputed if None).
+    x_face : (K, n) samples of the training box's faces (for the level c of the `effort` term).
+    effort : (m,) effort limits (None, or all inf: no `effort` term).
     """
     x = x.detach().requires_grad_(True)
     H, dH, J, R, f_d = nets.desired(x, create_graph=True)
@@ -76,7 +84,17 @@ def loss_terms(
         "damping_floor": _masked_mean(torch.relu(kappa - sigma_min), d),
         "decay": _masked_mean(torch.relu(rate + nets.decay_rate), d) if float(nets.decay_rate) > 0 else x.new_zeros(()),
         "local_stability": x.new_zeros(()),
+        "effort": x.new_zeros(()),
     }
+    c_face = None
+    if x_face is not None:
+        with torch.no_grad():
+            c_face = nets.H(x_face).min()
+    if effort is not None and c_face is not None and bool(torch.isfinite(effort).any()):
+        u = nets.control(f, f_d)
+        limit = torch.where(torch.isfinite(effort), effort, torch.ones_like(effort))
+        excess = (torch.relu(u.abs() - effort) / limit).sum(-1)
+        terms["effort"] = _masked_mean(excess, (H.detach() < c_face).to(x.dtype))
     if df_dx_inside is not None and int(inside.sum()) > 0:
         xin = x.detach()[inside].requires_grad_(True)
         f_d_in = nets.desired(xin, create_graph=True)[4]
@@ -87,6 +105,7 @@ def loss_terms(
         "inside_share": (1 - d).mean().detach(),
         "dissipation_ok": _masked_mean(((dH.unsqueeze(-2) @ R @ dH.unsqueeze(-1)).squeeze() > (dH * xi).sum(-1)).to(x.dtype), d).detach(),
         "max_mu": mu_norm.max().detach(),
+        "sublevel_share": (H.detach() < c_face).to(x.dtype).mean() if c_face is not None else x.new_zeros(()),
     }
     return terms, diagnostics
 

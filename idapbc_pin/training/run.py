@@ -17,6 +17,8 @@ import io
 import os
 import shutil
 import sys
+import warnings
+import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -32,8 +34,10 @@ from ..model import System, load_system
 __all__ = [
     "CHECKPOINTS",
     "Run",
+    "check_checkpoints",
     "load_run",
     "load_run_system",
+    "load_weights",
     "read_checkpoint",
     "read_config",
     "resolve_run",
@@ -45,8 +49,8 @@ __all__ = [
 CHECKPOINTS = ("best", "last")
 
 #: Values of options that runs written before the option existed trained with (their config.json
-#: lacks the key): physical units, and H_d's ICNN fed the box-normalised state.
-LEGACY_DEFAULTS = {"scaling": "none", "energy_input": "box"}
+#: lacks the key): physical units, H_d's ICNN fed the box-normalised state, no `effort` term.
+LEGACY_DEFAULTS = {"scaling": "none", "energy_input": "box", "effort_term": False}
 
 
 @dataclass
@@ -78,10 +82,17 @@ def _checkpoint_problem(path: Path, map_location="cpu") -> tuple[dict | None, st
     """(state, None) for a readable checkpoint with finite weights, else (None, the reason)."""
     if not path.is_file():
         return None, "missing"
+    if path.stat().st_size == 0:
+        return None, "empty file"
+    if not zipfile.is_zipfile(path):  # torch.save writes a zip archive; a cut-off one has no directory
+        return None, "truncated or overwritten: not a complete torch checkpoint"
     try:
-        state = torch.load(path, map_location=map_location, weights_only=True)
+        with warnings.catch_warnings():  # torch warns about odd pickles before it refuses them
+            warnings.simplefilter("ignore")
+            state = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as exc:  # torch raises RuntimeError, UnpicklingError, EOFError, … for damaged files
-        return None, (str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__)
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        return None, f"unreadable torch checkpoint: {reason[:100]}"
     if not isinstance(state, dict) or not isinstance(state.get("nets"), dict) or "epoch" not in state:
         return None, "not a checkpoint written by idapbc-pin train"
     bad = [k for k, v in state["nets"].items() if torch.is_tensor(v) and v.is_floating_point() and not bool(torch.isfinite(v).all())]
@@ -113,6 +124,39 @@ def read_checkpoint(run_dir, name: str, map_location="cpu") -> dict:
     raise DamagedFileError(f"{what}. Fix: {fix}.")
 
 
+def check_checkpoints(run_dir, system: System | None = None, config: TrainConfig | None = None) -> list[str]:
+    """The names of the checkpoints present in ``run_dir/checkpoints`` (in `CHECKPOINTS` order),
+    after checking that each reads back with finite weights and, given the run's `system` and
+    `config`, fits the networks they describe. The first damaged one raises a one-line
+    `DamagedFileError` (see `read_checkpoint`, `load_weights`), so damage never passes unnoticed."""
+    run_dir = Path(run_dir)
+    present = [c for c in CHECKPOINTS if (run_dir / "checkpoints" / f"{c}.pt").is_file()]
+    for name in present:
+        path = run_dir / "checkpoints" / f"{name}.pt"
+        state, problem = _checkpoint_problem(path)
+        if problem is not None:
+            read_checkpoint(run_dir, name)  # raises the one-line error, with the other checkpoint's offer
+        if system is not None and config is not None:
+            with torch.random.fork_rng(devices=[]):  # building the networks draws weights: leave the seed alone
+                load_weights(build_nets(system, config), state, path)
+    return present
+
+
+def load_weights(nets: IdaPbcNets, state: dict, path) -> None:
+    """Load a checkpoint's ``state["nets"]`` (read from `path`) into `nets`. Weights that do not fit
+    the networks (config.json edited after training, or a checkpoint of another run) raise a
+    one-line `DamagedFileError` instead of torch's list of mismatches."""
+    try:
+        nets.load_state_dict(state["nets"])
+    except RuntimeError as exc:
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+        detail = lines[1] if len(lines) > 1 else (lines[0] if lines else type(exc).__name__)
+        raise DamagedFileError(
+            f"{path} does not fit the networks that config.json describes ({detail[:140]}). "
+            "Fix: restore the config.json this checkpoint was trained with, or train again."
+        ) from None
+
+
 # ------------------------------------------------------------------------------------ system record
 def system_record(system: System, run_dir: Path) -> dict:
     """system.json: what `load_system` needs to rebuild the system, and a copy + hash of the URDF."""
@@ -134,19 +178,31 @@ def system_record(system: System, run_dir: Path) -> dict:
 
 
 def _system_from_record(record: dict, run_dir: Path) -> System:
+    where = run_dir / "system.json"
     try:
         source, actuated, target = record["source"], record["actuated"], record["target"]
         domain = (record["domain"]["lo"], record["domain"]["hi"])
-    except (KeyError, TypeError) as exc:
-        raise DamagedFileError(f"{run_dir / 'system.json'} is damaged (no {exc}). Fix: restore it, or train again.") from None
-    if record.get("urdf"):
-        copy = run_dir / record["urdf"]["file"]
-        if not copy.is_file() or hashlib.sha256(copy.read_bytes()).hexdigest() != record["urdf"]["sha256"]:
+        urdf = record.get("urdf")
+        copy = run_dir / urdf["file"] if urdf else None
+        effort = record.get("effort")  # absent in runs written before limits were data: the URDF's
+        effort = None if effort is None else {nm: (float("inf") if e is None else float(e)) for nm, e in effort.items()}
+    except KeyError as exc:
+        raise DamagedFileError(f"{where} is damaged (no {exc} entry). Fix: restore it, or train again.") from None
+    except (TypeError, ValueError, AttributeError):
+        raise DamagedFileError(f"{where} is damaged (not the layout `idapbc-pin train` writes). Fix: restore it, or train again.") from None
+    if copy is not None:
+        if not copy.is_file():
+            raise IdapbcError(f"'{copy}', the run's copy of its URDF, is missing. Fix: restore it from the run's backup, or train again.")
+        if hashlib.sha256(copy.read_bytes()).hexdigest() != urdf.get("sha256"):
             raise IdapbcError(f"'{copy}' does not match the hash recorded at training time. Fix: restore the run's robot.urdf.")
         source = str(copy)
-    effort = record.get("effort")  # absent in runs written before limits were data: the URDF's
-    effort = None if effort is None else {nm: (float("inf") if e is None else float(e)) for nm, e in effort.items()}
-    system = load_system(source, actuated=actuated, target=target, domain=domain, effort=effort)
+    try:
+        system = load_system(source, actuated=actuated, target=target, domain=domain, effort=effort)
+    except IdapbcError as exc:
+        reason = str(exc) if " Fix:" in str(exc) else f"{str(exc).rstrip('.')}. Fix: restore {where.name}, or train again."
+        raise IdapbcError(f"the system recorded in {where} does not load: {reason}") from None
+    except (TypeError, ValueError, AttributeError, KeyError):
+        raise DamagedFileError(f"{where} is damaged (not the layout `idapbc-pin train` writes). Fix: restore it, or train again.") from None
     return replace(system, name=record.get("name", system.name), source=record["source"])
 
 
@@ -165,7 +221,10 @@ def read_config(path) -> TrainConfig:
     try:
         return TrainConfig.from_dict({**LEGACY_DEFAULTS, **raw})
     except IdapbcError as exc:
-        raise DamagedFileError(f"{path / 'config.json'} is damaged ({exc}).") from None
+        reason = str(exc).split(" Fix:")[0].rstrip(".")  # the file, not a CLI flag, is what to fix
+        raise DamagedFileError(f"{path / 'config.json'} is damaged ({reason}). Fix: restore config.json, or train again.") from None
+    except (TypeError, ValueError):
+        raise DamagedFileError(f"{path / 'config.json'} is damaged (a value of the wrong type). Fix: restore config.json, or train again.") from None
 
 
 def load_run_system(path) -> System:
@@ -187,21 +246,35 @@ def load_run(path, checkpoint: str | None = None) -> Run:
     system = load_run_system(path)
     if checkpoint is not None and checkpoint not in CHECKPOINTS:
         raise IdapbcError(f"unknown checkpoint '{checkpoint}'. Fix: use one of {', '.join(CHECKPOINTS)}.")
-    present = [c for c in CHECKPOINTS if (path / "checkpoints" / f"{c}.pt").is_file()]
+    if checkpoint is None:  # refuse a damaged checkpoint, even the one not used
+        present = check_checkpoints(path)
+    else:
+        present = [c for c in CHECKPOINTS if (path / "checkpoints" / f"{c}.pt").is_file()]
     if not present:
-        raise IdapbcError(f"run '{path}' has no checkpoint yet. Fix: train it (or resume it) first.")
+        raise IdapbcError(
+            f"run '{path}' has no checkpoint (checkpoints/best.pt or last.pt). "
+            "Fix: wait until its training saves one, or train again."
+        )
     name = checkpoint or ("best" if "best" in present else "last")
     state = read_checkpoint(path, name, map_location=config.device)
     for other in present:
         if other != name and _checkpoint_problem(path / "checkpoints" / f"{other}.pt")[1] is not None:
-            if checkpoint is None:
-                read_checkpoint(path, other)  # raises the one-line error that names the damaged file
             print(f"warning: {path / 'checkpoints' / (other + '.pt')} is damaged; using {name}.pt as asked.", file=sys.stderr)
     torch.manual_seed(config.seed)
     nets = build_nets(system, config)
-    nets.load_state_dict(state["nets"])
-    summary = read_json(path / "summary.json", fix="delete summary.json (it is rewritten by the next train --resume)") if (path / "summary.json").exists() else {}
-    return Run(path, system, config, nets, summary, checkpoint=name)
+    load_weights(nets, state, path / "checkpoints" / f"{name}.pt")
+    return Run(path, system, config, nets, _read_summary(path), checkpoint=name)
+
+
+def _read_summary(path: Path) -> dict:
+    """summary.json as a dict ({} while training has not written it)."""
+    if not (path / "summary.json").exists():
+        return {}
+    fix = "delete summary.json (it is rewritten by the next train --resume)"
+    summary = read_json(path / "summary.json", fix=fix)
+    if not isinstance(summary, dict):
+        raise DamagedFileError(f"{path / 'summary.json'} is damaged (not a JSON object). Fix: {fix}.")
+    return summary
 
 
 def resolve_run(run_or_path, checkpoint: str | None = None) -> Run:

@@ -9,6 +9,7 @@ import copy
 import csv
 import datetime as _dt
 import math
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +18,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .._io import write_json
+from .._io import DamagedFileError, write_json
 from ..config import TrainConfig
 from ..control.anchor import anchor_settings
 from ..control.linear import fastest_pole
@@ -25,7 +26,7 @@ from ..control.nets import IdaPbcNets, build_nets
 from ..errors import IdapbcError
 from ..model import System
 from .loss import TERMS, AdaptiveWeights, loss_terms
-from .run import Run, read_checkpoint, read_config, save_checkpoint, system_record
+from .run import Run, check_checkpoints, load_weights, read_checkpoint, read_config, save_checkpoint, system_record
 
 __all__ = ["TrainingDiverged", "train"]
 
@@ -70,7 +71,7 @@ def _restore(trainer: "_Trainer", snap: dict | None) -> None:
 
 #: metrics.csv columns: the epoch (1-based), the weighted loss, each term and its adaptive weight r_,
 #: the level ε of H_ε, the loss diagnostics, and the training seconds so far.
-_COLUMNS = ["epoch", "loss", *TERMS, *(f"r_{t}" for t in TERMS), "epsilon", "inside_share", "dissipation_ok", "max_mu", "seconds"]
+_COLUMNS = ["epoch", "loss", *TERMS, *(f"r_{t}" for t in TERMS), "epsilon", "inside_share", "dissipation_ok", "max_mu", "sublevel_share", "seconds"]
 
 
 def train(
@@ -128,6 +129,7 @@ def _resolve(system: System, config: TrainConfig | None, out, resume) -> tuple[T
         run_dir = Path(resume)
         saved = read_config(run_dir)
         config = saved if config is None else saved.replace(epochs=config.epochs, lr=config.lr)
+        check_checkpoints(run_dir, system, saved)  # a damaged best.pt must not pass unnoticed either
         return config, run_dir, read_checkpoint(run_dir, "last", map_location=config.device)
     config = config or TrainConfig()
     scaling, anchor_q = anchor_settings(system, config)
@@ -186,7 +188,7 @@ def _start(system: System, config: TrainConfig, run_dir: Path, state: dict | Non
     gen = torch.Generator().manual_seed(config.seed)
     trainer = _Trainer(system, config, run_dir, nets, optimizer, weights, gen)
     if state is not None:
-        nets.load_state_dict(state["nets"])
+        load_weights(nets, state, run_dir / "checkpoints" / "last.pt")
         optimizer.load_state_dict(state["optimizer"])
         for group in optimizer.param_groups:  # a resume may lower the learning rate
             group["lr"] = config.lr
@@ -204,9 +206,17 @@ def _open_metrics(path: Path, fresh: bool, epochs_done: int) -> None:
     (they will be recomputed identically)."""
     if fresh or not path.exists():
         path.write_text(",".join(_COLUMNS) + "\n")
-    else:
+        return
+    try:
         lines = path.read_text().splitlines()
-        path.write_text("\n".join(lines[: epochs_done + 1]) + "\n")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DamagedFileError(
+            f"{path} is damaged ({type(exc).__name__}). Fix: delete it (the resume writes a new one; the rows of the "
+            "epochs already done are lost), then resume again."
+        ) from None
+    if not lines or lines[0].split(",")[:2] != _COLUMNS[:2]:
+        raise DamagedFileError(f"{path} is damaged (no metrics header). Fix: delete it (the resume writes a new one), then resume again.")
+    path.write_text("\n".join(lines[: epochs_done + 1]) + "\n")
 
 
 def _save_snapshot(trainer: _Trainer, name: str, snap: dict) -> None:
@@ -240,7 +250,10 @@ def _run_epochs(trainer: _Trainer, progress: bool) -> None:
     """From `trainer.epoch` to `config.epochs`: one step, one metrics row and the due checkpoints each."""
     config, system = trainer.config, trainer.system
     start = trainer.epoch
-    bar = tqdm(range(start, config.epochs), initial=start, total=config.epochs, disable=not progress, desc=f"train {system.name}", unit="epoch", dynamic_ncols=True)
+    bar = tqdm(
+        range(start, config.epochs), initial=start, total=config.epochs, disable=not progress, desc=f"train {system.name}", unit="epoch",
+        dynamic_ncols=True, mininterval=0.1 if sys.stderr.isatty() else 15.0,  # a log file gets a line every 15 s, not every epoch
+    )
     t_last = time.perf_counter()
     try:
         with open(trainer.run_dir / "metrics.csv", "a", newline="") as mfile:
@@ -279,6 +292,18 @@ def _sample(system: System, n: int, gen: torch.Generator) -> np.ndarray:
     return (lo + (hi - lo) * torch.rand(n, system.n, generator=gen, dtype=torch.float64)).numpy()
 
 
+def _face_samples(system: System, n: int, gen: torch.Generator) -> np.ndarray:
+    """(n, system.n) uniform samples of the training box's faces: a uniform point of the box with
+    one uniformly chosen coordinate moved to its lower or upper bound."""
+    lo, hi = (torch.as_tensor(b, dtype=torch.float64) for b in system.domain)
+    x = lo + (hi - lo) * torch.rand(n, system.n, generator=gen, dtype=torch.float64)
+    axis = torch.randint(0, system.n, (n,), generator=gen)
+    upper = torch.rand(n, generator=gen, dtype=torch.float64) < 0.5
+    rows = torch.arange(n)
+    x[rows, axis] = torch.where(upper, hi[axis], lo[axis])
+    return x.numpy()
+
+
 def _step(trainer: _Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor], float]:
     """One epoch: fresh samples, ε, the loss terms, one Adam step, the adaptive weights' update.
 
@@ -296,7 +321,13 @@ def _step(trainer: _Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float]
     df_in = None
     if config.local_stability and bool(inside.any()):
         df_in = trainer.tensor(system.df_dx(x[inside.cpu().numpy()]))
-    terms, diag = loss_terms(nets, xt, f, eps, config.kappa, df_in, inside)
+    x_face, effort = None, None
+    if config.effort_term and system.limited:
+        # a stream of its own, a function of (seed, epoch): the domain samples stay those of a run without limits
+        face_gen = torch.Generator().manual_seed(1_000_003 * config.seed + epoch + 1)
+        x_face = trainer.tensor(_face_samples(system, config.face_samples, face_gen))
+        effort = trainer.tensor(np.array(system.effort))
+    terms, diag = loss_terms(nets, xt, f, eps, config.kappa, df_in, inside, x_face=x_face, effort=effort)
     values = {k: float(v.detach()) for k, v in terms.items()}
     bad = [k for k, v in values.items() if not math.isfinite(v)]
     if bad:
@@ -321,7 +352,8 @@ def _metrics_row(done: int, total: torch.Tensor, values: dict[str, float], weigh
     """One metrics.csv row (`_COLUMNS`) after `done` epochs."""
     return [
         done, f"{float(total.detach()):.6g}", *(f"{values[t]:.6g}" for t in TERMS), *(f"{weights.weights[t]:.6g}" for t in TERMS),
-        f"{eps:.6g}", f"{float(diag['inside_share']):.4g}", f"{float(diag['dissipation_ok']):.4g}", f"{float(diag['max_mu']):.4g}", f"{elapsed:.3f}",
+        f"{eps:.6g}", f"{float(diag['inside_share']):.4g}", f"{float(diag['dissipation_ok']):.4g}", f"{float(diag['max_mu']):.4g}",
+        f"{float(diag['sublevel_share']):.4g}", f"{elapsed:.3f}",
     ]
 
 

@@ -3,11 +3,15 @@
 Rollouts are simulated with `idapbc_pin.sim` from states drawn uniformly from the half-size
 training box (`idapbc_pin.sim.states.initial_states`), or from given states; ``pick="success"``
 keeps those that reach x*. A `Viewer` draws them; `view` can also write the HTML replay and serve it.
+
+The live page lives in a child process that ends with this one. In a script, `view` says so and
+how to keep it (`Viewer.wait`, which blocks until Ctrl-C) or to write the HTML file instead.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -28,15 +32,38 @@ __all__ = ["PICK_CANDIDATES", "view", "write_html"]
 #: With ``pick="success"``, candidates drawn per requested rollout.
 PICK_CANDIDATES = 20
 
+#: What `view` prints when it serves from a script: the page ends with the process.
+_SCRIPT_NOTE = (
+    "note: the live viewer is served only while this script runs; keep the Viewer that view() returns and call "
+    "its .wait() to serve until Ctrl-C, or its .write_html('replay.html') for a file that replays offline"
+)
 
-def _system_and_controller(run_or_system):
+
+def _interactive() -> bool:
+    """True in an interactive interpreter (``python -i``, the REPL), IPython or a notebook kernel."""
+    if hasattr(sys, "ps1") or sys.flags.interactive:
+        return True
+    ipython = sys.modules.get("IPython")
+    return ipython is not None and getattr(ipython, "get_ipython", lambda: None)() is not None
+
+
+def _system_and_controller(run_or_system, checkpoint: str | None = None):
     """-> (system, controller or None): a run directory or a Run (anything with ``system`` and
-    ``controller``) gives its controller; a System, or a system source, gives None (LQR baseline)."""
+    ``controller``) gives its controller; a System, or a system source, gives None (LQR baseline).
+    `checkpoint` picks the checkpoint of a run directory (see `load_run`)."""
     if isinstance(run_or_system, (str, Path)):
         p = Path(run_or_system)
-        if not (p.is_dir() and (p / "config.json").is_file()):
-            return load_system(str(run_or_system)), None
-        run_or_system = resolve_run(p)
+        if p.is_dir() and (p / "config.json").is_file():
+            run_or_system = resolve_run(p, checkpoint=checkpoint)
+        elif checkpoint is not None:
+            raise IdapbcError(f"checkpoint= applies to a run directory, and '{run_or_system}' is not one. Fix: drop it, or pass a run directory.")
+        else:
+            try:
+                return load_system(str(run_or_system)), None
+            except IdapbcError:
+                if p.is_dir():  # meant as a run: say what it lacks
+                    resolve_run(p)
+                raise
     if hasattr(run_or_system, "controller") and hasattr(run_or_system, "system"):
         return run_or_system.system, run_or_system.controller
     if hasattr(run_or_system, "nq") and hasattr(run_or_system, "plant"):
@@ -55,7 +82,7 @@ def _simulate(system, controller, x0: np.ndarray, T: float, dt: float):
 
 
 def _pick_successes(system, controller, n: int, T: float, dt: float, seed: int):
-    """Up to `n` rollouts that reach x* (DESIGN §4 criterion over the last 2 s of `T`) among
+    """Up to `n` rollouts that reach x* (the success criterion over the last 2 s of `T`) among
     ``PICK_CANDIDATES · n`` uniform states of the half box, in draw order, filled up with failing
     ones when fewer succeed. Returns (Trajectory of n rows, number reaching x*, candidates)."""
     candidates = initial_states(system, None, PICK_CANDIDATES * n, seed)
@@ -103,8 +130,14 @@ def view(
     loop: bool = True,
     style: str = "auto",
     grid: bool = True,
+    checkpoint: str | None = None,
 ) -> Viewer:
     """Animate a system along closed-loop trajectories in meshcat; never blocks.
+
+    The live page is served by a child process that ends with this Python process. In a notebook
+    or an interactive session it stays up while the session runs; in a script, `view` prints one
+    line saying so: call ``viewer.wait()`` to serve until Ctrl-C, or ``viewer.write_html(path)``
+    (or ``html=path``) for a file that replays offline, with no server.
 
     Parameters
     ----------
@@ -116,9 +149,10 @@ def view(
         with the run's controller, or the LQR baseline when given a `System`.
     x0 : (N, n) initial states (q, p) or (N, nq) positions at rest; overrides `n` and `pick`.
     pick : ``"random"`` (the first `n` uniform half-box states) or ``"success"``: up to `n` rollouts
-        that reach x* within `T` (DESIGN §4 criterion), chosen among ``PICK_CANDIDATES · n`` uniform
-        half-box states and filled up with failing ones; prints how many reach x*. A picture of what
-        the controller does where it works, not of how often it works (that is the ROA).
+        that reach x* within `T` (the success criterion of docs/method.md), chosen among
+        ``PICK_CANDIDATES · n`` uniform half-box states and filled up with failing ones; prints how
+        many reach x*. A picture of what the controller does where it works, not of how often it
+        works (that is the ROA).
     html : write the standalone HTML replay there (atomically).
     open_server : start the live server (127.0.0.1) and print its URL; `Viewer.close` stops it.
     port : HTTP port of the live page; None picks the first free one from 7000; in use: error.
@@ -129,12 +163,14 @@ def view(
     loop : replay forever (else once).
     style : ``"auto"`` (URDF visuals, stick-and-ball if none), ``"visual"`` or ``"stick"``.
     grid : show meshcat's ground grid and world axes.
+    checkpoint : ``"best"`` or ``"last"``, the checkpoint of a run directory to animate (None: best,
+        refusing a run with a damaged checkpoint; see `load_run`).
 
     Returns
     -------
     Viewer (``.url``, ``.write_html(path)``, ``.close()``; shows inline in a notebook).
     """
-    system, controller = _system_and_controller(run_or_system)
+    system, controller = _system_and_controller(run_or_system, checkpoint)
     trajectories, note = _rollouts_to_show(system, controller, trajectories, x0, n, pick, T, dt, seed)
     viewer = Viewer(system, trajectories, layout=layout, trace=trace, trace_link=trace_link, fps=fps, loop=loop, style=style, grid=grid)
     viewer.note = note
@@ -142,7 +178,9 @@ def view(
         viewer.write_html(html)
     if open_server:
         url = viewer.serve(port)
-        print(f"meshcat viewer: {url}  ({note})")
+        print(f"meshcat viewer: {url}  ({note})", flush=True)
+        if not _interactive():
+            print(_SCRIPT_NOTE, flush=True)
     return viewer
 
 

@@ -181,7 +181,9 @@ class Viewer:
         return self.server.url if self.server is not None and self.server.alive else None
 
     def wait(self, poll: float = 0.5) -> None:
-        """Block while the server runs (the CLI; returns on Ctrl-C or when the server ends)."""
+        """Block while the live server runs: what keeps the page up at the end of a script (and in
+        the CLI). Returns on Ctrl-C, when the server ends, or at once when not serving; the server
+        stays up until `close` or the end of this process."""
         try:
             while self.server is not None and self.server.alive:
                 time.sleep(poll)
