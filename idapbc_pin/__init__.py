@@ -24,6 +24,7 @@ from .reporting.report import figure, report
 from .evaluation.robustness import perturbed_system, robustness_table
 from .control.baseline import LQRController
 from .sim.integrate import simulate
+from .sim.radius import roa_radius
 from .sim.roa import roa
 from .model import System, load_system
 from .training.run import Run, load_run
@@ -48,6 +49,7 @@ __all__ = [
     "report",
     "robustness_table",
     "roa",
+    "roa_radius",
     "run_batch",
     "simulate",
     "train",

@@ -11,9 +11,15 @@ from ..errors import IdapbcError
 from ..evaluation.closed_loop import simulate_run
 from ..evaluation.robustness import default_conditions, robustness_table
 from ..reporting.report import report
+from ..training.run import load_run
 from ._args import positive_int
 
 __all__ = ["add_eval_commands"]
+
+
+def _run(args: argparse.Namespace):
+    """The run the command works on: RUN's `--checkpoint` (default: best, refusing damaged checkpoints)."""
+    return load_run(args.run, checkpoint=args.checkpoint)
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -21,7 +27,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if x0 is not None and len({len(v) for v in x0}) != 1:
         raise IdapbcError("every --x0 needs the same number of values. Fix: give n (q, p) or nq (q) values each time.")
     result = simulate_run(
-        args.run, n=args.n, T=args.T, dt=args.dt, x0=x0, rho=args.rho, mismatch=args.mismatch,
+        _run(args), n=args.n, T=args.T, dt=args.dt, x0=x0, rho=args.rho, mismatch=args.mismatch,
         saturation=args.saturation, noise=args.noise, seed=args.seed, box=args.box, limits=not args.no_limits, radius=not args.no_radius,
     )
     print(result.table())
@@ -29,14 +35,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_certify(args: argparse.Namespace) -> int:
-    cert = certify(args.run, n=args.n, seed=args.seed, epsilon=args.epsilon, settle=args.settle, limits=not args.no_limits)
+    cert = certify(_run(args), n=args.n, seed=args.seed, epsilon=args.epsilon, settle=args.settle, limits=not args.no_limits)
     print(cert.table())
     print(f"wrote {Path(args.run) / 'certificate.json'}")
     return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    print(report(args.run, n_roa=args.n, T=args.T, rho_extra=args.rho, n_figure=args.n_figure, html=not args.no_html, seed=args.seed,
+    print(report(_run(args), n_roa=args.n, T=args.T, rho_extra=args.rho, n_figure=args.n_figure, html=not args.no_html, seed=args.seed,
                  limits=not args.no_limits, radius=not args.no_radius))
     return 0
 
@@ -44,7 +50,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 def _cmd_robustness(args: argparse.Namespace) -> int:
     sat = "auto" if args.saturation is None else args.saturation
     conds = default_conditions(mass=args.mass, saturation=sat, noise=args.noise)
-    result = robustness_table(args.run, n=args.n, T=args.T, seed=args.seed, box=args.box, conditions=conds, rho=args.rho, limits=not args.no_limits)
+    result = robustness_table(_run(args), n=args.n, T=args.T, seed=args.seed, box=args.box, conditions=conds, rho=args.rho, limits=not args.no_limits)
     print(result.table())
     print(f"wrote {Path(args.run) / 'robustness.json'}")
     return 0
@@ -53,6 +59,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
 def _add_no_limits(p) -> None:
     p.add_argument("--no-limits", action="store_true",
                    help="lift the actuators' effort limits (URDF <limit effort>; applied to every controller by default)")
+    p.add_argument("--checkpoint", choices=["best", "last"],
+                   help="checkpoint of RUN to use (default: best, and a run with a damaged checkpoint is refused)")
 
 
 def add_eval_commands(subparsers) -> None:

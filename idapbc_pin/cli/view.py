@@ -44,6 +44,7 @@ def add_view_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--layout", choices=["sequence", "side_by_side"], default="sequence", help="rollouts one after another (default) or side by side")
     p.add_argument("--trace-link", metavar="NAME", help="joint or link whose far end is traced (default: the last link)")
     p.add_argument("--no-trace", action="store_true", help="do not draw the end-link trace")
+    p.add_argument("--no-limits", action="store_true", help="simulate without the actuators' effort limits (applied by default)")
     p.add_argument("--checkpoint", choices=list(CHECKPOINTS),
                    help="which checkpoint of a RUN to animate: best (lowest loss, the default) or last (the latest epoch)")
     p.set_defaults(func=_cmd_view)
@@ -88,7 +89,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
         raise IdapbcError("every --x0 needs the same number of values. Fix: give n (q, p) or nq (q) values each time.")
     viewer = view(
         target, x0=x0, n=args.n, pick=args.pick, T=args.T, seed=args.seed, html=args.html, open_server=False,
-        layout=args.layout, trace=not args.no_trace, trace_link=args.trace_link,
+        layout=args.layout, trace=not args.no_trace, trace_link=args.trace_link, limits=not args.no_limits,
     )
     if args.html:
         print(f"wrote {args.html} ({len(viewer.segments)} rollouts, {viewer.duration:.1f} s; {viewer.note})")

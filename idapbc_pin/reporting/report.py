@@ -133,7 +133,7 @@ def report(
     fig_path = save_png(plot(rows), run.path / "figure.png")
     parts = [format_evaluation(evaluation), cert.table(), f"figure: {fig_path}"]
     if html:
-        viewer = view(run, n=3, T=10.0, seed=seed, pick="success", open_server=False)
+        viewer = view(run, n=3, T=10.0, seed=seed, pick="success", open_server=False, limits=limits)
         parts.append(f"replay: {viewer.write_html(run.path / 'replay.html')} ({viewer.note})")
     text = "\n\n".join(parts)
     atomic_write_bytes(run.path / "report.txt", (text + "\n").encode())

@@ -71,22 +71,22 @@ def _system_and_controller(run_or_system, checkpoint: str | None = None):
     raise IdapbcError(f"cannot view {type(run_or_system).__name__}. Fix: pass a Run, a System, a run directory or a system source.")
 
 
-def _simulate(system, controller, x0: np.ndarray, T: float, dt: float):
+def _simulate(system, controller, x0: np.ndarray, T: float, dt: float, limits: bool = True):
     """Rollouts from x0 (N, n) for `T` s rounded to whole steps `dt` (LQR when `controller` is None)."""
     if controller is None:
         controller = LQRController(system)
     if not (T > 0 and math.isfinite(T)):
         raise IdapbcError(f"T must be a positive number of seconds, got {T!r}.")
     steps = max(1, int(round(T / dt)))
-    return simulate(system, controller, x0, T=steps * dt, dt=dt)
+    return simulate(system, controller, x0, T=steps * dt, dt=dt, limits=limits)
 
 
-def _pick_successes(system, controller, n: int, T: float, dt: float, seed: int):
+def _pick_successes(system, controller, n: int, T: float, dt: float, seed: int, limits: bool = True):
     """Up to `n` rollouts that reach x* (the success criterion over the last 2 s of `T`) among
     ``PICK_CANDIDATES · n`` uniform states of the half box, in draw order, filled up with failing
     ones when fewer succeed. Returns (Trajectory of n rows, number reaching x*, candidates)."""
     candidates = initial_states(system, None, PICK_CANDIDATES * n, seed)
-    traj = _simulate(system, controller, candidates, T, dt)
+    traj = _simulate(system, controller, candidates, T, dt, limits)
     ok = success(traj, system)
     order = np.concatenate([np.flatnonzero(ok), np.flatnonzero(~ok)])[:n]
     x = traj.x[order]
@@ -94,7 +94,7 @@ def _pick_successes(system, controller, n: int, T: float, dt: float, seed: int):
     return picked, int(ok[order].sum()), len(candidates)
 
 
-def _rollouts_to_show(system, controller, trajectories, x0, n: int, pick: str, T: float, dt: float, seed: int):
+def _rollouts_to_show(system, controller, trajectories, x0, n: int, pick: str, T: float, dt: float, seed: int, limits: bool = True):
     """-> (trajectories, a note saying which rollouts they are)."""
     if pick not in ("random", "success"):
         raise IdapbcError(f"pick must be 'random' or 'success', got {pick!r}.")
@@ -103,11 +103,11 @@ def _rollouts_to_show(system, controller, trajectories, x0, n: int, pick: str, T
     if x0 is None and pick == "success":
         if n < 1:
             raise IdapbcError(f"n must be at least 1, got {n}.")
-        picked, reached, drawn = _pick_successes(system, controller, n, T, dt, seed)
+        picked, reached, drawn = _pick_successes(system, controller, n, T, dt, seed, limits)
         return picked, f"{reached} of {n} rollouts reach x* (picked among {drawn} random half-box states)"
     start = initial_states(system, x0, n, seed)
     note = f"{len(start)} rollouts from " + ("random half-box states" if x0 is None else "the given states")
-    return _simulate(system, controller, start, T, dt), note
+    return _simulate(system, controller, start, T, dt, limits), note
 
 
 def view(
@@ -131,6 +131,7 @@ def view(
     style: str = "auto",
     grid: bool = True,
     checkpoint: str | None = None,
+    limits: bool = True,
 ) -> Viewer:
     """Animate a system along closed-loop trajectories in meshcat; never blocks.
 
@@ -165,13 +166,15 @@ def view(
     grid : show meshcat's ground grid and world axes.
     checkpoint : ``"best"`` or ``"last"``, the checkpoint of a run directory to animate (None: best,
         refusing a run with a damaged checkpoint; see `load_run`).
+    limits : simulate with the actuators' effort limits (``system.effort``), as every evaluation does;
+        False lifts them.
 
     Returns
     -------
     Viewer (``.url``, ``.write_html(path)``, ``.close()``; shows inline in a notebook).
     """
     system, controller = _system_and_controller(run_or_system, checkpoint)
-    trajectories, note = _rollouts_to_show(system, controller, trajectories, x0, n, pick, T, dt, seed)
+    trajectories, note = _rollouts_to_show(system, controller, trajectories, x0, n, pick, T, dt, seed, limits)
     viewer = Viewer(system, trajectories, layout=layout, trace=trace, trace_link=trace_link, fps=fps, loop=loop, style=style, grid=grid)
     viewer.note = note
     if html is not None:
