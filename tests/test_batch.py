@@ -104,7 +104,15 @@ BAD_JOBS = [
     ('name = "box"\nsource = "acrobot"\ndomain = { elbow = [1.0] }\n', "domain.elbow must be [lo, hi]"),
     ('name = "target"\nsource = "acrobot"\ntarget = { elbow = 0.5 }\n', "not an assignable equilibrium"),
     ('name = "roa"\nsource = "acrobot"\nevaluate = { n = 0 }\n', "evaluate.n"),
+    ('name = "lift"\nsource = "acrobot"\nevaluate = { limits = "no" }\n', "evaluate.limits must be true or false"),
 ]
+
+
+def test_a_job_may_lift_the_torque_limits_and_that_changes_its_fingerprint(tmp_path):
+    path = _pipeline(tmp_path, '[[job]]\nname = "a"\nsource = "pendubot"\n\n[[job]]\nname = "b"\nsource = "pendubot"\nevaluate = { limits = false }\n')
+    a, b = load_pipeline(path).jobs
+    assert a.evaluate["limits"] is True and b.evaluate["limits"] is False
+    assert a.fingerprint() != b.fingerprint()
 
 
 @pytest.mark.parametrize("entry,message", BAD_JOBS, ids=[m.split()[0].strip("'") + str(i) for i, (_, m) in enumerate(BAD_JOBS)])

@@ -144,19 +144,19 @@ def _stages(job: Job, workdir: Path, record: dict):
             raise IdapbcError(f"training ended with status {run.summary.get('status')!r}")
     ev = job.evaluate
     with stage("evaluate"):
-        evaluation = evaluate_run(run, n=ev["n"], T=ev["T"], seed=ev["seed"]).record()
+        evaluation = evaluate_run(run, n=ev["n"], T=ev["T"], seed=ev["seed"], limits=ev["limits"]).record()
         record["files"]["evaluation"] = "evaluation.json"
     with stage("certify"):
         c = job.certify
-        cert = certify(run, n=c["n"], seed=ev["seed"], settle=c["settle"], settle_T=c["T"]).to_dict()
+        cert = certify(run, n=c["n"], seed=ev["seed"], settle=c["settle"], settle_T=c["T"], limits=ev["limits"]).to_dict()
         if not (run.path / "certificate.json").is_file():
             write_json(run.path / "certificate.json", cert)
         record["files"]["certificate"] = "certificate.json"
     with stage("figure"):
-        png = Path(figure(run, n=job.figure["n"], T=job.figure["T"], seed=ev["seed"]))
+        png = Path(figure(run, n=job.figure["n"], T=job.figure["T"], seed=ev["seed"], limits=ev["limits"]))
         record["files"]["figure"] = str(png.relative_to(run.path)) if png.is_relative_to(run.path) else str(png)
     with stage("html"):
-        viewer = view(run, n=job.view["n"], T=job.view["T"], seed=ev["seed"], pick="success", open_server=False)
+        viewer = view(run, n=job.view["n"], T=job.view["T"], seed=ev["seed"], pick="success", open_server=False, limits=ev["limits"])
         viewer.write_html(run.path / "replay.html")
         record["files"]["html"] = "replay.html"
         record["replay"] = viewer.note

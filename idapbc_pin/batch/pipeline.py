@@ -44,11 +44,11 @@ __all__ = ["Job", "Pipeline", "PipelineError", "load_pipeline", "SMOKE_TRAIN", "
 PRESETS = ("paper", "fast")
 TOP_KEYS = ("description", "defaults", "job")
 JOB_KEYS = ("name", "source", "actuated", "target", "domain", "preset", "train", "evaluate", "certify", "figure", "view", "description")
-EVALUATE_DEFAULTS = {"n": 200, "T": 20.0, "seed": 0}
+EVALUATE_DEFAULTS = {"n": 200, "T": 20.0, "seed": 0, "limits": True}
 CERTIFY_DEFAULTS = {"n": 20000, "settle": 4, "T": 20.0}
 FIGURE_DEFAULTS = {"n": 4, "T": 20.0}
 VIEW_DEFAULTS = {"n": 3, "T": 10.0}
-_SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int}, "certify": {"n": int, "settle": int, "T": float}, "figure": {"n": int, "T": float}, "view": {"n": int, "T": float}}
+_SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int, "limits": bool}, "certify": {"n": int, "settle": int, "T": float}, "figure": {"n": int, "T": float}, "view": {"n": int, "T": float}}
 
 #: What ``--smoke`` does to every job: a few epochs of tiny networks, a small ROA and certificate,
 #: one short replay (values are upper bounds: a job already smaller keeps its own).
