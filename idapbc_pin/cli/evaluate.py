@@ -56,7 +56,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_no_limits(p) -> None:
+def _add_run_options(p) -> None:
+    """--no-limits and --checkpoint: how every evaluation sub-command treats RUN."""
     p.add_argument("--no-limits", action="store_true",
                    help="lift the actuators' effort limits (URDF <limit effort>; applied to every controller by default)")
     p.add_argument("--checkpoint", choices=["best", "last"],
@@ -80,7 +81,7 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA", help="Gaussian measurement noise σ on (q, v) (rad, m, rad/s, m/s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the states and the noise (default 0)")
     p.add_argument("--no-radius", action="store_true", help="skip the ROA radii (a few more ROA evaluations of --n states)")
-    _add_no_limits(p)
+    _add_run_options(p)
     p.set_defaults(func=_cmd_simulate)
 
     p = subparsers.add_parser("certify", help="the paper's conditions checked on dense samples (a sampled certificate); certificate.json")
@@ -89,7 +90,7 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     p.add_argument("--epsilon", type=float, help="level ε of E = H_ε (default: the run's estimate)")
     p.add_argument("--settle", type=int, default=4, help="simulated states near x* (and as many in the half box) for the settled equilibrium (0: skip)")
-    _add_no_limits(p)
+    _add_run_options(p)
     p.set_defaults(func=_cmd_certify)
 
     p = subparsers.add_parser("report", help="ROA vs LQR, certificate, the paper's figure and a meshcat replay, into RUN")
@@ -101,7 +102,7 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     p.add_argument("--no-html", action="store_true", help="skip the meshcat replay")
     p.add_argument("--no-radius", action="store_true", help="skip the ROA radii (a few more ROA evaluations of --n states)")
-    _add_no_limits(p)
+    _add_run_options(p)
     p.set_defaults(func=_cmd_report)
 
     p = subparsers.add_parser("robustness", help="success rates under mass mismatch, saturation and noise, Neural IDA-PBC vs LQR")
@@ -114,5 +115,5 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--noise", type=float, default=0.01, metavar="SIGMA", help="measurement noise σ (default 0.01)")
     p.add_argument("--rho", type=float, metavar="R", help="extra damping ρ for Neural IDA-PBC")
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
-    _add_no_limits(p)
+    _add_run_options(p)
     p.set_defaults(func=_cmd_robustness)
