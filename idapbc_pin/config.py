@@ -61,6 +61,13 @@ FIELD_HELP = {
     "largest sublevel set of H_d that stays in the box (the set a certificate with the saturated law can cover); "
     "no effect on robots without limits",
     "face_samples": "samples of the training box's faces per epoch (the level of the `effort` term's sublevel set)",
+    "wrap_angles": "the control law evaluates the networks at the state whose angles (revolute and continuous joints) are "
+    "wrapped to within π of the target, as the LQR baseline does: a pendulum that swings once round is not 2π away "
+    "from upright. Without it the networks see angles far outside the box they were trained on",
+    "bounded_structure": "J_d and R_d see the state clamped to the training box: outside it they keep their values on the "
+    "box's boundary (still skew / positive definite) instead of extrapolating their networks, which made R_d's "
+    "exponential diagonal grow without bound at the speeds a saturated swing reaches. H_d is not clamped (its "
+    "convexity is kept); inside the box nothing changes",
 }
 
 
@@ -94,6 +101,8 @@ class TrainConfig:
     checkpoint_every: int = 50
     effort_term: bool = True
     face_samples: int = 64
+    wrap_angles: bool = True
+    bounded_structure: bool = True
 
     def __post_init__(self):
         checks = [

@@ -59,8 +59,10 @@ def _train(source, dtype: str, out: Path, **system_kwargs) -> ip.Run:
 
 
 def _states(system, n: int = 1000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(q, v): n states of the training box (angles reach past ±π on the default box)."""
+    """(q, v): n states of three times the training box around x*: angles past ±π (the law wraps
+    them) and momenta beyond the box (J_d and R_d keep their boundary values there)."""
     lo, hi = system.domain
+    lo, hi = system.x_star + 3 * (lo - system.x_star), system.x_star + 3 * (hi - system.x_star)
     x = lo + (hi - lo) * np.random.default_rng(seed).random((n, system.n))
     return system.split(x)
 

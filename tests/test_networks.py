@@ -258,6 +258,31 @@ def test_damping_is_positive_definite_even_with_rho_zero(seed, n, width, depth, 
 
 
 @FAST
+@given(seed=seeds, n=dims, anchored=st.booleans(), boxed=st.booleans())
+def test_bounded_structure_keeps_its_boundary_values_outside_the_box_and_stays_skew_and_positive_definite(seed, n, anchored, boxed):
+    """With input_bound = 1 the networks of J_d and R_d see the state clamped to the box x* ± x_scale:
+    outside it they repeat their value at the nearest boundary point; inside nothing changes."""
+    x_star = random_x_star(seed, n)
+    s = torch.exp(torch.randn(n, generator=gen(seed + 9), dtype=f64))
+    kw = dict(x_scale=s, metric=random_metric(seed, n, boxed))
+    J0, R0 = (random_skew(seed, n), random_spd(seed, n)) if anchored else (None, None)
+    J_b = randomise_(InterconnectionNet(x_star, 16, 2, J0=J0, input_bound=1.0, **kw), seed)
+    R_b = randomise_(DampingNet(x_star, 16, 2, R0=R0, input_bound=1.0, **kw), seed)
+    J_free = InterconnectionNet(x_star, 16, 2, J0=J0, **kw)
+    R_free = DampingNet(x_star, 16, 2, R0=R0, **kw)
+    J_free.load_state_dict(J_b.state_dict(), strict=False)
+    R_free.load_state_dict(R_b.state_dict(), strict=False)
+    x = x_star + 4 * s * torch.randn(32, n, generator=gen(seed + 10), dtype=f64)  # mostly outside the box
+    on_box = x_star + ((x - x_star) / s).clamp(-1, 1) * s
+    torch.testing.assert_close(J_b(x), J_free(on_box), rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(R_b(x), R_free(on_box), rtol=1e-12, atol=1e-12)
+    assert torch.equal(J_b(x), -J_b(x).transpose(-1, -2)) and (R_b.min_eig(x) > 0).all()
+    inside = x_star + 0.9 * s * (2 * torch.rand(8, n, generator=gen(seed + 11), dtype=f64) - 1)
+    torch.testing.assert_close(J_b(inside), J_free(inside), rtol=0, atol=0)
+    torch.testing.assert_close(R_b(inside), R_free(inside), rtol=0, atol=0)
+
+
+@FAST
 @given(seed=seeds, n=dims, rho=st.floats(0.0, 10.0), anchored=st.booleans())
 def test_with_rho_adds_exactly_rho_S_and_shares_the_weights(seed, n, rho, anchored):
     x_star = random_x_star(seed, n)

@@ -167,6 +167,23 @@ def test_controller_structure_and_extra_damping():
     assert tau.shape == (20, system.nv) and np.all(tau[:, system.coordinate_names.index("shoulder")] == 0)
 
 
+def test_the_control_law_sees_an_angle_one_turn_away_as_the_same_angle():
+    """Angles enter the law wrapped to within π of x* (as in the LQR baseline): a pendulum that has
+    swung once round gets the torque of the state next to the target, in both run-time paths.
+    Runs trained before the option existed (wrap_angles False) keep their unwrapped law."""
+    system = ip.load_system("acrobot")
+    torch.manual_seed(4)
+    ctrl = Controller(system, build_nets(system, TrainConfig(width=16, depth=2)))
+    x = system.x_star + np.random.default_rng(4).normal(scale=0.3, size=(40, system.n))
+    turned = x + 2 * np.pi * np.array([1.0, -2.0, 0.0, 0.0])
+    np.testing.assert_allclose(ctrl(turned), ctrl(x), rtol=1e-9, atol=1e-9)  # 40 states: torch path
+    np.testing.assert_allclose(ctrl(turned[5]), ctrl(x[5]), rtol=1e-9, atol=1e-9)  # one state: numpy path
+    torch.manual_seed(4)
+    legacy = Controller(system, build_nets(system, TrainConfig(width=16, depth=2, wrap_angles=False)))
+    np.testing.assert_allclose(legacy(x), ctrl(x), rtol=1e-12, atol=1e-12)
+    assert np.abs(legacy(turned) - legacy(x)).max() > 1.0
+
+
 def Controller_(system):
     from idapbc_pin.control.controller import Controller
 

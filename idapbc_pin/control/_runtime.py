@@ -22,6 +22,10 @@ def _np(t: torch.Tensor | None):
     return None if t is None else t.detach().cpu().numpy().copy()
 
 
+def _same(a: torch.Tensor | None, b: torch.Tensor | None) -> bool:
+    return (a is None and b is None) or (a is not None and b is not None and torch.equal(a, b))
+
+
 #: torch activation modules of the networks' MLPs -> `Mlp.activation`.
 _ACTIVATION_OF = {"Tanh": "tanh", "_SoftplusModule": "softplus"}
 
@@ -44,6 +48,8 @@ def snapshot(nets) -> DesiredFlow:
         raise ValueError("snapshot: EnergyNet's ICNN has no affine output term")
     if not (torch.equal(H.x_scale, J.x_scale) and torch.equal(H.x_scale, R.x_scale)):
         raise ValueError("snapshot: H_d, J_d and R_d must share the input scale")
+    if not _same(J.input_bound, R.input_bound):
+        raise ValueError("snapshot: J_d and R_d must share the input bound")
     zero = torch.zeros_like(H.x_star)
     h0, g0 = icnn.value_and_grad(zero)
     return DesiredFlow(
@@ -69,4 +75,5 @@ def snapshot(nets) -> DesiredFlow:
         row_scale=_np(R.row_scale),
         rho=float(R.rho),
         S=_np(R.S),
+        input_bound=_np(J.input_bound),
     )

@@ -8,7 +8,8 @@ G⁻¹, in torch) with the `System` for numpy, float64 use at run time:
 
 Desired closed loop (eq. CLPH): f̃_d = (J_d − R_d)∇H_d. Mismatch (eq. mismatch): μ = −g⊥(f − f̃_d);
 the closed loop is ẋ = f̃_d + ξ with ξ = G⁻¹(0; μ) (Proposition 1). g is constant for every system
-here (g = [0; B]), so gᵀg = BᵀB = I and u = gᵀ(f̃_d − f).
+here (g = [0; B]), so gᵀg = BᵀB = I and u = gᵀ(f̃_d − f). Angles are wrapped to within π of the
+target before the law is evaluated (`IdaPbcNets.wrap`), as the LQR baseline does.
 """
 
 from __future__ import annotations
@@ -61,8 +62,13 @@ class Controller:
         return (x[None], True) if x.ndim == 1 else (x, False)
 
     def __call__(self, x) -> np.ndarray:
-        """u(x) = (gᵀg)⁻¹gᵀ(f̃_d(x) − f(x)): (N, n) -> (N, m) (N·m or N)."""
+        """u(x) = (gᵀg)⁻¹gᵀ(f̃_d(x) − f(x)): (N, n) -> (N, m) (N·m or N).
+
+        The law is evaluated at x* + wrap(x − x*) when the networks wrap angles (`IdaPbcNets.wrap`,
+        `TrainConfig.wrap_angles`): a state one turn away from x* gets the torque of x*'s neighbour.
+        """
         xb, single = self._batch(x)
+        xb = self.nets.wrap(xb)
         f_d = self.flow()(xb) if len(xb) <= RUNTIME_MAX_BATCH else self._np(self.nets.desired_fast(self._t(xb)))
         u = (f_d - self.system.f(xb)) @ self._g_pinv.T  # float64 whatever the networks' dtype
         return u[0] if single else u
@@ -128,8 +134,8 @@ class Controller:
         nets = IdaPbcNets.__new__(IdaPbcNets)
         nn.Module.__init__(nets)
         nets.H, nets.J, nets.R = self.nets.H, self.nets.J, self.nets.R.with_rho(rho)
-        for name, buf in self.nets.named_buffers(recurse=False):
-            nets.register_buffer(name, buf)
+        for name, buf in self.nets._buffers.items():  # None buffers too (angle_mask)
+            nets.register_buffer(name, buf, persistent=name not in self.nets._non_persistent_buffers_set)
         return Controller(self.system, nets)
 
     @property

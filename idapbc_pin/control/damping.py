@@ -48,6 +48,9 @@ class DampingNet(_StateNet):
     out_scale : float
         Multiplies the last layer's initial weights (0: start at R_d ≡ R0 in the anchored form).
     x_scale : Tensor, shape (n,), optional
+    input_bound : float, optional
+        b > 0: the network sees u clamped to [−b, b], so outside that box (b = 1: the training box)
+        it keeps its boundary values; the structure holds for any input.
     metric : Tensor, shape (n,), optional
         s > 0: row i of the network's part of L is multiplied by s_i, so R_d = S L_z L_zᵀ S
         (R_d in box units z = x/s); the anchored diagonal is relative and stays unscaled.
@@ -74,8 +77,9 @@ class DampingNet(_StateNet):
         out_scale: float = 1.0,
         x_scale: Tensor | None = None,
         metric: Tensor | None = None,
+        input_bound: float | None = None,
     ):
-        super().__init__(x_star, x_scale)
+        super().__init__(x_star, x_scale, input_bound)
         fk = _factory(x_star)
         n = self.n
         self.net = _mlp(n, width, depth, n_lower(n), activation, out_scale, fk, out_bias=R0 is None)

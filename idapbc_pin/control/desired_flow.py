@@ -12,7 +12,8 @@ It evaluates the explicit forms of the torch networks (`idapbc_pin.control`), fo
   without box units), `InterconnectionNet.forward`;
 * R_d = L Lᵀ + ρS with L from `DampingNet.cholesky_factor`;
 
-so it equals them to rounding in the networks' dtype (float32 or float64); u = (x − x*)/x_scale.
+so it equals them to rounding in the networks' dtype (float32 or float64); u = (x − x*)/x_scale,
+clamped to [−b, b] for J_d and R_d when the networks were built with an ``input_bound`` b.
 Why numpy at run time: one evaluation is about 60 small operations, 5–10 µs each in torch and 1–2 µs
 in numpy; the layout (stacked input layers, transposed weights, matrices placed by products with
 constant bases) keeps that count low (`benchmarks/bench_controller.py`).
@@ -108,7 +109,7 @@ class Mlp:
 #: Fields that hold one array, or None when the networks' form has no such term.
 _ARRAY_FIELDS = (
     "x_star", "x_scale", "icnn_out", "icnn_h0", "icnn_g0", "icnn_map", "eps", "P",
-    "j0", "j_at_target", "j_metric", "log_d0", "l0", "r_at_target", "row_scale", "rho", "S",
+    "j0", "j_at_target", "j_metric", "log_d0", "l0", "r_at_target", "row_scale", "rho", "S", "input_bound",
 )  # fmt: skip
 #: Fields that hold one array per ICNN layer.
 _LAYER_FIELDS = ("icnn_x", "icnn_b", "icnn_z")
@@ -148,6 +149,7 @@ class DesiredFlow:
     row_scale: np.ndarray | None  # (n(n+1)/2,) (box units)
     rho: float
     S: np.ndarray  # (n, n) damping-injection pattern
+    input_bound: np.ndarray | None = None  # () b: J_d's and R_d's networks see u clamped to [−b, b] (None: unclamped)
     # 0/±1 bases (box metric folded in) that place entries as matrices by one exact product:
     # vec(K) = v @ skew_basis (K skew, v in triu_indices order); vec(L) = (diag, low) @ lower_basis
     skew_basis: np.ndarray = field(init=False, repr=False)  # (n(n−1)/2, n²)
@@ -252,8 +254,10 @@ class DesiredFlow:
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """f̃_d(x) = J_d∇H_d − L(Lᵀ∇H_d) − ρS∇H_d: (N, n) -> (N, n), float64."""
         d = np.asarray(x, dtype=self.dtype) - self.x_star
-        u = d / self.x_scale  # the input of J_d's and R_d's networks, computed once
+        u = d / self.x_scale
         col = self._grad_H(d, u)[:, :, None]
+        if self.input_bound is not None:  # J_d's and R_d's networks see the state clamped to the box
+            u = np.minimum(np.maximum(u, -self.input_bound), self.input_bound)
         L = self._L(u)
         f_d = self._J(u) @ col - L @ (L.transpose(0, 2, 1) @ col)
         if self.rho:

@@ -33,6 +33,9 @@ class InterconnectionNet(_StateNet):
     out_scale : float
         Multiplies the last layer's initial weights (0: start at J_d ≡ J0, resp. ≡ skew(bias=0)).
     x_scale : Tensor, shape (n,), optional
+    input_bound : float, optional
+        b > 0: the network sees u clamped to [−b, b], so outside that box (b = 1: the training box)
+        it keeps its boundary values; the structure holds for any input.
     metric : Tensor, shape (n,), optional
         s > 0: the network's skew part is S skew(·) S, S = diag(s) (J_d in box units z = x/s).
     """
@@ -48,8 +51,9 @@ class InterconnectionNet(_StateNet):
         out_scale: float = 1.0,
         x_scale: Tensor | None = None,
         metric: Tensor | None = None,
+        input_bound: float | None = None,
     ):
-        super().__init__(x_star, x_scale)
+        super().__init__(x_star, x_scale, input_bound)
         n = self.n
         if n < 2:
             raise ValueError("InterconnectionNet needs n ≥ 2")

@@ -140,9 +140,13 @@ def _mlp(
 
 
 class _StateNet(nn.Module):
-    """Holds x* (n,) and x_scale (n,); maps x to the inner input u = (x - x*)/x_scale."""
+    """Holds x* (n,) and x_scale (n,); maps x to the inner input u = (x - x*)/x_scale.
 
-    def __init__(self, x_star: Tensor, x_scale: Tensor | None):
+    ``input_bound`` b > 0 clamps u to [−b, b] (b = 1: the training box when x_scale holds its
+    half-widths), so the network keeps its boundary values outside instead of extrapolating.
+    """
+
+    def __init__(self, x_star: Tensor, x_scale: Tensor | None, input_bound: float | None = None):
         super().__init__()
         fk = _factory(x_star)
         n = x_star.shape[0]
@@ -152,8 +156,12 @@ class _StateNet(nn.Module):
         if not (scale > 0).all():
             raise ValueError("x_scale must be positive")
         self.register_buffer("x_scale", scale)
+        if input_bound is not None and not input_bound > 0:
+            raise ValueError(f"input_bound must be > 0, got {input_bound}")
+        self.register_buffer("input_bound", None if input_bound is None else torch.tensor(float(input_bound), **fk))
 
     def _u(self, x: Tensor) -> Tensor:
         if x.shape[-1] != self.n:
             raise ValueError(f"expected states with last dimension n={self.n}, got shape {tuple(x.shape)}")
-        return (x - self.x_star) / self.x_scale
+        u = (x - self.x_star) / self.x_scale
+        return u if self.input_bound is None else u.clamp(-self.input_bound, self.input_bound)

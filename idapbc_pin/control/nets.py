@@ -26,6 +26,7 @@ from torch import Tensor, nn
 
 from ..config import TrainConfig
 from ..model import System
+from ..model.angles import wrap_angles
 from .anchor import anchor_settings, half_widths, local_rate, system_anchor
 from .damping import DampingNet
 from .energy import EnergyNet
@@ -38,10 +39,11 @@ __all__ = ["IdaPbcNets", "build_nets"]
 class IdaPbcNets(nn.Module):
     """H_d, J_d, R_d and the system's constant input structure, in one torch module.
 
-    Buffers: g (n, m), g_perp (n − m, n), G_inv (n, n), x_star (n,), and the decay rate λ.
+    Buffers: g (n, m), g_perp (n − m, n), G_inv (n, n), x_star (n,), the decay rate λ, and
+    ``angle_mask`` (n,) bool, True on the angles the control law wraps (`wrap`), or None.
     """
 
-    def __init__(self, H: EnergyNet, J: InterconnectionNet, R: DampingNet, g, g_perp, decay_rate: float):
+    def __init__(self, H: EnergyNet, J: InterconnectionNet, R: DampingNet, g, g_perp, decay_rate: float, angle_mask=None):
         super().__init__()
         self.H, self.J, self.R = H, J, R
         like = H.x_star
@@ -53,10 +55,24 @@ class IdaPbcNets(nn.Module):
         g = np.asarray(g, dtype=np.float64)
         self.register_buffer("g_pinv", as_t(np.linalg.solve(g.T @ g, g.T)), persistent=False)  # (gᵀg)⁻¹gᵀ
         self.register_buffer("decay_rate", torch.tensor(float(decay_rate), dtype=like.dtype, device=like.device))
+        mask = None if angle_mask is None or not np.any(angle_mask) else torch.as_tensor(np.asarray(angle_mask, bool), device=like.device)
+        self.register_buffer("angle_mask", mask)
 
     @property
     def x_star(self) -> Tensor:
         return self.H.x_star
+
+    def wrap(self, x: np.ndarray) -> np.ndarray:
+        """x* + wrap(x − x*): (N, n) -> (N, n) float64, the angles brought to within π of the target.
+
+        The control law's input (`Controller`): f is 2π-periodic in every angle, the networks are
+        not, and were trained on the box around x*. Identity when ``angle_mask`` is None.
+        """
+        x = np.asarray(x, dtype=np.float64)
+        if self.angle_mask is None:
+            return x
+        x_star = self.x_star.detach().to("cpu", torch.float64).numpy()
+        return x_star + wrap_angles(x - x_star, self.angle_mask.cpu().numpy())
 
     @property
     def m(self) -> int:
@@ -120,7 +136,7 @@ def build_nets(system: System, config: TrainConfig) -> IdaPbcNets:
     actuated = torch.as_tensor(system.actuated_mask, device=device)
     kw = dict(width=config.width, depth=config.depth, x_scale=x_scale)
     scaling, anchor_q = anchor_settings(system, config)
-    metric = dict(metric=x_scale if scaling == "box" else None)
+    metric = dict(metric=x_scale if scaling == "box" else None, input_bound=1.0 if config.bounded_structure else None)
     if config.form == "anchored":
         anchor = system_anchor(system, config, (scaling, anchor_q))
         W = half[:, None] * anchor.P if config.energy_input == "anchor" else None  # u = S P δ
@@ -133,4 +149,5 @@ def build_nets(system: System, config: TrainConfig) -> IdaPbcNets:
         J = InterconnectionNet(x_star, **metric, **kw)
         R = DampingNet(x_star, rho=config.rho, pattern=config.damping, actuated=actuated, **metric, **kw)
         decay = config.decay_rate if config.decay_rate >= 0 else 0.5
-    return IdaPbcNets(H, J, R, system.g(system.x_star), system.g_perp(system.x_star), decay)
+    wrap = system.angle_mask if config.wrap_angles else None
+    return IdaPbcNets(H, J, R, system.g(system.x_star), system.g_perp(system.x_star), decay, wrap)

@@ -8,6 +8,7 @@
 q holds one coordinate per joint in JOINTS order (rad or m; a continuous joint's angle itself, not
 its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde_u, g = [0; B]):
 
+    q ← q* + wrap(q − q*) on the angles listed in controller.json's "wrap" (to within π of the target)
     x = (q, p), p = M(q) v;   f(x) = (v, C(q, v)ᵀv − ∇U(q) − D v)   (Pinocchio on robot.urdf)
     u = (BᵀB)⁻¹Bᵀ (f̃_d(x) − f(x))_p;   u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
@@ -58,6 +59,8 @@ class ExportedController:
         self.effort = np.array([np.inf if e is None else e for e in meta["effort"]], dtype=np.float64)  # (m,)
         self.damping = np.array(meta["damping"], dtype=np.float64)  # (nv,)
         self.x_star = np.array(meta["x_star"], dtype=np.float64)  # (2 nv,)
+        wrap = meta.get("wrap")  # (2 nv,) bool or null; only its q half can be True
+        self.wrap = np.zeros(len(self.joints), bool) if wrap is None else np.array(wrap, bool)[: len(self.joints)]
         self.flow = _load_sibling(directory, "desired_flow").load_flow(directory / meta["weights"])
         self.model = pin.buildModelFromUrdf(str(directory / meta["urdf"]))
         self.data = self.model.createData()
@@ -98,6 +101,10 @@ class ExportedController:
 
     def control(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """u = (gᵀg)⁻¹gᵀ(f̃_d − f) = (BᵀB)⁻¹Bᵀ(f̃_d − f)_p before saturation: (N, nv) ×2 -> (N, m), N·m or N."""
+        if self.wrap.any():
+            q = q.copy()
+            q_star = self.x_star[: self.nv][self.wrap]
+            q[:, self.wrap] = q_star + np.pi - np.mod(np.pi - (q[:, self.wrap] - q_star), 2 * np.pi)
         p, p_dot = self.momentum_and_drift(q, v)
         f_d = self.flow(np.concatenate([q, p], axis=1))
         return (f_d[:, self.nv :] - p_dot) @ self.B_pinv_T

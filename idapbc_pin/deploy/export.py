@@ -74,6 +74,7 @@ def _controller_record(run, flow, onnx: bool) -> dict:
         "effort": system.effort,  # inf -> null: no limit
         "damping": [j.damping for j in system.joints],
         "x_star": system.x_star,
+        "wrap": None if run.nets.angle_mask is None else run.nets.angle_mask.cpu().numpy().tolist(),  # angles wrapped to within π of x*
         "state_names": list(system.state_names),
         "dtype": str(flow.dtype),
         "urdf": "robot.urdf",

@@ -57,7 +57,7 @@ class _MlpGraph(nn.Module):
 #: `DesiredFlow` fields the graph holds as buffers (besides ρ and the per-layer ICNN weights).
 _FIELDS = (
     "x_star", "x_scale", "icnn_out", "icnn_h0", "icnn_g0", "icnn_map", "eps", "P",
-    "j0", "j_at_target", "log_d0", "l0", "r_at_target", "row_scale", "S", "skew_basis", "lower_basis",
+    "j0", "j_at_target", "log_d0", "l0", "r_at_target", "row_scale", "S", "skew_basis", "lower_basis", "input_bound",
 )  # fmt: skip
 
 
@@ -129,6 +129,8 @@ class FlowGraph(nn.Module):
         d = x - self.x_star
         u = d / self.x_scale
         col = self._grad_H(d, u).unsqueeze(-1)
+        if self.input_bound is not None:  # J_d's and R_d's networks see the state clamped to the box
+            u = torch.minimum(torch.maximum(u, -self.input_bound), self.input_bound)
         L = self._L(u)
         f_d = self._J(u) @ col - L @ (L.transpose(1, 2) @ col)
         if self.damped:

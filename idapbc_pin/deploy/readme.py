@@ -36,12 +36,15 @@ _BODY = """\
 With q the joint positions (one number per joint, order below; a continuous joint's angle itself,
 not its cos/sin) and v the joint velocities:
 
+    q    ← q* + wrap(q − q*)  on the angles of controller.json's "wrap" (to within π of q*)
     x    = (q, p),  p = M(q) v                                    (state, n = {n})
     f(x) = (v, C(q, v)ᵀ v − ∇U(q) − D v)                         (open-loop drift, Pinocchio)
     f̃_d  = (J_d − R_d) ∇H_d (x)                                   (learned, desired_flow / ONNX)
     u    = (BᵀB)⁻¹Bᵀ [f̃_d − f]_p,   u ← clip(u, −effort, effort),   τ = B u
 
-`[·]_p` is the momentum half (last {nv} entries). Target x* = {x_star}.
+`[·]_p` is the momentum half (last {nv} entries). Target x* = {x_star}. wrap(a) = a − 2π·round(a/2π):
+a pendulum one turn away from the target is at the target; f is periodic in the angles, the learned
+f̃_d is not, so feed the ONNX graph the wrapped state too.
 
 {joints}
 
