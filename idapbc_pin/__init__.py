@@ -24,6 +24,7 @@ from .reporting.report import figure, report
 from .evaluation.robustness import perturbed_system, robustness_table
 from .control.baseline import LQRController
 from .sim.integrate import simulate
+from .sim.mujoco_plant import mujoco_judge
 from .sim.radius import roa_radius
 from .sim.roa import roa
 from .model import System, load_system
@@ -45,6 +46,7 @@ __all__ = [
     "figure",
     "load_run",
     "load_system",
+    "mujoco_judge",
     "perturbed_system",
     "report",
     "robustness_table",

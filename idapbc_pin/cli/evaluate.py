@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..certificate.certify import certify
 from ..errors import IdapbcError
-from ..evaluation.closed_loop import simulate_run
+from ..evaluation.closed_loop import JUDGES, simulate_run
 from ..evaluation.robustness import default_conditions, robustness_table
 from ..reporting.report import report
 from ..training.run import load_run
@@ -29,6 +29,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     result = simulate_run(
         _run(args), n=args.n, T=args.T, dt=args.dt, x0=x0, rho=args.rho, mismatch=args.mismatch,
         saturation=args.saturation, noise=args.noise, seed=args.seed, box=args.box, limits=not args.no_limits, radius=not args.no_radius,
+        judge=args.judge,
     )
     print(result.table())
     return 0
@@ -81,6 +82,8 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--noise", type=float, default=0.0, metavar="SIGMA", help="Gaussian measurement noise σ on (q, v) (rad, m, rad/s, m/s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the states and the noise (default 0)")
     p.add_argument("--no-radius", action="store_true", help="skip the ROA radii (a few more ROA evaluations of --n states)")
+    p.add_argument("--judge", choices=JUDGES, default="pinocchio",
+                   help="engine of the true plant for both controllers (default pinocchio; mujoco needs `pip install mujoco`, URDF robots only)")
     _add_run_options(p)
     p.set_defaults(func=_cmd_simulate)
 

@@ -1,6 +1,7 @@
 """`simulate_run`: a run's controller next to LQR from the same states, under optional conditions
 (mismatch of the judge plant, saturation, measurement noise), with the actuators' effort limits
-applied to both unless lifted; the ``idapbc-pin simulate`` command.
+applied to both unless lifted, judged by Pinocchio or (``judge="mujoco"``) by MuJoCo; the
+``idapbc-pin simulate`` command.
 
 Writes ``simulation.json`` (settings, scores and both ROA radii under the same conditions) and
 ``simulation.png`` (the figure's panels for the first few states, Neural IDA-PBC) into the run
@@ -19,6 +20,7 @@ from ..errors import IdapbcError
 from ..reporting.figure_data import figure_data, horizon
 from ..reporting.plot import plot, save_png
 from ..sim.limits import input_limits
+from ..sim.mujoco_plant import mujoco_judge
 from ..sim.radius import RadiusResult, roa_radius
 from ..sim.roa import RoaResult, score
 from ..sim.states import evaluation_box, initial_states, uniform_states
@@ -26,7 +28,10 @@ from ..sim.trajectory import Trajectory
 from ..training.run import resolve_run
 from .robustness import MeasuredController, parse_mismatch, perturbed_system
 
-__all__ = ["SimulationResult", "simulate_run"]
+__all__ = ["JUDGES", "SimulationResult", "simulate_run"]
+
+#: Engines that can integrate the true plant: Pinocchio (the system's own plant) or MuJoCo.
+JUDGES = ("pinocchio", "mujoco")
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,7 +51,7 @@ class SimulationResult:
             conds.append(f"|u| ≤ {s['saturation']:g}")
         if s.get("noise"):
             conds.append(f"noise σ = {s['noise']:g}")
-        lines = [self.roa.table()]
+        lines = [self.roa.table(), f"judge: {s.get('judge', 'pinocchio')}"]
         if self.radius is not None:
             lines.append(self.radius.line())
         if conds:
@@ -78,6 +83,14 @@ def _start_states(system, n, x0, box: str, seed: int):
         return uniform_states(system, int(n), box, seed), box, evaluation_box(system, box)
     x0 = initial_states(system, x0, 0, seed)
     return x0, "custom", (x0.min(axis=0), x0.max(axis=0))
+
+
+def _judged(nominal, judge: str, scales: dict):
+    """The true plant: `nominal`, or its MuJoCo twin (`mujoco_judge`), then scaled by `scales`."""
+    if judge not in JUDGES:
+        raise IdapbcError(f"judge must be one of {', '.join(JUDGES)}, got {judge!r}. Fix: --judge pinocchio or --judge mujoco.")
+    truth = mujoco_judge(nominal) if judge == "mujoco" else nominal
+    return perturbed_system(truth, **scales) if scales else truth
 
 
 def _check_conditions(saturation, noise, rho) -> None:
@@ -133,6 +146,7 @@ def simulate_run(
     n_figure: int = 4,
     limits: bool = True,
     radius: bool = True,
+    judge: str = "pinocchio",
 ) -> SimulationResult:
     """Closed loop of a run's controller next to LQR from the same states, under optional conditions.
 
@@ -151,6 +165,8 @@ def simulate_run(
     limits : apply the system's effort limits to both controllers (False lifts them).
     radius : also find both ROA radii under the same conditions, `n` states per scale (the
         rollouts from the domain or half box reused); False skips them, and so does a given `x0`.
+    judge : ``"pinocchio"`` (the system's plant) or ``"mujoco"`` (`mujoco_judge`: MuJoCo loads the
+        same URDF; no mismatch, and no built-in analytic systems).
     """
     run = resolve_run(run)
     nominal = run.system
@@ -158,9 +174,9 @@ def simulate_run(
     x0, box_name, bounds = _start_states(nominal, n, x0, box, seed)
     _check_conditions(saturation, noise, rho)
     scales = parse_mismatch(mismatch)
-    plant = perturbed_system(nominal, **scales) if scales else nominal
+    plant = _judged(nominal, judge, scales)
     nida = run.controller if rho is None else run.controller.with_damping(rho)
-    wrap = bool(scales) or noise > 0
+    wrap = plant is not nominal or noise > 0
     controllers = {
         "NIDA-PBC": MeasuredController(nida, plant=plant, model=nominal, noise=noise, seed=seed) if wrap else nida,
         "LQR": MeasuredController(LQRController(nominal), plant=plant, model=nominal, noise=noise, seed=seed) if wrap else LQRController(nominal),
@@ -171,6 +187,6 @@ def simulate_run(
         known = {1.0: res} if box_name == "domain" else {0.5: res}
         found = roa_radius(plant, controllers, n=int(n), seed=seed, T=T, dt=dt, known=known, saturation=saturation, limits=limits)
     settings = {"n": int(x0.shape[0]), "T": T, "dt": dt, "seed": seed, "box": box_name, "rho": float(nida.rho),
-                "mismatch": scales, "saturation": saturation, "noise": noise, "limits": res.limits.to_json()}
+                "mismatch": scales, "saturation": saturation, "noise": noise, "limits": res.limits.to_json(), "judge": judge}
     json_path, fig_path = _write(run, res, trajs, settings, x0, nida, n_figure, found) if write else (None, None)
     return SimulationResult(res, settings, json_path, fig_path, found)

@@ -4,6 +4,7 @@ One concept per module, in the order a rollout uses them:
 
 * `states`: evaluation boxes around x* and seeded uniform initial states.
 * `judge`: the true plant in (q, v) (Pinocchio's forward dynamics, or the closed form).
+* `mujoco_plant`: `mujoco_judge`, the same system judged by MuJoCo (an independent engine, optional).
 * `limits`: the input bound a rollout applies (effort limits, saturation), `input_limits`.
 * `integrate`: the closed-loop vector field, RK4 / RK45 steps, `simulate`.
 * `trajectory`: `Trajectory`, what `simulate` returns.
