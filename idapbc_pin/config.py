@@ -28,9 +28,14 @@ FIELD_HELP = {
     "alpha": "adaptive-weight update rate α (paper: 0.01)",
     "form": "'anchored': networks pinned to the exact LQR solution at x* (locally exponentially stable by "
     "construction); 'free': the paper's free form (Bregman-shifted ICNN, skew NN, L Lᵀ + ρS)",
-    "anchor_q": "state weight of the LQR anchor, Q = anchor_q·I (R = I; in box units with scaling 'box'); larger values "
+    "anchor_q": "state weight of the LQR anchor, Q = anchor_q·I (R = I; see `anchor_weight` for its units); larger values "
     "give a faster local loop (anchored form only). 0 = automatic: the largest of 10, 1, 0.1, 0.01 whose anchor has "
-    "no pole faster than 50 1/s (|λ|·dt ≤ 0.5 for the 10 ms RK4 judge of `simulate`)",
+    "no pole faster than 15 1/s (a stiffer loop asks for torques the actuators saturate on: the Furuta pendulum's "
+    "17 1/s anchor gave 78 % of the half box under its 10 N·m limit, its 13 1/s anchor 88 %)",
+    "anchor_weight": "units of the anchor's LQR state weight: 'physical' Q = anchor_q·I in the state's own units (the LQR "
+    "baseline's weight when anchor_q = 1), whatever `scaling` is; 'box' Q = anchor_q·diag(1/s²) under box scaling, "
+    "which weights the light links' tiny momenta by 1/s² ≈ 1e4 and leaves a 0.5 1/s pole (settling 5× slower than LQR "
+    "on the Furuta pendulum and the reaction wheel)",
     "anchor_p": "Hessian P of H_d at x* (anchored form): 'box' solves A_clᵀP + PA_cl = −diag(1/half-width²) of the "
     "training box (well conditioned in box units), 'lyapunov' the same with −I, 'riccati' takes the Riccati solution, "
     "'fit' the Lyapunov matrix (of the same LQR loop) whose ellipsoid fills the largest share of the training box",
@@ -85,6 +90,7 @@ class TrainConfig:
     form: str = "anchored"
     anchor_q: float = 0.0
     anchor_p: str = "riccati"
+    anchor_weight: str = "physical"
     scaling: str = "auto"
     energy_input: str = "anchor"
     damping: str = "full"
@@ -116,6 +122,7 @@ class TrainConfig:
             (self.damping in ("full", "actuated"), "damping must be 'full' or 'actuated'"),
             (self.anchor_q >= 0, f"anchor_q must be > 0 (or 0 = automatic), got {self.anchor_q}"),
             (self.anchor_p in ("box", "lyapunov", "riccati", "fit"), "anchor_p must be 'box', 'lyapunov', 'riccati' or 'fit'"),
+            (self.anchor_weight in ("physical", "box"), "anchor_weight must be 'physical' or 'box'"),
             (self.scaling in ("auto", "none", "box"), "scaling must be 'auto', 'none' or 'box'"),
             (self.energy_input in ("box", "anchor"), "energy_input must be 'box' or 'anchor'"),
             (self.rho >= 0, f"rho (ρ) must be ≥ 0, got {self.rho}"),

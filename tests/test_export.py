@@ -176,13 +176,20 @@ def test_continuous_joint_maps_like_the_library(runs, tmp_path):
     _close(out["batched"], _expected_torque(system, run.controller, q, v), 1e-9)
 
 
-@pytest.mark.parametrize("name, tol", [("pendubot", 1e-9), ("cartpole", 2e-6)])
-def test_onnx_equals_the_desired_flow(runs, limited_pendubot, tmp_path, name, tol):
+@pytest.mark.parametrize("name", ["pendubot", "cartpole"])
+def test_onnx_equals_the_desired_flow(runs, limited_pendubot, tmp_path, name):
     """onnxruntime on desired_flow.onnx = f̃_d(x) (autograd path) on 1000 states, N dynamic.
 
-    Float64 networks agree to rounding (measured 2e-14); float32 ones to float32 rounding of both
-    sides (measured 9e-7; the library's own numpy path is 7e-7 from the autograd one).
+    Float64 networks: to 1e-9 of the library (measured 2e-14). Float32 networks: both sides round in
+    float32, so each is judged against the same weights evaluated in float64, and the graph must be
+    as accurate as the library's own float32 path (within 2e-6 of the scale, or within 1.5× the
+    library's error where the anchor's f̃_d = (J_d − R_d)∇H_d cancels larger terms: the zoo cartpole
+    with the physical anchor weight measured 5.7e-6 for the graph, 7.0e-6 for the library).
     """
+    import copy
+
+    from idapbc_pin.control.controller import Controller
+
     ort = pytest.importorskip("onnxruntime")
     run = runs[name]
     folder = limited_pendubot[1] if name == "pendubot" else ip.export(run, tmp_path / "export")
@@ -192,8 +199,17 @@ def test_onnx_equals_the_desired_flow(runs, limited_pendubot, tmp_path, name, to
     f_d = run.controller.f_d(x)
     out = session.run(["f_d"], {"x": x.astype(dtype)})[0]
     assert out.dtype == dtype
-    _close(out, f_d, tol)
-    _close(session.run(["f_d"], {"x": x[:1].astype(dtype)})[0], f_d[:1], tol)
+    if dtype == np.float64:
+        _close(out, f_d, 1e-9)
+        _close(session.run(["f_d"], {"x": x[:1].astype(dtype)})[0], f_d[:1], 1e-9)
+        return
+    exact = Controller(run.system, copy.deepcopy(run.controller.nets).double()).f_d(x)
+    scale = np.abs(exact).max()
+    library_error = np.abs(f_d - exact).max() / scale
+    tol = max(2e-6, 1.5 * library_error)
+    _close(out, exact, tol)
+    _close(session.run(["f_d"], {"x": x[:1].astype(dtype)})[0], exact[:1], tol)
+    assert library_error < 1e-4  # float32 rounding, not a different function
 
 
 def test_onnx_free_form_with_extra_damping():

@@ -316,11 +316,11 @@ def test_the_stiffness_note_blames_the_plant_when_its_own_pole_is_that_fast():
 @pytest.mark.parametrize(
     "name, scaling, anchor_q",
     [("paper_cartpole", "none", 10.0), ("paper_double_pendulum", "none", 10.0), ("pendubot", "none", 10.0),
-     ("cartpole", "box", 10.0), ("furuta", "box", 0.1)],
+     ("cartpole", "box", 10.0), ("furuta", "box", 1.0), ("reaction_wheel", "box", 0.01)],
 )
 def test_automatic_units_and_anchor_weight(name, scaling, anchor_q):
     """Box units where the box's half-widths span > 20× (light links), and the largest anchor weight whose
-    LQR loop has no pole faster than 50 1/s; explicit values are kept as given."""
+    LQR loop has no pole faster than 15 1/s; explicit values are kept as given."""
     from idapbc_pin.control.anchor import AUTO_MAX_POLE, anchor_settings
     from idapbc_pin.control.anchor import half_widths as _half_widths
     from idapbc_pin.control.anchor import system_anchor as _anchor
@@ -343,7 +343,7 @@ def test_the_run_directory_holds_the_resolved_units_and_old_runs_load_in_physica
     system = ip.load_system("furuta")
     run = train(system, TrainConfig.fast(epochs=2, width=8, depth=1, samples=16), out=tmp_path / "new", progress=False)
     saved = json.loads((run.path / "config.json").read_text())
-    assert (saved["scaling"], saved["anchor_q"]) == ("box", 0.1) and run.config.scaling == "box"
+    assert (saved["scaling"], saved["anchor_q"], saved["anchor_weight"]) == ("box", 1.0, "physical") and run.config.scaling == "box"
     assert ip.load_run(run.path).controller(system.x_star[None]).shape == (1, 1)
     legacy = train(system, TrainConfig.fast(epochs=2, width=8, depth=1, samples=16, scaling="none", anchor_q=10.0, energy_input="box"), out=tmp_path / "old", progress=False)
     raw = json.loads((legacy.path / "config.json").read_text())
@@ -352,3 +352,31 @@ def test_the_run_directory_holds_the_resolved_units_and_old_runs_load_in_physica
     loaded = ip.load_run(legacy.path, checkpoint="last")  # the final weights (best.pt holds the best-scoring ones)
     assert (loaded.config.scaling, loaded.config.energy_input) == ("none", "box")
     np.testing.assert_allclose(loaded.controller(system.x_star[None] + 0.1), legacy.controller(system.x_star[None] + 0.1))
+
+
+def test_the_anchor_weight_is_the_lqr_baselines_in_physical_units_and_old_box_runs_keep_theirs(tmp_path):
+    """Under box scaling the anchor's linearisation is the LQR loop with Q = anchor_q·I in physical units
+    (with anchor_q = 1 exactly the baseline's gain K); a run written before `anchor_weight` existed
+    was anchored with Q = anchor_q·diag(1/s²) and loads that way."""
+    import json
+
+    from idapbc_pin.control.anchor import half_widths, system_anchor
+    from idapbc_pin.control.baseline import LQRController
+
+    system = ip.load_system("furuta")
+    A, B = system.linearization()
+    K = LQRController(system).K
+    config = TrainConfig.fast(scaling="box", anchor_q=1.0)
+    np.testing.assert_allclose(system_anchor(system, config).A_cl, A - B @ K, atol=1e-8)
+    old = config.replace(anchor_weight="box")
+    assert np.abs(np.linalg.eigvals(system_anchor(system, old).A_cl) - np.linalg.eigvals(A - B @ K)[:, None]).min(0).max() > 0.1
+    assert half_widths(system).max() > 20 * half_widths(system).min()
+
+    legacy = train(system, TrainConfig.fast(epochs=2, width=8, depth=1, samples=16, anchor_weight="box"), out=tmp_path / "old", progress=False)
+    raw = json.loads((legacy.path / "config.json").read_text())
+    del raw["anchor_weight"]  # written before the option existed
+    (legacy.path / "config.json").write_text(json.dumps(raw))
+    loaded = ip.load_run(legacy.path, checkpoint="last")
+    assert loaded.config.anchor_weight == "box"
+    x = system.x_star[None] + 0.05
+    np.testing.assert_allclose(loaded.controller(x), legacy.controller(x))

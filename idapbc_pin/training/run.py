@@ -51,7 +51,7 @@ CHECKPOINTS = ("best", "last")
 #: Values of options that runs written before the option existed trained with (their config.json
 #: lacks the key): physical units, H_d's ICNN fed the box-normalised state, no `effort` term, angles
 #: not wrapped, J_d and R_d extrapolated beyond the box.
-LEGACY_DEFAULTS = {"scaling": "none", "energy_input": "box", "effort_term": False, "wrap_angles": False, "bounded_structure": False}
+LEGACY_DEFAULTS = {"anchor_weight": "box", "scaling": "none", "energy_input": "box", "effort_term": False, "wrap_angles": False, "bounded_structure": False}
 
 
 @dataclass
