@@ -49,7 +49,7 @@ __all__ = [
 CHECKPOINTS = ("best", "last")
 
 #: Values of options that runs written before the option existed trained with (their config.json
-#: lacks the key): physical units, H_d's ICNN fed the box-normalised state, no `effort` term, angles
+#: lacks the key): the box-unit anchor weight diag(1/s²), physical units, H_d's ICNN fed the box-normalised state, no `effort` term, angles
 #: not wrapped, J_d and R_d extrapolated beyond the box.
 LEGACY_DEFAULTS = {"anchor_weight": "box", "scaling": "none", "energy_input": "box", "effort_term": False, "wrap_angles": False, "bounded_structure": False}
 
