@@ -82,6 +82,8 @@ def test_committed_pipelines_are_valid():
         )
     smoke = load_pipeline(SMOKE)
     assert len(smoke.jobs) == 2
+    weak = load_pipeline(ROOT / "pipelines" / "weak_actuators.toml")
+    assert {job.name: job.effort for job in weak.jobs} == {"pendubot_8Nm": {"shoulder": 8.0}, "acrobot_5Nm": {"elbow": 5.0}}
 
 
 def test_smoke_flag_shrinks_every_job_and_changes_its_fingerprint():
@@ -105,6 +107,9 @@ BAD_JOBS = [
     ('name = "target"\nsource = "acrobot"\ntarget = { elbow = 0.5 }\n', "not an assignable equilibrium"),
     ('name = "roa"\nsource = "acrobot"\nevaluate = { n = 0 }\n', "evaluate.n"),
     ('name = "lift"\nsource = "acrobot"\nevaluate = { limits = "no" }\n', "evaluate.limits must be true or false"),
+    ('name = "weak"\nsource = "pendubot"\neffort = { elbow = 8.0 }\n', "elbow"),
+    ('name = "zero"\nsource = "pendubot"\neffort = { shoulder = 0.0 }\n', "must be > 0"),
+    ('name = "text"\nsource = "pendubot"\neffort = { shoulder = "8" }\n', "effort.shoulder must be a number"),
 ]
 
 
@@ -113,6 +118,17 @@ def test_a_job_may_lift_the_torque_limits_and_that_changes_its_fingerprint(tmp_p
     a, b = load_pipeline(path).jobs
     assert a.evaluate["limits"] is True and b.evaluate["limits"] is False
     assert a.fingerprint() != b.fingerprint()
+
+
+def test_a_job_may_set_the_actuator_limits_and_they_reach_the_system_it_trains(tmp_path):
+    from idapbc_pin.model import load_system
+
+    path = _pipeline(tmp_path, '[[job]]\nname = "a"\nsource = "pendubot"\n\n[[job]]\nname = "b"\nsource = "pendubot"\neffort = { shoulder = 8 }\n')
+    a, b = load_pipeline(path).jobs
+    assert a.effort is None and b.effort == {"shoulder": 8.0}
+    assert a.fingerprint() != b.fingerprint()
+    urdf_limit = load_system(a.source_path, **a.system_arguments()).effort
+    assert urdf_limit[0] != 8.0 and load_system(b.source_path, **b.system_arguments()).effort[0] == 8.0
 
 
 @pytest.mark.parametrize("entry,message", BAD_JOBS, ids=[m.split()[0].strip("'") + str(i) for i, (_, m) in enumerate(BAD_JOBS)])

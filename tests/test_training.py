@@ -131,6 +131,9 @@ def test_short_training_of_each_paper_benchmark_decreases_the_loss(name, tmp_pat
     loaded = load_run(run.path, checkpoint="last")
     x = system.x_star + 0.1
     np.testing.assert_allclose(loaded.controller(x), run.controller(x), rtol=1e-6)
+    default = load_run(run.path)  # every command on a RUN uses the weights train returned and evaluated
+    assert default.checkpoint == run.checkpoint == "last"
+    np.testing.assert_allclose(default.controller(x), run.controller(x), rtol=1e-6)
     assert json.loads((run.path / "summary.json").read_text())["status"] == "finished"
 
 

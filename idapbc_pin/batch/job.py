@@ -130,7 +130,7 @@ def _stages(job: Job, workdir: Path, record: dict):
         timings[name] = round(time.perf_counter() - t0, 3)
 
     with stage("load"):
-        system = load_system(job.source_path, actuated=job.actuated, target=job.target, domain=job.domain)
+        system = load_system(job.source_path, **job.system_arguments())
         config = job.train_config()
         scaling, anchor_q = anchor_settings(system, config)  # as train resolves them, so a rerun finds its run
         config = config.replace(scaling=scaling, anchor_q=anchor_q)

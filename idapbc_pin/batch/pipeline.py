@@ -19,6 +19,8 @@ Format (``pipelines/*.toml``)::
     actuated = ["elbow"]       # optional: default from the zoo entry
     target = { elbow = 0.0 }   # optional: joint = value (rad or m)
     domain = { shoulder = [-1.0, 1.0], p_shoulder = [-2.0, 2.0] }   # optional: NAME = [lo, hi]
+    effort = { elbow = 8.0 }   # optional: actuator limits (N·m or N) over the URDF's <limit effort>
+                               # (inf lifts one); the limits apply to training and evaluation
 
 Every job is checked before the first one starts: unknown keys, wrong types, the system itself
 (`load_system`: unknown source, unknown joint, a target that is not an equilibrium, an empty domain)
@@ -43,7 +45,7 @@ __all__ = ["Job", "Pipeline", "PipelineError", "load_pipeline", "SMOKE_TRAIN", "
 
 PRESETS = ("paper", "fast")
 TOP_KEYS = ("description", "defaults", "job")
-JOB_KEYS = ("name", "source", "actuated", "target", "domain", "preset", "train", "evaluate", "certify", "figure", "view", "description")
+JOB_KEYS = ("name", "source", "actuated", "target", "domain", "effort", "preset", "train", "evaluate", "certify", "figure", "view", "description")
 EVALUATE_DEFAULTS = {"n": 200, "T": 20.0, "seed": 0, "limits": True}
 CERTIFY_DEFAULTS = {"n": 20000, "settle": 4, "T": 20.0}
 FIGURE_DEFAULTS = {"n": 4, "T": 20.0}
@@ -80,7 +82,7 @@ class Job:
     name : unique name, also the job's directory name.
     source : the source as written in the pipeline; `source_path` is what `load_system` gets
         (URDF paths made absolute, relative to the pipeline file's folder).
-    actuated, target, domain : `load_system` arguments (None: the source's defaults).
+    actuated, target, domain, effort : `load_system` arguments (None: the source's defaults).
     preset : ``"paper"`` or ``"fast"``; `train` the overrides as written; `config` the resolved
         `TrainConfig` as a dict (smoke shrinking included).
     evaluate : {"n", "T", "seed"} of the ROA; certify : {"n", "settle", "T"} of `certify`;
@@ -108,6 +110,11 @@ class Job:
     system_name: str = ""
     actuated_resolved: tuple[str, ...] = ()
     description: str = ""
+    effort: dict | None = None
+
+    def system_arguments(self) -> dict:
+        """The keyword arguments of `load_system` for this job (after `source_path`)."""
+        return {"actuated": self.actuated, "target": self.target, "domain": self.domain, "effort": self.effort}
 
     def train_config(self) -> TrainConfig:
         return TrainConfig.from_dict(self.config)
@@ -119,6 +126,7 @@ class Job:
             "actuated": self.actuated,
             "target": self.target,
             "domain": self.domain,
+            **({"effort": self.effort} if self.effort is not None else {}),  # jobs without one keep their old fingerprint
             "config": self.config,
             "evaluate": self.evaluate,
             "certify": self.certify,
@@ -205,7 +213,7 @@ def _resolve_source(source: str, base: Path) -> str:
 
 
 def _system_arguments(raw: dict) -> tuple:
-    """The job's ``actuated``, ``target`` and ``domain``, checked and cleaned (None where absent)."""
+    """The job's ``actuated``, ``target``, ``domain`` and ``effort``, checked and cleaned (None where absent)."""
     actuated = raw.get("actuated")
     if actuated is not None:
         _check_type(actuated, list, "'actuated'")
@@ -225,7 +233,11 @@ def _system_arguments(raw: dict) -> tuple:
                 raise IdapbcError(f"domain.{k} must be [lo, hi], got {v!r}")
             clean[k] = [_check_type(b, float, f"domain.{k}") for b in v]
         domain = clean
-    return actuated, target, domain
+    effort = raw.get("effort")
+    if effort is not None:
+        _check_type(effort, dict, "'effort'")
+        effort = {k: _check_type(v, float, f"effort.{k}") for k, v in effort.items()}
+    return actuated, target, domain, effort
 
 
 def _stage_tables(raw: dict) -> dict:
@@ -253,7 +265,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
     if "source" not in raw:
         raise IdapbcError("missing key 'source' (zoo name, built-in name, erd:<stem> or URDF path)")
     source = _check_type(raw["source"], str, "'source'")
-    actuated, target, domain = _system_arguments(raw)
+    actuated, target, domain, effort = _system_arguments(raw)
     preset = _check_type(raw.get("preset", "paper"), str, "'preset'")
     if preset not in PRESETS:
         raise IdapbcError(f"preset must be one of {', '.join(repr(p) for p in PRESETS)}, got {preset!r}")
@@ -272,7 +284,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
     # the system itself: unknown source, joints, target, domain
     source_path = _resolve_source(source, base)
     try:
-        system = load_system(source_path, actuated=actuated, target=target, domain=domain)
+        system = load_system(source_path, actuated=actuated, target=target, domain=domain, effort=effort)
     except IdapbcError:
         raise
     except Exception as exc:  # e.g. a URDF Pinocchio cannot parse
@@ -296,6 +308,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
         system_name=system.name,
         actuated_resolved=tuple(system.actuated),
         description=description,
+        effort=effort,
     )
 
 

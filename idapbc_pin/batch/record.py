@@ -55,7 +55,7 @@ def new_record(job: Job) -> dict:
         "finished_at": None,
         "host": socket.gethostname(),
         "pid": os.getpid(),
-        "job": {"source": job.source, "actuated": job.actuated, "target": job.target, "domain": job.domain, "preset": job.preset,
+        "job": {"source": job.source, "actuated": job.actuated, "target": job.target, "domain": job.domain, "effort": job.effort, "preset": job.preset,
                 "train": job.train, "config": job.config, "evaluate": job.evaluate, "certify": job.certify, "figure": job.figure, "view": job.view, "smoke": job.smoke},
     }  # fmt: skip
 

@@ -18,7 +18,7 @@ __all__ = ["add_eval_commands"]
 
 
 def _run(args: argparse.Namespace):
-    """The run the command works on: RUN's `--checkpoint` (default: best, refusing damaged checkpoints)."""
+    """The run the command works on: RUN's `--checkpoint` (default: last, refusing damaged checkpoints)."""
     return load_run(args.run, checkpoint=args.checkpoint)
 
 
@@ -62,7 +62,7 @@ def _add_run_options(p) -> None:
     p.add_argument("--no-limits", action="store_true",
                    help="lift the actuators' effort limits (URDF <limit effort>; applied to every controller by default)")
     p.add_argument("--checkpoint", choices=["best", "last"],
-                   help="checkpoint of RUN to use (default: best, and a run with a damaged checkpoint is refused)")
+                   help="checkpoint of RUN to use (default: last, the final weights that train --evaluate measured; a run with a damaged checkpoint is refused)")
 
 
 def add_eval_commands(subparsers) -> None:

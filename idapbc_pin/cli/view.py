@@ -46,7 +46,7 @@ def add_view_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-trace", action="store_true", help="do not draw the end-link trace")
     p.add_argument("--no-limits", action="store_true", help="simulate without the actuators' effort limits (applied by default)")
     p.add_argument("--checkpoint", choices=list(CHECKPOINTS),
-                   help="which checkpoint of a RUN to animate: best (lowest loss, the default) or last (the latest epoch)")
+                   help="which checkpoint of a RUN to animate: last (the final weights, the default) or best (lowest loss)")
     p.set_defaults(func=_cmd_view)
     return p
 

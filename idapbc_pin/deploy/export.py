@@ -88,7 +88,7 @@ def export(run_or_path, out, *, force: bool = False, onnx: bool = True, checkpoi
 
     Parameters
     ----------
-    run_or_path : a `Run`, or a run directory (loaded with `checkpoint`: 'best' by default, or 'last').
+    run_or_path : a `Run`, or a run directory (loaded with `checkpoint`: 'last', the final weights, by default, or 'best').
     out : the folder to write (created if missing). An existing non-empty folder needs ``force``,
         which overwrites the files in `EXPORTED_FILES` and nothing else.
     onnx : also write desired_flow.onnx (needs the `export` extra: onnx, onnxscript).

@@ -164,8 +164,8 @@ def view(
     loop : replay forever (else once).
     style : ``"auto"`` (URDF visuals, stick-and-ball if none), ``"visual"`` or ``"stick"``.
     grid : show meshcat's ground grid and world axes.
-    checkpoint : ``"best"`` or ``"last"``, the checkpoint of a run directory to animate (None: best,
-        refusing a run with a damaged checkpoint; see `load_run`).
+    checkpoint : ``"best"`` or ``"last"``, the checkpoint of a run directory to animate (None: last,
+        the final weights, refusing a run with a damaged checkpoint; see `load_run`).
     limits : simulate with the actuators' effort limits (``system.effort``), as every evaluation does;
         False lifts them.
 
