@@ -212,8 +212,9 @@ def _resolve_source(source: str, base: Path) -> str:
     return str(path.resolve())
 
 
-def _system_arguments(raw: dict) -> tuple:
-    """The job's ``actuated``, ``target``, ``domain`` and ``effort``, checked and cleaned (None where absent)."""
+def _system_arguments(raw: dict) -> dict:
+    """The job's `load_system` keyword arguments ``actuated``, ``target``, ``domain`` and ``effort``,
+    checked and cleaned (None where absent)."""
     actuated = raw.get("actuated")
     if actuated is not None:
         _check_type(actuated, list, "'actuated'")
@@ -237,7 +238,7 @@ def _system_arguments(raw: dict) -> tuple:
     if effort is not None:
         _check_type(effort, dict, "'effort'")
         effort = {k: _check_type(v, float, f"effort.{k}") for k, v in effort.items()}
-    return actuated, target, domain, effort
+    return {"actuated": actuated, "target": target, "domain": domain, "effort": effort}
 
 
 def _stage_tables(raw: dict) -> dict:
@@ -265,7 +266,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
     if "source" not in raw:
         raise IdapbcError("missing key 'source' (zoo name, built-in name, erd:<stem> or URDF path)")
     source = _check_type(raw["source"], str, "'source'")
-    actuated, target, domain, effort = _system_arguments(raw)
+    system_args = _system_arguments(raw)
     preset = _check_type(raw.get("preset", "paper"), str, "'preset'")
     if preset not in PRESETS:
         raise IdapbcError(f"preset must be one of {', '.join(repr(p) for p in PRESETS)}, got {preset!r}")
@@ -284,7 +285,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
     # the system itself: unknown source, joints, target, domain
     source_path = _resolve_source(source, base)
     try:
-        system = load_system(source_path, actuated=actuated, target=target, domain=domain, effort=effort)
+        system = load_system(source_path, **system_args)
     except IdapbcError:
         raise
     except Exception as exc:  # e.g. a URDF Pinocchio cannot parse
@@ -293,9 +294,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
         name=name,
         source=source,
         source_path=source_path,
-        actuated=actuated,
-        target=target,
-        domain=domain,
+        **system_args,
         preset=preset,
         train=train,
         config=config.to_dict(),
@@ -308,7 +307,6 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
         system_name=system.name,
         actuated_resolved=tuple(system.actuated),
         description=description,
-        effort=effort,
     )
 
 

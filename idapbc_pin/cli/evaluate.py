@@ -11,7 +11,7 @@ from ..errors import IdapbcError
 from ..evaluation.closed_loop import JUDGES, simulate_run
 from ..evaluation.robustness import default_conditions, robustness_table
 from ..reporting.report import report
-from ..training.run import load_run
+from ..training.run import CHECKPOINTS, DEFAULT_CHECKPOINT, load_run
 from ._args import positive_int
 
 __all__ = ["add_eval_commands"]
@@ -61,8 +61,8 @@ def _add_run_options(p) -> None:
     """--no-limits and --checkpoint: how every evaluation sub-command treats RUN."""
     p.add_argument("--no-limits", action="store_true",
                    help="lift the actuators' effort limits (URDF <limit effort>; applied to every controller by default)")
-    p.add_argument("--checkpoint", choices=["best", "last"],
-                   help="checkpoint of RUN to use (default: last, the final weights that train --evaluate measured; a run with a damaged checkpoint is refused)")
+    p.add_argument("--checkpoint", choices=list(CHECKPOINTS),
+                   help=f"checkpoint of RUN to use (default: {DEFAULT_CHECKPOINT}, the final weights that train --evaluate measured; a run with a damaged checkpoint is refused)")
 
 
 def add_eval_commands(subparsers) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..deploy.export import EXPORTED_FILES, export
+from ..training.run import CHECKPOINTS, DEFAULT_CHECKPOINT
 
 __all__ = ["add_export_command"]
 
@@ -31,7 +32,7 @@ def add_export_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("run", metavar="RUN", help="run directory written by `idapbc-pin train` (a URDF robot)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder to write (created; must be empty unless --force)")
     p.add_argument("--force", action="store_true", help="overwrite the exported files in a non-empty DIR")
-    p.add_argument("--checkpoint", choices=["best", "last"], help="checkpoint to export (default: last, the final weights that train --evaluate measured)")
+    p.add_argument("--checkpoint", choices=list(CHECKPOINTS), help=f"checkpoint to export (default: {DEFAULT_CHECKPOINT}, the final weights that train --evaluate measured)")
     p.add_argument("--no-onnx", action="store_true", help="skip desired_flow.onnx (no onnx/onnxscript needed)")
     p.set_defaults(func=_cmd_export)
     return p

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..errors import IdapbcError
 from ..model import load_system
-from ..training.run import CHECKPOINTS, resolve_run
+from ..training.run import CHECKPOINTS, DEFAULT_CHECKPOINT, resolve_run
 from ..viewer import PICK_CANDIDATES, view
 from ._args import key_range, key_value, system_kwargs
 
@@ -46,7 +46,7 @@ def add_view_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-trace", action="store_true", help="do not draw the end-link trace")
     p.add_argument("--no-limits", action="store_true", help="simulate without the actuators' effort limits (applied by default)")
     p.add_argument("--checkpoint", choices=list(CHECKPOINTS),
-                   help="which checkpoint of a RUN to animate: last (the final weights, the default) or best (lowest loss)")
+                   help=f"which checkpoint of a RUN to animate (default: {DEFAULT_CHECKPOINT}, the final weights; best: the lowest loss)")
     p.set_defaults(func=_cmd_view)
     return p
 
