@@ -97,7 +97,8 @@ def test_after_a_divergence_the_suggested_resume_with_a_lower_lr_completes(tmp_p
 @pytest.mark.parametrize(
     "bad, fragment",
     [({"rho": -1.0}, "rho"), ({"rho": 0.1, "kappa": 0.2}, "κ = 0.2) must be < rho"), ({"epochs": 0}, "epochs"), ({"form": "magic"}, "form"),
-     ({"scaling": "unit"}, "scaling must be")],
+     ({"scaling": "unit"}, "scaling must be"), ({"epochs": 10, "rollout_epochs": 11}, "rollout_epochs must be in [0, epochs = 10]"),
+     ({"rollout_tail": 4.0}, "rollout_tail must be in (0, rollout_horizon]"), ({"rollout_step": 0.0}, "rollout_step")],
 )
 def test_bad_config_is_refused(bad, fragment):
     with pytest.raises(ip.IdapbcError) as info:

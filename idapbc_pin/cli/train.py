@@ -42,7 +42,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from ..training.summary import format_train_summary
     from ..training.train import train
 
-    overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth") if getattr(args, k) is not None}
+    overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth", "rollout_epochs") if getattr(args, k) is not None}
     if args.resume:
         saved = read_config(args.resume)
         config = saved.replace(**{k: v for k, v in (("epochs", args.epochs), ("lr", args.lr)) if v is not None})
@@ -100,6 +100,7 @@ def add_train_command(sub) -> None:
     p.add_argument("--no-limits", action="store_true", help="evaluate without the actuators' effort limits (they apply to both controllers by default)")
     for name, kind in (("epochs", int), ("seed", int), ("lr", float), ("width", int), ("depth", int), ("rho", float), ("kappa", float)):
         p.add_argument(f"--{name}", type=kind, help=FIELD_HELP[name])
+    p.add_argument("--rollout-epochs", dest="rollout_epochs", type=int, metavar="K", help=FIELD_HELP["rollout_epochs"])
     p.add_argument("--device", help=FIELD_HELP["device"])
     p.add_argument("--form", choices=["anchored", "free"], help=FIELD_HELP["form"])
     p.add_argument("--damping", choices=["full", "actuated"], help=FIELD_HELP["damping"])

@@ -12,6 +12,8 @@ For samples x (N, n), with d = 1 where H_d(x) ≥ ε (outside H_ε, the dissipat
   {H_d < c}, c = min of H_d on samples of the box faces (the largest sublevel set that stays in the
   box), ū the actuators' effort limits: the certificate is checked with the saturated law, so the
   set it can certify is where u stays within the limits. Zero for robots without limits.
+* ``rollout``         the cost of simulations of the true saturated loop (`rollout.rollout_cost`);
+  zero here, set by the trainer in the last ``rollout_epochs`` epochs, which train on it alone.
 
 Inside terms are averaged over the inside samples and outside terms over the outside ones
 (DESIGN lesson 3), so each term is a mean residual whatever ε is. ∂μ/∂x = g⊥(∂f̃_d/∂x − ∂f/∂x) is
@@ -29,7 +31,7 @@ from ..control.nets import IdaPbcNets
 
 __all__ = ["TERMS", "AdaptiveWeights", "loss_terms"]
 
-TERMS = ("matching", "dissipation", "damping_floor", "local_stability", "decay", "effort")
+TERMS = ("matching", "dissipation", "damping_floor", "local_stability", "decay", "effort", "rollout")
 
 
 def _masked_mean(values: Tensor, mask: Tensor) -> Tensor:
@@ -85,6 +87,7 @@ def loss_terms(
         "decay": _masked_mean(torch.relu(rate + nets.decay_rate), d) if float(nets.decay_rate) > 0 else x.new_zeros(()),
         "local_stability": x.new_zeros(()),
         "effort": x.new_zeros(()),
+        "rollout": x.new_zeros(()),  # set by the trainer in its `rollout_epochs` (`rollout.rollout_cost`)
     }
     c_face = None
     if x_face is not None:

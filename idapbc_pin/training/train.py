@@ -22,10 +22,12 @@ from .._io import DamagedFileError, write_json
 from ..config import TrainConfig
 from ..control.anchor import anchor_settings
 from ..control.linear import fastest_pole
+from ..control.controller import Controller
 from ..control.nets import IdaPbcNets, build_nets
 from ..errors import IdapbcError
 from ..model import System
 from .loss import TERMS, AdaptiveWeights, loss_terms
+from .rollout import rollout_cost, rollout_gate, rollout_starts
 from .run import Run, check_checkpoints, load_weights, read_checkpoint, read_config, save_checkpoint, system_record
 
 __all__ = ["TrainingDiverged", "train"]
@@ -33,6 +35,10 @@ __all__ = ["TrainingDiverged", "train"]
 
 #: The learning rate a resume after a divergence is offered at most (the presets' own, measured).
 SAFE_LR = 5e-4
+
+#: Gradient-norm clip of the `rollout` epochs: back-propagation through a saturated swing gave norms
+#: from 10 to 1e5 on the acrobot (measured), so each step is at most Adam's own size.
+ROLLOUT_CLIP = 1.0
 
 
 class TrainingDiverged(IdapbcError):
@@ -113,10 +119,31 @@ def train(
             f"{exc} The weights with the lowest loss before that (after epoch {trainer.epoch}) are kept as "
             f"{run_dir / 'checkpoints' / 'last.pt'}. Fix: idapbc-pin train --resume {run_dir} --lr {min(config.lr / 10, SAFE_LR):g}"
         ) from None
+    gate = _gate_rollout(trainer, progress) if status == "finished" and config.rollout_epochs > 0 else None
     run = Run(run_dir, system, config, trainer.nets)
     run.summary = _summarise(run, status, trainer.epoch, trainer.eps_ema, trainer.elapsed)
+    if gate is not None:
+        run.summary["rollout_gate"] = gate
     write_json(run_dir / "summary.json", run.summary)
     return run
+
+
+def _gate_rollout(trainer: "_Trainer", progress: bool) -> dict:
+    """Keep the rollout epochs' weights only if the real loop does at least as well with them
+    (`rollout.rollout_gate`); otherwise put checkpoints/pre_rollout.pt back as the final weights."""
+    config, system = trainer.config, trainer.system
+    pre = read_checkpoint(trainer.run_dir, "pre_rollout", map_location=config.device)
+    before = build_nets(system, config)
+    load_weights(before, pre, trainer.run_dir / "checkpoints" / "pre_rollout.pt")
+    gate = rollout_gate(system, Controller(system, before), Controller(system, trainer.nets), config.rollout_box, config.seed)
+    if not gate["kept"]:
+        trainer.nets.load_state_dict(before.state_dict())
+        _checkpoint(trainer, "last", trainer.epoch)
+    if progress:
+        verdict = "kept" if gate["kept"] else "not kept: the weights before them are the final ones"
+        print(f"rollout epochs: success from {gate['states']} fresh states {100 * gate['before']:.0f} % before, "
+              f"{100 * gate['after']:.0f} % after ({verdict})", flush=True)
+    return gate
 
 
 # --------------------------------------------------------------------------------------- setup
@@ -271,7 +298,7 @@ def _run_epochs(trainer: _Trainer, progress: bool) -> None:
                 now = time.perf_counter()
                 trainer.elapsed += now - t_last
                 t_last = now
-                raw = sum(values.values())
+                raw = sum(v for k, v in values.items() if k != "rollout")  # best.pt: the lowest residuals
                 writer.writerow(_metrics_row(epoch + 1, total, values, trainer.weights, eps_value, diag, trainer.elapsed))
                 if raw < trainer.best:  # best.pt holds the weights that scored it (before this step)
                     trainer.best = before["best"] = raw
@@ -328,13 +355,23 @@ def _step(trainer: _Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float]
         x_face = trainer.tensor(_face_samples(system, config.face_samples, face_gen))
         effort = trainer.tensor(np.array(system.effort))
     terms, diag = loss_terms(nets, xt, f, eps, config.kappa, df_in, inside, x_face=x_face, effort=effort)
+    rolling = epoch >= config.epochs - config.rollout_epochs
+    if rolling:  # the last epochs train on simulations of the saturated loop alone
+        if epoch == config.epochs - config.rollout_epochs:
+            _checkpoint(trainer, "pre_rollout", epoch)  # what `rollout_gate` compares the result with
+            trainer.optimizer.state.clear()  # Adam's moments of the residuals would scale the new term's steps (measured: no progress)
+        x0 = rollout_starts(system, config.rollout_samples, config.rollout_box, trainer.gen)
+        limits = trainer.tensor(np.array(system.effort))
+        terms["rollout"] = rollout_cost(nets, system, trainer.tensor(x0), config.rollout_horizon, config.rollout_step, config.rollout_tail, limits)
     values = {k: float(v.detach()) for k, v in terms.items()}
     bad = [k for k, v in values.items() if not math.isfinite(v)]
     if bad:
         raise TrainingDiverged(f"loss term '{bad[0]}' became {values[bad[0]]} at epoch {epoch}.")
-    total = trainer.weights.total(terms)
+    total = terms["rollout"] if rolling else trainer.weights.total(terms)
     trainer.optimizer.zero_grad(set_to_none=True)
     total.backward()
+    if rolling:
+        torch.nn.utils.clip_grad_norm_(nets.parameters(), ROLLOUT_CLIP)
     for name, p in nets.named_parameters():
         if p.grad is not None and not bool(torch.isfinite(p.grad).all()):
             raise TrainingDiverged(f"gradient of '{name}' became non-finite at epoch {epoch}.")
@@ -342,7 +379,8 @@ def _step(trainer: _Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float]
     for name, p in nets.named_parameters():
         if not bool(torch.isfinite(p).all()):
             raise TrainingDiverged(f"weights of '{name}' became non-finite at epoch {epoch}.")
-    trainer.weights.update(values)
+    if not rolling:
+        trainer.weights.update(values)
     eps_value = float(eps)
     trainer.eps_ema = eps_value if trainer.eps_ema is None else 0.95 * trainer.eps_ema + 0.05 * eps_value
     return total, values, diag, eps_value
