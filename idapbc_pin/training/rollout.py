@@ -129,11 +129,9 @@ def rollout_gate(system: System, before, after, box: float, seed: int) -> dict:
 
     Returns {"states", "before", "after" (success rates in [0, 1]), "kept" (bool)}.
     """
-    from ..sim.roa import roa  # training sits upstream of the judge; imported only here
+    from ..sim.radius import scaled_box  # training sits upstream of the judge; imported only here
+    from ..sim.roa import roa
 
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in system.domain)
-    x_star = np.asarray(system.x_star, dtype=np.float64)
-    gate_box = (x_star + box * (lo - x_star), x_star + box * (hi - x_star))
-    result = roa(system, {"before": before, "after": after}, n=GATE_STATES, box=gate_box, seed=GATE_SEED + seed, limits=True)
+    result = roa(system, {"before": before, "after": after}, n=GATE_STATES, box=scaled_box(system, box), seed=GATE_SEED + seed, limits=True)
     rates = {k: float(v.success_rate) for k, v in result.scores.items()}
     return {"states": GATE_STATES, **rates, "kept": rates["after"] >= rates["before"]}
