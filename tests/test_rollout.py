@@ -110,3 +110,25 @@ def test_the_cli_passes_rollout_epochs_to_the_config_and_refuses_more_than_the_e
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "rollout_epochs must be in [0, epochs = 3]" in err
     assert not any(tmp_path.iterdir())  # refused before any run directory is made
+
+
+def test_a_rollout_epoch_whose_gradient_overflows_takes_no_step_and_the_run_goes_on(tmp_path, monkeypatch):
+    """Back-propagation through an unstable trajectory can overflow; such an epoch is skipped and
+    counted, the run finishes, and with every rollout epoch skipped the weights are those before them."""
+    import idapbc_pin.training.train as train_module
+
+    real = train_module.rollout_cost
+
+    def overflowing(nets, *args):
+        p = next(nets.parameters())
+        return real(nets, *args) + torch.sqrt((p - p.detach()).sum())  # adds 0, with an infinite gradient
+
+    monkeypatch.setattr(train_module, "rollout_cost", overflowing)
+    system = ip.load_system("paper_mass_spring_damper")
+    config = TrainConfig(epochs=4, rollout_epochs=2, rollout_samples=4, rollout_horizon=0.1, rollout_step=0.02, rollout_tail=0.04, **TINY)
+    run = train(system, config, out=tmp_path, progress=False)
+    assert run.summary["status"] == "finished" and run.summary["rollout_gate"]["skipped_epochs"] == 2
+    pre = read_checkpoint(run.path, "pre_rollout")["nets"]
+    last = read_checkpoint(run.path, "last")
+    assert all(torch.equal(pre[k], last["nets"][k]) for k in pre)
+    assert last["rollout_skipped"] == 2

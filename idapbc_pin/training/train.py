@@ -136,6 +136,7 @@ def _gate_rollout(trainer: "_Trainer", progress: bool) -> dict:
     before = build_nets(system, config)
     load_weights(before, pre, trainer.run_dir / "checkpoints" / "pre_rollout.pt")
     gate = rollout_gate(system, Controller(system, before), Controller(system, trainer.nets), config.rollout_box, config.seed)
+    gate["skipped_epochs"] = trainer.rollout_skipped
     if not gate["kept"]:
         trainer.nets.load_state_dict(before.state_dict())
         _checkpoint(trainer, "last", trainer.epoch)
@@ -143,6 +144,9 @@ def _gate_rollout(trainer: "_Trainer", progress: bool) -> dict:
         verdict = "kept" if gate["kept"] else "not kept: the weights before them are the final ones"
         print(f"rollout epochs: success from {gate['states']} fresh states {100 * gate['before']:.0f} % before, "
               f"{100 * gate['after']:.0f} % after ({verdict})", flush=True)
+        if trainer.rollout_skipped:
+            print(f"rollout epochs: {trainer.rollout_skipped} of {config.rollout_epochs} took no step, their gradient overflowed "
+                  f"through unstable trajectories (a shorter rollout_horizon avoids it)", flush=True)
     return gate
 
 
@@ -181,7 +185,8 @@ class _Trainer:
 
     ``epoch``: the epochs done, or during an epoch its 0-based index (what Ctrl-C saves).
     ``best``: the lowest summed loss terms so far; ``eps_ema``: moving average of ε;
-    ``elapsed``: training seconds, summed over resumed sessions.
+    ``elapsed``: training seconds, summed over resumed sessions; ``rollout_skipped``: rollout epochs
+    whose gradient was not finite, skipped instead of stopping the run (`_step`).
     """
 
     system: System
@@ -196,6 +201,7 @@ class _Trainer:
     eps_ema: float | None = None
     elapsed: float = 0.0
     best_state: dict | None = None  #: `_snapshot` of the weights with the lowest loss so far
+    rollout_skipped: int = 0  #: rollout epochs whose gradient overflowed, so took no step
 
     def tensor(self, a) -> torch.Tensor:
         """`a` in the networks' dtype and device."""
@@ -222,6 +228,7 @@ def _start(system: System, config: TrainConfig, run_dir: Path, state: dict | Non
         weights.weights = dict(state["weights"])
         gen.set_state(state["generator"])
         trainer.epoch, trainer.best, trainer.eps_ema, trainer.elapsed = int(state["epoch"]), float(state["best"]), state["epsilon"], float(state["elapsed"])
+        trainer.rollout_skipped = int(state.get("rollout_skipped", 0))  # absent from checkpoints of older runs
     else:
         write_json(run_dir / "config.json", config.to_dict())
         write_json(run_dir / "system.json", system_record(system, run_dir))
@@ -268,6 +275,7 @@ def _checkpoint(trainer: _Trainer, name: str, epoch: int) -> None:
             "best": trainer.best,
             "epsilon": trainer.eps_ema,
             "elapsed": trainer.elapsed,
+            "rollout_skipped": trainer.rollout_skipped,
         },
     )
 
@@ -370,6 +378,10 @@ def _step(trainer: _Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float]
     total = terms["rollout"] if rolling else trainer.weights.total(terms)
     trainer.optimizer.zero_grad(set_to_none=True)
     total.backward()
+    if rolling and not all(bool(torch.isfinite(p.grad).all()) for p in nets.parameters() if p.grad is not None):
+        # back-propagation through an unstable trajectory overflowed: skip the step, not the run
+        trainer.optimizer.zero_grad(set_to_none=True)
+        trainer.rollout_skipped += 1
     if rolling:
         torch.nn.utils.clip_grad_norm_(nets.parameters(), ROLLOUT_CLIP)
     for name, p in nets.named_parameters():
