@@ -378,15 +378,14 @@ def _step(trainer: _Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float]
     total = terms["rollout"] if rolling else trainer.weights.total(terms)
     trainer.optimizer.zero_grad(set_to_none=True)
     total.backward()
-    if rolling and not all(bool(torch.isfinite(p.grad).all()) for p in nets.parameters() if p.grad is not None):
-        # back-propagation through an unstable trajectory overflowed: skip the step, not the run
+    bad_grad = next((name for name, p in nets.named_parameters() if p.grad is not None and not bool(torch.isfinite(p.grad).all())), None)
+    if bad_grad is not None and not rolling:
+        raise TrainingDiverged(f"gradient of '{bad_grad}' became non-finite at epoch {epoch}.")
+    if bad_grad is not None:  # back-propagation through an unstable trajectory overflowed: skip the step, not the run
         trainer.optimizer.zero_grad(set_to_none=True)
         trainer.rollout_skipped += 1
     if rolling:
         torch.nn.utils.clip_grad_norm_(nets.parameters(), ROLLOUT_CLIP)
-    for name, p in nets.named_parameters():
-        if p.grad is not None and not bool(torch.isfinite(p.grad).all()):
-            raise TrainingDiverged(f"gradient of '{name}' became non-finite at epoch {epoch}.")
     trainer.optimizer.step()
     for name, p in nets.named_parameters():
         if not bool(torch.isfinite(p).all()):
