@@ -1,34 +1,33 @@
 """The trainer: fresh uniform samples each epoch, named loss terms with adaptive weights, Adam,
-atomic checkpoints (last and best), resume, NaN guard, Ctrl-C. The run directory it writes is
-described in `training.run`.
+atomic checkpoints (last and best), resume, NaN guard, Ctrl-C. Its state and checkpoints are
+`training._trainer`; the run directory it writes is described in `training.run`.
 """
 
 from __future__ import annotations
 
-import copy
 import csv
 import datetime as _dt
 import math
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from .._io import DamagedFileError, write_json
+from .._io import write_json
 from ..config import TrainConfig
 from ..control.anchor import anchor_settings
 from ..control.linear import fastest_pole
 from ..control.controller import Controller
-from ..control.nets import IdaPbcNets, build_nets
+from ..control.nets import build_nets
 from ..errors import IdapbcError
 from ..model import System
-from .loss import TERMS, AdaptiveWeights, loss_terms
+from ._trainer import Trainer, checkpoint, metrics_row, open_metrics, restore, save_snapshot, snapshot, start
+from .loss import TERMS, loss_terms
 from .rollout import rollout_cost, rollout_gate, rollout_starts
-from .run import Run, check_checkpoints, load_weights, read_checkpoint, read_config, save_checkpoint, system_record
+from .run import Run, check_checkpoints, load_weights, read_checkpoint, read_config
 
 __all__ = ["TrainingDiverged", "train"]
 
@@ -48,36 +47,6 @@ class TrainingDiverged(IdapbcError):
     def __init__(self, message: str, last_good: dict | None = None):
         super().__init__(message)
         self.last_good = last_good
-
-
-def _snapshot(trainer: "_Trainer") -> dict:
-    """A copy of everything an epoch changes (weights, Adam, adaptive weights, generator, counters)."""
-    return {
-        "nets": {k: v.detach().clone() for k, v in trainer.nets.state_dict().items()},
-        "optimizer": copy.deepcopy(trainer.optimizer.state_dict()),
-        "weights": dict(trainer.weights.weights),
-        "generator": trainer.gen.get_state(),
-        "epoch": trainer.epoch,
-        "best": trainer.best,
-        "eps_ema": trainer.eps_ema,
-    }
-
-
-def _restore(trainer: "_Trainer", snap: dict | None) -> None:
-    """Put a `_snapshot` back (no-op for None)."""
-    if snap is None:
-        return
-    snap = copy.deepcopy(snap)
-    trainer.nets.load_state_dict(snap["nets"])
-    trainer.optimizer.load_state_dict(snap["optimizer"])
-    trainer.weights.weights = dict(snap["weights"])
-    trainer.gen.set_state(snap["generator"])
-    trainer.epoch, trainer.best, trainer.eps_ema = snap["epoch"], snap["best"], snap["eps_ema"]
-
-
-#: metrics.csv columns: the epoch (1-based), the weighted loss, each term and its adaptive weight r_,
-#: the level ε of H_ε, the loss diagnostics, and the training seconds so far.
-_COLUMNS = ["epoch", "loss", *TERMS, *(f"r_{t}" for t in TERMS), "epsilon", "inside_share", "dissipation_ok", "max_mu", "sublevel_share", "seconds"]
 
 
 def train(
@@ -104,17 +73,17 @@ def train(
     config, run_dir, state = _resolve(system, config, out, resume)
     if progress:
         print(f"run directory: {run_dir}", flush=True)
-    trainer = _start(system, config, run_dir, state)
-    _open_metrics(run_dir / "metrics.csv", state is None, trainer.epoch)
+    trainer = start(system, config, run_dir, state)
+    open_metrics(run_dir / "metrics.csv", state is None, trainer.epoch)
     status = "finished"
     try:
         _run_epochs(trainer, progress)
     except KeyboardInterrupt:
         status = "interrupted"
-        _checkpoint(trainer, "last", trainer.epoch)
+        checkpoint(trainer, "last", trainer.epoch)
     except TrainingDiverged as exc:
-        _restore(trainer, exc.last_good)
-        _checkpoint(trainer, "last", trainer.epoch)
+        restore(trainer, exc.last_good)
+        checkpoint(trainer, "last", trainer.epoch)
         raise TrainingDiverged(
             f"{exc} The weights with the lowest loss before that (after epoch {trainer.epoch}) are kept as "
             f"{run_dir / 'checkpoints' / 'last.pt'}. Fix: idapbc-pin train --resume {run_dir} --lr {min(config.lr / 10, SAFE_LR):g}"
@@ -128,7 +97,7 @@ def train(
     return run
 
 
-def _gate_rollout(trainer: "_Trainer", progress: bool) -> dict:
+def _gate_rollout(trainer: Trainer, progress: bool) -> dict:
     """Keep the rollout epochs' weights only if the real loop does at least as well with them
     (`rollout.rollout_gate`); otherwise put checkpoints/pre_rollout.pt back as the final weights."""
     config, system = trainer.config, trainer.system
@@ -139,7 +108,7 @@ def _gate_rollout(trainer: "_Trainer", progress: bool) -> dict:
     gate["skipped_epochs"] = trainer.rollout_skipped
     if not gate["kept"]:
         trainer.nets.load_state_dict(before.state_dict())
-        _checkpoint(trainer, "last", trainer.epoch)
+        checkpoint(trainer, "last", trainer.epoch)
     if progress:
         verdict = "kept" if gate["kept"] else "not kept: the weights before them are the final ones"
         print(f"rollout epochs: success from {gate['states']} fresh states {100 * gate['before']:.0f} % before, "
@@ -179,109 +148,8 @@ def _new_run_dir(out: Path) -> Path:
     return run_dir
 
 
-@dataclass
-class _Trainer:
-    """What the epochs read and advance; a checkpoint saves all of it but system, config and run_dir.
-
-    ``epoch``: the epochs done, or during an epoch its 0-based index (what Ctrl-C saves).
-    ``best``: the lowest summed loss terms so far; ``eps_ema``: moving average of ε;
-    ``elapsed``: training seconds, summed over resumed sessions; ``rollout_skipped``: rollout epochs
-    whose gradient was not finite, skipped instead of stopping the run (`_step`).
-    """
-
-    system: System
-    config: TrainConfig
-    run_dir: Path
-    nets: IdaPbcNets
-    optimizer: torch.optim.Optimizer
-    weights: AdaptiveWeights
-    gen: torch.Generator
-    epoch: int = 0
-    best: float = math.inf
-    eps_ema: float | None = None
-    elapsed: float = 0.0
-    best_state: dict | None = None  #: `_snapshot` of the weights with the lowest loss so far
-    rollout_skipped: int = 0  #: rollout epochs whose gradient overflowed, so took no step
-
-    def tensor(self, a) -> torch.Tensor:
-        """`a` in the networks' dtype and device."""
-        return torch.as_tensor(a, dtype=getattr(torch, self.config.dtype), device=torch.device(self.config.device))
-
-
-def _start(system: System, config: TrainConfig, run_dir: Path, state: dict | None) -> _Trainer:
-    """Seeded networks, Adam and sample generator; restored from `state`, else config.json and
-    system.json written."""
-    if config.device.startswith("cuda") and not torch.cuda.is_available():
-        raise IdapbcError(f"device '{config.device}' requested but torch sees no CUDA device. Fix: use --device cpu.")
-    torch.set_num_threads(config.threads)
-    torch.manual_seed(config.seed)
-    nets = build_nets(system, config)
-    optimizer = torch.optim.Adam(nets.parameters(), lr=config.lr)
-    weights = AdaptiveWeights.start(config.gamma, config.alpha)
-    gen = torch.Generator().manual_seed(config.seed)
-    trainer = _Trainer(system, config, run_dir, nets, optimizer, weights, gen)
-    if state is not None:
-        load_weights(nets, state, run_dir / "checkpoints" / "last.pt")
-        optimizer.load_state_dict(state["optimizer"])
-        for group in optimizer.param_groups:  # a resume may lower the learning rate
-            group["lr"] = config.lr
-        weights.weights = dict(state["weights"])
-        gen.set_state(state["generator"])
-        trainer.epoch, trainer.best, trainer.eps_ema, trainer.elapsed = int(state["epoch"]), float(state["best"]), state["epsilon"], float(state["elapsed"])
-        trainer.rollout_skipped = int(state.get("rollout_skipped", 0))  # absent from checkpoints of older runs
-    else:
-        write_json(run_dir / "config.json", config.to_dict())
-        write_json(run_dir / "system.json", system_record(system, run_dir))
-    return trainer
-
-
-def _open_metrics(path: Path, fresh: bool, epochs_done: int) -> None:
-    """Write metrics.csv's header for a fresh run; when resuming, drop the rows past the checkpoint
-    (they will be recomputed identically)."""
-    if fresh or not path.exists():
-        path.write_text(",".join(_COLUMNS) + "\n")
-        return
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DamagedFileError(
-            f"{path} is damaged ({type(exc).__name__}). Fix: delete it (the resume writes a new one; the rows of the "
-            "epochs already done are lost), then resume again."
-        ) from None
-    if not lines or lines[0].split(",")[:2] != _COLUMNS[:2]:
-        raise DamagedFileError(f"{path} is damaged (no metrics header). Fix: delete it (the resume writes a new one), then resume again.")
-    path.write_text("\n".join(lines[: epochs_done + 1]) + "\n")
-
-
-def _save_snapshot(trainer: _Trainer, name: str, snap: dict) -> None:
-    """Save checkpoints/<name>.pt from a `_snapshot` (same fields as `_checkpoint`)."""
-    save_checkpoint(
-        trainer.run_dir / "checkpoints" / f"{name}.pt",
-        {"epoch": snap["epoch"], "nets": snap["nets"], "optimizer": snap["optimizer"], "weights": snap["weights"], "generator": snap["generator"],
-         "best": snap["best"], "epsilon": snap["eps_ema"], "elapsed": trainer.elapsed},
-    )
-
-
-def _checkpoint(trainer: _Trainer, name: str, epoch: int) -> None:
-    """Save checkpoints/<name>.pt: everything `_start` restores, at `epoch` epochs done."""
-    save_checkpoint(
-        trainer.run_dir / "checkpoints" / f"{name}.pt",
-        {
-            "epoch": epoch,
-            "nets": trainer.nets.state_dict(),
-            "optimizer": trainer.optimizer.state_dict(),
-            "weights": dict(trainer.weights.weights),
-            "generator": trainer.gen.get_state(),
-            "best": trainer.best,
-            "epsilon": trainer.eps_ema,
-            "elapsed": trainer.elapsed,
-            "rollout_skipped": trainer.rollout_skipped,
-        },
-    )
-
-
 # ---------------------------------------------------------------------------------------- loop
-def _run_epochs(trainer: _Trainer, progress: bool) -> None:
+def _run_epochs(trainer: Trainer, progress: bool) -> None:
     """From `trainer.epoch` to `config.epochs`: one step, one metrics row and the due checkpoints each."""
     config, system = trainer.config, trainer.system
     start = trainer.epoch
@@ -295,7 +163,7 @@ def _run_epochs(trainer: _Trainer, progress: bool) -> None:
             writer = csv.writer(mfile)
             for epoch in bar:
                 trainer.epoch = epoch
-                before = _snapshot(trainer)  # the weights this epoch's loss is computed at
+                before = snapshot(trainer)  # the weights this epoch's loss is computed at
                 try:
                     total, values, diag, eps_value = _step(trainer, epoch)
                 except TrainingDiverged as exc:
@@ -307,14 +175,14 @@ def _run_epochs(trainer: _Trainer, progress: bool) -> None:
                 trainer.elapsed += now - t_last
                 t_last = now
                 raw = sum(v for k, v in values.items() if k != "rollout")  # best.pt: the lowest residuals
-                writer.writerow(_metrics_row(epoch + 1, total, values, trainer.weights, eps_value, diag, trainer.elapsed))
+                writer.writerow(metrics_row(epoch + 1, total, values, trainer.weights, eps_value, diag, trainer.elapsed))
                 if raw < trainer.best:  # best.pt holds the weights that scored it (before this step)
                     trainer.best = before["best"] = raw
                     trainer.best_state = before
-                    _save_snapshot(trainer, "best", before)
+                    save_snapshot(trainer, "best", before)
                 if (epoch + 1) % config.checkpoint_every == 0 or epoch + 1 == config.epochs:
                     mfile.flush()
-                    _checkpoint(trainer, "last", epoch + 1)
+                    checkpoint(trainer, "last", epoch + 1)
                 if progress:
                     bar.set_postfix({k: f"{v:.2e}" for k, v in values.items()} | {"dissipation_ok": f"{float(diag['dissipation_ok']):.2f}"}, refresh=False)
             trainer.epoch = config.epochs
@@ -339,7 +207,7 @@ def _face_samples(system: System, n: int, gen: torch.Generator) -> np.ndarray:
     return x.numpy()
 
 
-def _step(trainer: _Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor], float]:
+def _step(trainer: Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor], float]:
     """One epoch: fresh samples, ε, the loss terms, one Adam step, the adaptive weights' update.
 
     Returns the weighted loss (scalar tensor), the terms' values by name, the diagnostics of
@@ -366,7 +234,7 @@ def _step(trainer: _Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float]
     rolling = epoch >= config.epochs - config.rollout_epochs
     if rolling:  # the last epochs train on simulations of the saturated loop alone
         if epoch == config.epochs - config.rollout_epochs:
-            _checkpoint(trainer, "pre_rollout", epoch)  # what `rollout_gate` compares the result with
+            checkpoint(trainer, "pre_rollout", epoch)  # what `rollout_gate` compares the result with
             trainer.optimizer.state.clear()  # Adam's moments of the residuals would scale the new term's steps (measured: no progress)
         x0 = rollout_starts(system, config.rollout_samples, config.rollout_box, trainer.gen)
         limits = trainer.tensor(np.array(system.effort))
@@ -395,15 +263,6 @@ def _step(trainer: _Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float]
     eps_value = float(eps)
     trainer.eps_ema = eps_value if trainer.eps_ema is None else 0.95 * trainer.eps_ema + 0.05 * eps_value
     return total, values, diag, eps_value
-
-
-def _metrics_row(done: int, total: torch.Tensor, values: dict[str, float], weights: AdaptiveWeights, eps: float, diag: dict, elapsed: float) -> list:
-    """One metrics.csv row (`_COLUMNS`) after `done` epochs."""
-    return [
-        done, f"{float(total.detach()):.6g}", *(f"{values[t]:.6g}" for t in TERMS), *(f"{weights.weights[t]:.6g}" for t in TERMS),
-        f"{eps:.6g}", f"{float(diag['inside_share']):.4g}", f"{float(diag['dissipation_ok']):.4g}", f"{float(diag['max_mu']):.4g}",
-        f"{float(diag['sublevel_share']):.4g}", f"{elapsed:.3f}",
-    ]
 
 
 def _summarise(run: Run, status: str, epoch: int, eps_ema, elapsed: float) -> dict:
