@@ -2,7 +2,7 @@
 
 Writes variants of the zoo URDFs (heavier or lighter links, continuous joints, more joint damping)
 into a temporary folder, loads each from its path as a user would (`load_system(path, actuated=…)`,
-so the default training box applies, not the zoo's), trains it with every default of the fast preset
+so the default training box follows the variant's own masses), trains it with every default of the fast preset
 (`TrainConfig.fast(seed=…)`) and judges NIDA-PBC and LQR (Q = I, R = I) with MuJoCo from the same
 uniform states (their own seed, not the evaluation's seed 0), with the URDF's effort limits on both.
 Run: python benchmarks/bench_outside_zoo.py [--n 200] [--seed 0] [--judge-seed 1] [--only NAME ...]
