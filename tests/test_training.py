@@ -384,3 +384,24 @@ def test_the_anchor_weight_is_the_lqr_baselines_in_physical_units_and_old_box_ru
     assert loaded.config.anchor_weight == "box"
     x = system.x_star[None] + 0.05
     np.testing.assert_allclose(loaded.controller(x), legacy.controller(x))
+
+
+def test_two_trainings_started_in_the_same_second_get_a_run_directory_each(tmp_path, monkeypatch):
+    import datetime as real_dt
+    from pathlib import Path
+
+    import idapbc_pin.training.train as train_module
+
+    class Frozen(real_dt.datetime):  # both trainings read the same clock second
+        @classmethod
+        def now(cls, tz=None):
+            return real_dt.datetime(2026, 1, 2, 3, 4, 5)
+
+    monkeypatch.setattr(train_module._dt, "datetime", Frozen)
+    first = train_module._new_run_dir(tmp_path / "runs")
+    # The race: another process takes the name after a look-before-create check found it free.
+    monkeypatch.setattr(Path, "exists", lambda self, **kw: False)
+    second = train_module._new_run_dir(tmp_path / "runs")
+    third = train_module._new_run_dir(tmp_path / "runs")
+    assert [p.name for p in (first, second, third)] == ["20260102-030405", "20260102-030405-1", "20260102-030405-2"]
+    assert all((p / "checkpoints").is_dir() and not any((p / "checkpoints").iterdir()) for p in (first, second, third))

@@ -138,14 +138,20 @@ def _resolve(system: System, config: TrainConfig | None, out, resume) -> tuple[T
 
 
 def _new_run_dir(out: Path) -> Path:
+    """A new, empty ``out/<stamp>[-k]/checkpoints``: the first free name, taken atomically, so two
+    trainings started in the same second into one folder get one directory each."""
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    run_dir = out / stamp
-    k = 1
-    while run_dir.exists():
-        run_dir = out / f"{stamp}-{k}"
-        k += 1
-    (run_dir / "checkpoints").mkdir(parents=True)
-    return run_dir
+    out.mkdir(parents=True, exist_ok=True)
+    k = 0
+    while True:
+        run_dir = out / (stamp if k == 0 else f"{stamp}-{k}")
+        try:
+            run_dir.mkdir()  # fails if the name is taken, even by a process that took it a moment ago
+        except FileExistsError:
+            k += 1
+            continue
+        (run_dir / "checkpoints").mkdir()
+        return run_dir
 
 
 # ---------------------------------------------------------------------------------------- loop
