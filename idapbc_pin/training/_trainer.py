@@ -79,17 +79,23 @@ def start(system: System, config: TrainConfig, run_dir: Path, state: dict | None
     return trainer
 
 
-def snapshot(trainer: Trainer) -> dict:
-    """A copy of everything an epoch changes (weights, Adam, adaptive weights, generator, counters)."""
+def _live(trainer: Trainer) -> dict:
+    """Everything an epoch changes, as the trainer holds it now (not copied): the fields of a `snapshot`."""
     return {
-        "nets": {k: v.detach().clone() for k, v in trainer.nets.state_dict().items()},
-        "optimizer": copy.deepcopy(trainer.optimizer.state_dict()),
+        "nets": trainer.nets.state_dict(),
+        "optimizer": trainer.optimizer.state_dict(),
         "weights": dict(trainer.weights.weights),
         "generator": trainer.gen.get_state(),
         "epoch": trainer.epoch,
         "best": trainer.best,
         "eps_ema": trainer.eps_ema,
     }
+
+
+def snapshot(trainer: Trainer) -> dict:
+    """A copy of everything an epoch changes (weights, Adam, adaptive weights, generator, counters)."""
+    live = _live(trainer)
+    return {**live, "nets": {k: v.detach().clone() for k, v in live["nets"].items()}, "optimizer": copy.deepcopy(live["optimizer"])}
 
 
 def restore(trainer: Trainer, snap: dict | None) -> None:
@@ -106,28 +112,15 @@ def restore(trainer: Trainer, snap: dict | None) -> None:
 
 def checkpoint(trainer: Trainer, name: str, epoch: int) -> None:
     """Save checkpoints/<name>.pt: everything `start` restores, at `epoch` epochs done."""
-    save_checkpoint(
-        trainer.run_dir / "checkpoints" / f"{name}.pt",
-        {
-            "epoch": epoch,
-            "nets": trainer.nets.state_dict(),
-            "optimizer": trainer.optimizer.state_dict(),
-            "weights": dict(trainer.weights.weights),
-            "generator": trainer.gen.get_state(),
-            "best": trainer.best,
-            "epsilon": trainer.eps_ema,
-            "elapsed": trainer.elapsed,
-            "rollout_skipped": trainer.rollout_skipped,
-        },
-    )
+    save_snapshot(trainer, name, {**_live(trainer), "epoch": epoch})
 
 
 def save_snapshot(trainer: Trainer, name: str, snap: dict) -> None:
-    """Save checkpoints/<name>.pt from a `snapshot` (same fields as `checkpoint`)."""
+    """Save checkpoints/<name>.pt from a `snapshot` (or the live state of `_live`): what `start` restores."""
     save_checkpoint(
         trainer.run_dir / "checkpoints" / f"{name}.pt",
         {"epoch": snap["epoch"], "nets": snap["nets"], "optimizer": snap["optimizer"], "weights": snap["weights"], "generator": snap["generator"],
-         "best": snap["best"], "epsilon": snap["eps_ema"], "elapsed": trainer.elapsed},
+         "best": snap["best"], "epsilon": snap["eps_ema"], "elapsed": trainer.elapsed, "rollout_skipped": trainer.rollout_skipped},
     )
 
 
