@@ -78,6 +78,10 @@ FIELD_HELP = {
     "wrap_angles": "the control law evaluates the networks at the state whose angles (revolute and continuous joints) are "
     "wrapped to within π of the target, as the LQR baseline does: a pendulum that swings once round is not 2π away "
     "from upright. Without it the networks see angles far outside the box they were trained on",
+    "fallback": "the law outside the training box: 'linear' switches to the LQR anchor's linear law u* − Kδ there (the "
+    "networks are trained on the box only, and a saturated swing leaves it), 'none' keeps the learned law everywhere, "
+    "'auto' decides after training by simulating both with the effort limits from 100 states of the run's own (the "
+    "fallback is used if it brings strictly more of them to x*; summary.json → fallback). Inside the box nothing changes",
     "bounded_structure": "J_d and R_d see the state clamped to the training box: outside it they keep their values on the "
     "box's boundary (still skew / positive definite) instead of extrapolating their networks, which made R_d's "
     "exponential diagonal grow without bound at the speeds a saturated swing reaches. H_d is not clamped (its "
@@ -124,6 +128,7 @@ class TrainConfig:
     rollout_box: float = 0.5
     wrap_angles: bool = True
     bounded_structure: bool = True
+    fallback: str = "auto"
 
     def __post_init__(self):
         checks = [
@@ -154,6 +159,7 @@ class TrainConfig:
             (0 < self.rollout_step <= self.rollout_horizon, "rollout_step and rollout_horizon must satisfy 0 < rollout_step ≤ rollout_horizon"),
             (0 < self.rollout_tail <= self.rollout_horizon, "rollout_tail must be in (0, rollout_horizon]"),
             (0 < self.rollout_box <= 2, "rollout_box must be in (0, 2]"),
+            (self.fallback in ("auto", "linear", "none"), "fallback must be 'auto', 'linear' or 'none'"),
         ]
         for ok, message in checks:
             if not ok:

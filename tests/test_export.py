@@ -5,6 +5,7 @@ Claims (issue #14, item 4):
   equals B·saturate(u(x)) of the library's controller on 1000 states, to 1e-9 (float64 networks;
   float32 networks: the same numbers as the library's numpy one-state path), saturation included;
 * a continuous joint ((cos θ, sin θ) in Pinocchio) maps like the library's;
+* a run's linear law outside the training box (`fallback`) is exported and applied the same way;
 * onnxruntime's desired_flow.onnx equals f̃_d = (J_d − R_d)∇H_d (autograd path) on 1000 states;
 * bad input exits 2 with one line, and nothing is half-written.
 """
@@ -141,6 +142,25 @@ def test_standalone_torque_equals_the_saturated_law(limited_pendubot, tmp_path):
     _close(out["single"], expected, 1e-9)
     _close(out["batched"], run.controller.torque(q, v), 1e-9)  # the library's own saturated torque
     assert np.abs(out["batched"]).max() <= system.effort[0] * (1 + 1e-12)
+
+
+def test_standalone_switches_to_the_linear_law_outside_the_box_as_the_library_does(limited_pendubot, tmp_path):
+    """A run that uses the fallback (`control.fallback`): controller.json carries K, u*, the box, and
+    the standalone τ equals the library's on states mostly outside the training box, to 1e-9."""
+    run = limited_pendubot[0]
+    run = dataclasses.replace(run, config=run.config.replace(fallback="linear"))
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    record = json.loads((folder / "controller.json").read_text())
+    np.testing.assert_array_equal(record["fallback"]["K"], run.controller.fallback.K)
+    assert "Outside the training box" in (folder / "README.md").read_text()
+    q, v = _states(run.system)
+    outside = run.controller.fallback.outside(run.system.state_from(q, v))
+    assert 0.5 < outside.mean() < 1.0
+    out = _run_standalone(folder, q, v, tmp_path)
+    expected = run.controller.torque(q, v)
+    assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))
+    _close(out["batched"], expected, 1e-9)
+    _close(out["single"], expected, 1e-9)
 
 
 def test_standalone_torque_float32_networks(runs, tmp_path):

@@ -52,7 +52,8 @@ FIGURE_DEFAULTS = {"n": 4, "T": 20.0}
 VIEW_DEFAULTS = {"n": 3, "T": 10.0}
 _SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int, "limits": bool}, "certify": {"n": int, "settle": int, "T": float}, "figure": {"n": int, "T": float}, "view": {"n": int, "T": float}}
 
-#: What ``--smoke`` does to every job: a few epochs of tiny networks, a small ROA and certificate,
+#: What ``--smoke`` does to every job: a few epochs of tiny networks (and no `fallback` gate, which
+#: simulates 100 states for 20 s: "auto" becomes "none"), a small ROA and certificate,
 #: one short replay (values are upper bounds: a job already smaller keeps its own).
 SMOKE_TRAIN = {"epochs": 20, "width": 16, "depth": 1, "samples": 64, "checkpoint_every": 10}
 SMOKE_EVALUATE = {"n": 12, "T": 5.0}
@@ -278,7 +279,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
     base_config = TrainConfig.fast().to_dict() if preset == "fast" else TrainConfig().to_dict()
     config = TrainConfig.from_dict({**base_config, **train})
     if smoke:
-        config = config.replace(**{k: min(getattr(config, k), v) for k, v in SMOKE_TRAIN.items()})
+        config = config.replace(**{k: min(getattr(config, k), v) for k, v in SMOKE_TRAIN.items()}, fallback="none" if config.fallback == "auto" else config.fallback)
         for key, small in (("evaluate", SMOKE_EVALUATE), ("certify", SMOKE_CERTIFY), ("figure", SMOKE_FIGURE), ("view", SMOKE_VIEW)):
             tables[key] = {**tables[key], **{k: min(tables[key][k], v) for k, v in small.items()}}
 

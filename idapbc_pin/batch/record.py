@@ -23,14 +23,15 @@ __all__ = ["SUMMARY_COLUMNS", "VOLATILE_COLUMNS", "crash_record", "new_record", 
 #: dissipation_fraction, les, sublevel_coverage, certified come from `certify` (les falls back to
 #: the trainer's eigenvalue check), lqr_sublevel_coverage from its LQR baseline (δᵀSδ); limit is the
 #: actuators' effort limits applied in the evaluation ("none" when unlimited or lifted); *_radius the
-#: ROA radii; *_peak_half the median peak |u| on the half box; loss_* the final epoch's loss terms.
+#: ROA radii; *_peak_half the median peak |u| on the half box; fallback whether NIDA-PBC switches to
+#: the anchor's linear law outside the training box (`control.fallback`); loss_* the final epoch's loss terms.
 SUMMARY_COLUMNS = (
     "name", "system", "source", "actuated", "preset", "status",
     "nida_success_domain", "lqr_success_domain", "nida_success_half", "lqr_success_half",
     "nida_settle_domain", "lqr_settle_domain", "nida_settle_half", "lqr_settle_half",
     "roa_n", "roa_T", "limit", "nida_radius", "lqr_radius", "nida_peak_half", "lqr_peak_half",
     "dissipation_fraction", "les", "sublevel_coverage", "lqr_sublevel_coverage", "certified",
-    "epochs", "train_seconds", *(f"loss_{t}" for t in TERMS),
+    "fallback", "epochs", "train_seconds", *(f"loss_{t}" for t in TERMS),
     "job_seconds", "run_dir", "error",
 )  # fmt: skip
 #: Columns that depend on the machine (time, paths), not on the seeds.
@@ -126,6 +127,7 @@ def summary_row(job: Job, record: dict, run=None, evaluation: dict | None = None
         row["epochs"] = s.get("epochs_done")
         row["train_seconds"] = finite_or_none(s.get("train_seconds"))
         row["les"] = s.get("locally_exponentially_stable")
+        row["fallback"] = bool(run.uses_fallback)
         for t in TERMS:
             row[f"loss_{t}"] = finite_or_none(s.get("final_terms", {}).get(t))
         row["run_dir"] = f"{job.name}/{run.path.name}"

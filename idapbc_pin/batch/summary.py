@@ -156,7 +156,7 @@ def zoo_table_markdown(summary_csv) -> str:
     for r in rows:
         if r["status"] != "done":
             reason = f": {r['error'][:80]}" if r.get("error") else ""
-            body.append([f"`{r['name']}`", r["actuated"], f"{r['status']}{reason}"] + [""] * 7)
+            body.append([f"`{r['name']}`", r["actuated"], f"{r['status']}{reason}"] + [""] * 8)
             continue
         body.append([
             f"`{r['name']}`", r["actuated"],
@@ -164,17 +164,20 @@ def zoo_table_markdown(summary_csv) -> str:
             f"{_r(r.get('nida_radius'))} / {_r(r.get('lqr_radius'))}",
             f"{_s(r['nida_settle_domain'])} / {_s(r['lqr_settle_domain'])}",
             f"{_s(r.get('nida_peak_half'), '')} / {_s(r.get('lqr_peak_half'), '')} (limit {r.get('limit') or '—'})", r["les"] or "—",
-            f"{_p(r['sublevel_coverage'])} / {_p(r.get('lqr_sublevel_coverage'))}", _dur(r["train_seconds"]),
+            f"{_p(r['sublevel_coverage'])} / {_p(r.get('lqr_sublevel_coverage'))}",
+            {"yes": "linear law", "no": "networks"}.get(r.get("fallback") or "", "—"), _dur(r["train_seconds"]),
         ])  # fmt: skip
     head = ["robot", "actuated", "success, domain: NIDA-PBC / LQR", "success, half box: NIDA-PBC / LQR",
             "ROA radius: NIDA-PBC / LQR", "median settling: NIDA-PBC / LQR", "median peak abs(u), half box: NIDA-PBC / LQR",
-            "x* LES", "certified share: NIDA-PBC / LQR", "training"]  # fmt: skip
+            "x* LES", "certified share: NIDA-PBC / LQR", "NIDA-PBC outside the box", "training"]  # fmt: skip
     note = (
         f"Generated from `{Path(summary_csv).name}` by `idapbc_pin.batch.zoo_table_markdown`: {n} uniform states per box, "
         f"T = {T} s, success = within 0.05 of x* over the last 2 s, with the effort limits applied to both controllers; "
         "ROA radius = largest scale s of the training box around x* at which ≥ 90 % of the states succeed; certified "
         "share = share of the box inside the largest sampled sublevel set of H_d (NIDA-PBC) or of δᵀSδ (LQR) that stays "
-        "in the box with a decreasing value on every sample (see docs/method.md): sampled, not proofs."
+        "in the box with a decreasing value on every sample (see docs/method.md): sampled, not proofs. NIDA-PBC outside "
+        "the box = the law NIDA-PBC applies outside the training box, chosen after training (the anchor's linear law, or "
+        "the networks'; docs/method.md §6)."
     )
     return _table(head, body) + "\n\n" + note + "\n"
 

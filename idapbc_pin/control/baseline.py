@@ -7,7 +7,14 @@ import numpy as np
 from ..model.angles import wrap_angles
 from .linear import lqr
 
-__all__ = ["LQRController"]
+__all__ = ["LQRController", "equilibrium_input"]
+
+
+def equilibrium_input(system) -> np.ndarray:
+    """u* = −(gᵀg)⁻¹gᵀ f(x*) (m,): the input that holds x* (least squares on g(x*))."""
+    Bx = np.asarray(system.linearization()[1], float)
+    f_star = np.asarray(system.f(np.asarray(system.x_star, float)), float)
+    return -np.linalg.lstsq(Bx, f_star, rcond=None)[0]
 
 
 class LQRController:
@@ -41,8 +48,7 @@ class LQRController:
         self.eigenvalues = np.linalg.eigvals(A - Bx @ self.K)
         self.x_star = np.asarray(system.x_star, float).copy()
         self.angle_mask = np.asarray(system.angle_mask, bool).copy()
-        f_star = np.asarray(system.f(self.x_star), float)
-        self.u_star = -np.linalg.lstsq(Bx, f_star, rcond=None)[0]
+        self.u_star = equilibrium_input(system)
 
     def __call__(self, x) -> np.ndarray:
         """u = u* − K wrap(x − x*): (N, n) -> (N, m) (or (n,) -> (m,))."""

@@ -5,6 +5,7 @@ G⁻¹, in torch) with the `System` for numpy, float64 use at run time:
 
     ctrl(x) -> u (N, m);  ctrl.torque(q, v) -> τ (N, nv);  ctrl.with_damping(ρ) -> Controller
     ctrl.H_d(x), ctrl.J_d(x), ctrl.R_d(x), ctrl.f_d(x), ctrl.mismatch(x)
+    ctrl.fallback: the linear law used outside the training box, or None (`fallback.BoxFallback`)
 
 Desired closed loop (eq. CLPH): f̃_d = (J_d − R_d)∇H_d. Mismatch (eq. mismatch): μ = −g⊥(f − f̃_d);
 the closed loop is ẋ = f̃_d + ξ with ξ = G⁻¹(0; μ) (Proposition 1). g is constant for every system
@@ -21,6 +22,7 @@ from torch import Tensor, nn
 from ..model import System
 from ._runtime import snapshot
 from .desired_flow import DesiredFlow
+from .fallback import BoxFallback
 from .nets import IdaPbcNets
 
 __all__ = ["Controller"]
@@ -39,11 +41,15 @@ class Controller:
     ----------
     system : the plant (its f(x) enters the control law).
     nets : trained `IdaPbcNets`.
+    fallback : the linear law that replaces the learned one outside the training box
+        (`fallback.BoxFallback`; a run's own comes from `Run.controller`), or None: the learned
+        law everywhere.
     """
 
-    def __init__(self, system: System, nets: IdaPbcNets):
+    def __init__(self, system: System, nets: IdaPbcNets, fallback: BoxFallback | None = None):
         self.system = system
         self.nets = nets.eval()
+        self.fallback = fallback
         self._dtype = nets.x_star.dtype
         self._device = nets.x_star.device
         self._g_pinv = self._np(nets.g_pinv)  # (gᵀg)⁻¹gᵀ, (m, n)
@@ -66,11 +72,14 @@ class Controller:
 
         The law is evaluated at x* + wrap(x − x*) when the networks wrap angles (`IdaPbcNets.wrap`,
         `TrainConfig.wrap_angles`): a state one turn away from x* gets the torque of x*'s neighbour.
+        With a `fallback`, states outside the training box get its linear law instead.
         """
         xb, single = self._batch(x)
         xb = self.nets.wrap(xb)
         f_d = self.flow()(xb) if len(xb) <= RUNTIME_MAX_BATCH else self._np(self.nets.desired_fast(self._t(xb)))
         u = (f_d - self.system.f(xb)) @ self._g_pinv.T  # float64 whatever the networks' dtype
+        if self.fallback is not None:
+            u = self.fallback.apply(xb, u)
         return u[0] if single else u
 
     def flow(self) -> DesiredFlow:
@@ -136,7 +145,11 @@ class Controller:
         nets.H, nets.J, nets.R = self.nets.H, self.nets.J, self.nets.R.with_rho(rho)
         for name, buf in self.nets._buffers.items():  # None buffers too (angle_mask)
             nets.register_buffer(name, buf, persistent=name not in self.nets._non_persistent_buffers_set)
-        return Controller(self.system, nets)
+        return Controller(self.system, nets, self.fallback)
+
+    def with_fallback(self, fallback: BoxFallback | None) -> "Controller":
+        """Same networks, another law outside the training box (None: the learned law everywhere)."""
+        return Controller(self.system, self.nets, fallback)
 
     @property
     def rho(self) -> float:

@@ -10,7 +10,10 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
 
     q ← q* + wrap(q − q*) on the angles listed in controller.json's "wrap" (to within π of the target)
     x = (q, p), p = M(q) v;   f(x) = (v, C(q, v)ᵀv − ∇U(q) − D v)   (Pinocchio on robot.urdf)
-    u = (BᵀB)⁻¹Bᵀ (f̃_d(x) − f(x))_p;   u ← clip(u, −EFFORT, EFFORT);   τ = B u
+    u = (BᵀB)⁻¹Bᵀ (f̃_d(x) − f(x))_p
+    u ← u* − K δ  where some |δ_i| > s_i, δ = wrap(x − x*)   (only if controller.json has a "fallback":
+                  the linear law the run uses outside its training box, half-widths s)
+    u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
 f̃_d = (J_d − R_d)∇H_d comes from desired_flow.py with weights.npz (the same function as
 desired_flow.onnx); D is the URDF's joint damping. The folder's controller.json holds the rest.
@@ -61,6 +64,10 @@ class ExportedController:
         self.x_star = np.array(meta["x_star"], dtype=np.float64)  # (2 nv,)
         wrap = meta.get("wrap")  # (2 nv,) bool or null; only its q half can be True
         self.wrap = np.zeros(len(self.joints), bool) if wrap is None else np.array(wrap, bool)[: len(self.joints)]
+        fallback = meta.get("fallback")  # null: the learned law everywhere
+        self.fallback = None if fallback is None else {
+            k: np.array(fallback[k], dtype=bool if k == "angle_mask" else np.float64) for k in ("K", "u_star", "x_star", "half", "angle_mask")
+        }
         self.flow = _load_sibling(directory, "desired_flow").load_flow(directory / meta["weights"])
         self.model = pin.buildModelFromUrdf(str(directory / meta["urdf"]))
         self.data = self.model.createData()
@@ -106,8 +113,20 @@ class ExportedController:
             q_star = self.x_star[: self.nv][self.wrap]
             q[:, self.wrap] = q_star + np.pi - np.mod(np.pi - (q[:, self.wrap] - q_star), 2 * np.pi)
         p, p_dot = self.momentum_and_drift(q, v)
-        f_d = self.flow(np.concatenate([q, p], axis=1))
-        return (f_d[:, self.nv :] - p_dot) @ self.B_pinv_T
+        x = np.concatenate([q, p], axis=1)
+        u = (self.flow(x)[:, self.nv :] - p_dot) @ self.B_pinv_T
+        return u if self.fallback is None else self.outside_box(x, u)
+
+    def outside_box(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """u* − Kδ on the rows of x (N, n) outside the training box, u (N, m) elsewhere."""
+        fb = self.fallback
+        d = x - fb["x_star"]
+        d[:, fb["angle_mask"]] = np.pi - np.mod(np.pi - d[:, fb["angle_mask"]], 2 * np.pi)  # wrap to (−π, π]
+        out = (np.abs(d) > fb["half"]).any(axis=1)
+        if out.any():
+            u = u.copy()
+            u[out] = fb["u_star"] - d[out] @ fb["K"].T
+        return u
 
     def torque(self, q, v) -> np.ndarray:
         """τ = B clip(u, ±EFFORT): (N, nv) ×2 -> (N, nv), or (nv,) ×2 -> (nv,)."""

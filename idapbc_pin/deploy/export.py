@@ -5,7 +5,8 @@ The folder (``--out DIR``) holds::
     controller.py       torque(q, v) -> τ, saturated at EFFORT; numpy + Pinocchio only
     desired_flow.py     f̃_d = (J_d − R_d)∇H_d in numpy (`idapbc_pin.control.desired_flow`, copied)
     weights.npz         the networks' weights (`DesiredFlow.arrays`), in their dtype
-    controller.json     joints, actuated joints, B, x*, effort limits, damping, dtype, provenance
+    controller.json     joints, actuated joints, B, x*, effort limits, damping, the law outside the
+                        training box (if the run uses one), dtype, provenance
     robot.urdf          the run's copy of the URDF: controller.py recomputes the plant's f(x) from it
     desired_flow.onnx   f̃_d(x) as an ONNX graph with explicit derivatives (`onnx_flow`)
     README.md           how to wire it into a 1 kHz loop or a ROS 2 node (`readme`)
@@ -75,6 +76,7 @@ def _controller_record(run, flow, onnx: bool) -> dict:
         "damping": [j.damping for j in system.joints],
         "x_star": system.x_star,
         "wrap": None if run.nets.angle_mask is None else run.nets.angle_mask.cpu().numpy().tolist(),  # angles wrapped to within π of x*
+        "fallback": None if run.fallback is None else run.fallback.to_json(),  # the linear law outside the training box
         "state_names": list(system.state_names),
         "dtype": str(flow.dtype),
         "urdf": "robot.urdf",

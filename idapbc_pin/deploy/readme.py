@@ -40,12 +40,13 @@ not its cos/sin) and v the joint velocities:
     x    = (q, p),  p = M(q) v                                    (state, n = {n})
     f(x) = (v, C(q, v)ᵀ v − ∇U(q) − D v)                         (open-loop drift, Pinocchio)
     f̃_d  = (J_d − R_d) ∇H_d (x)                                   (learned, desired_flow / ONNX)
-    u    = (BᵀB)⁻¹Bᵀ [f̃_d − f]_p,   u ← clip(u, −effort, effort),   τ = B u
+    u    = (BᵀB)⁻¹Bᵀ [f̃_d − f]_p
+{fallback_line}    u    ← clip(u, −effort, effort),   τ = B u
 
 `[·]_p` is the momentum half (last {nv} entries). Target x* = {x_star}. wrap(a) = a − 2π·round(a/2π):
 a pendulum one turn away from the target is at the target; f is periodic in the angles, the learned
 f̃_d is not, so feed the ONNX graph the wrapped state too.
-
+{fallback_text}
 {joints}
 
 ## Python
@@ -110,8 +111,9 @@ state interfaces, then:
    `computeGeneralizedGravity(model, data, q)`; f = (v, Cᵀv − g − D v) with D from controller.json.
 2. ONNX Runtime C++ on `desired_flow.onnx`: one `Ort::Session` created in `on_configure`, input
    `x` = (q, p) as a 1 × {n} {dtype} tensor, output `f_d`.
-3. u = (BᵀB)⁻¹Bᵀ (f_d − f) on the momentum rows, clip to the limits, write the actuated joints'
-   effort command interfaces.
+3. u = (BᵀB)⁻¹Bᵀ (f_d − f) on the momentum rows (outside the training box, the linear law of
+   controller.json's "fallback" instead, if it has one), clip to the limits, write the actuated
+   joints' effort command interfaces.
 
 Check the C++ side against `controller.torque` on a few recorded states before closing the loop.
 """
@@ -127,4 +129,17 @@ def deploy_readme(record: dict) -> str:
         if record.get("onnx")
         else ""
     )
-    return title + _BODY.format(dtype=record["dtype"], n=2 * nv, nv=nv, x_star=x_star, joints=_joint_table(record), onnx_row=onnx_row)
+    fallback = record.get("fallback")
+    line, text = "", ""
+    if fallback is not None:
+        line = "    u    ← u* − K δ   where some |δ_i| > s_i,  δ = wrap(x − x*)              (outside the training box)\n"
+        half = "(" + ", ".join(f"{v:.4g}" for v in fallback["half"]) + ")"
+        text = (
+            f"\nOutside the training box (half-widths s = {half} around x*) the run uses the linear law of its LQR "
+            "anchor instead of the learned one: K and u* are controller.json's \"fallback\" (`controller.py` applies it; "
+            "the ONNX graph is f̃_d alone). The networks were trained on the box only; training chose this law there "
+            "because it brought more simulated states to x*.\n"
+        )
+    body = _BODY.format(dtype=record["dtype"], n=2 * nv, nv=nv, x_star=x_star, joints=_joint_table(record), onnx_row=onnx_row,
+                        fallback_line=line, fallback_text=text)
+    return title + body

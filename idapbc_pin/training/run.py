@@ -27,6 +27,7 @@ import torch
 from .._io import DamagedFileError, atomic_write_bytes, read_json
 from ..config import TrainConfig
 from ..control.controller import Controller
+from ..control.fallback import BoxFallback, box_fallback
 from ..control.nets import IdaPbcNets, build_nets
 from ..errors import IdapbcError
 from ..model import System, load_system
@@ -57,8 +58,8 @@ DEFAULT_CHECKPOINT = "last"
 
 #: Values of options that runs written before the option existed trained with (their config.json
 #: lacks the key): the box-unit anchor weight diag(1/s²), physical units, H_d's ICNN fed the box-normalised state, no `effort` term, angles
-#: not wrapped, J_d and R_d extrapolated beyond the box.
-LEGACY_DEFAULTS = {"anchor_weight": "box", "scaling": "none", "energy_input": "box", "effort_term": False, "wrap_angles": False, "bounded_structure": False}
+#: not wrapped, J_d and R_d extrapolated beyond the box, the learned law outside the box too.
+LEGACY_DEFAULTS = {"fallback": "none", "anchor_weight": "box", "scaling": "none", "energy_input": "box", "effort_term": False, "wrap_angles": False, "bounded_structure": False}
 
 
 @dataclass
@@ -71,11 +72,31 @@ class Run:
     nets: IdaPbcNets
     summary: dict = field(default_factory=dict)
     checkpoint: str = DEFAULT_CHECKPOINT
+    _fallback: BoxFallback | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def controller(self) -> Controller:
-        """The control law u = (gᵀg)⁻¹gᵀ(f̃_d − f) with the trained networks."""
-        return Controller(self.system, self.nets)
+        """The control law u = (gᵀg)⁻¹gᵀ(f̃_d − f) with the trained networks, and the run's law
+        outside the training box (`fallback`)."""
+        return Controller(self.system, self.nets, self.fallback)
+
+    @property
+    def uses_fallback(self) -> bool:
+        """True when the run switches to the anchor's linear law outside the training box:
+        ``config.fallback == "linear"``, or ``"auto"`` and the gate after training chose it
+        (summary.json → fallback → used; False while training has not written it)."""
+        if self.config.fallback == "auto":
+            return bool((self.summary.get("fallback") or {}).get("used", False))
+        return self.config.fallback == "linear"
+
+    @property
+    def fallback(self) -> BoxFallback | None:
+        """The linear law used outside the training box (`control.fallback`), or None."""
+        if not self.uses_fallback:
+            return None
+        if self._fallback is None:
+            self._fallback = box_fallback(self.system, self.config)
+        return self._fallback
 
 
 # ------------------------------------------------------------------------------------ checkpoints

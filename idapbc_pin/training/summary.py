@@ -1,4 +1,5 @@
-"""What `train` prints when it ends: status, loss terms, the anchor, eigenvalues at x*, stiffness."""
+"""What `train` prints when it ends: status, loss terms, the anchor, the law outside the box,
+eigenvalues at x*, stiffness."""
 
 from __future__ import annotations
 
@@ -29,6 +30,11 @@ def format_train_summary(run) -> str:
     if config is not None and getattr(config, "form", "anchored") == "anchored":
         units = "box units, Q = anchor_q·diag(1/s²)" if config.scaling == "box" else "physical units, Q = anchor_q·I"
         lines.insert(3, f"anchor: LQR with anchor_q = {config.anchor_q:g} ({units})")
+    if getattr(run, "uses_fallback", False):
+        gate = s.get("fallback") or {}
+        why = (f" (gate: {100 * gate['with_fallback']:.0f} % of {gate['states']} fresh states reach x* with it, "
+               f"{100 * gate['networks']:.0f} % without)" if "with_fallback" in gate else "")
+        lines.append(f"outside the training box: the anchor's linear law u* − Kδ{why}")
     if s["locally_exponentially_stable"]:
         lines.append("x* is locally exponentially stable (all eigenvalues have negative real part)")
     else:

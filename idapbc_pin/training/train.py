@@ -21,11 +21,13 @@ from ..config import TrainConfig
 from ..control.anchor import anchor_settings
 from ..control.linear import fastest_pole
 from ..control.controller import Controller
+from ..control.fallback import box_fallback
 from ..control.nets import build_nets
 from ..errors import IdapbcError
 from ..model import System
 from ._trainer import Trainer, checkpoint, metrics_row, open_metrics, restore, save_snapshot, snapshot, start
 from .loss import TERMS, loss_terms
+from .fallback_gate import fallback_gate
 from .rollout import rollout_cost, rollout_gate, rollout_starts
 from .run import Run, check_checkpoints, load_weights, read_checkpoint, read_config
 
@@ -90,11 +92,27 @@ def train(
         ) from None
     gate = _gate_rollout(trainer, progress) if status == "finished" and config.rollout_epochs > 0 else None
     run = Run(run_dir, system, config, trainer.nets)
-    run.summary = _summarise(run, status, trainer.epoch, trainer.eps_ema, trainer.elapsed)
+    summary = _summarise(run, status, trainer.epoch, trainer.eps_ema, trainer.elapsed)
     if gate is not None:
-        run.summary["rollout_gate"] = gate
+        summary["rollout_gate"] = gate
+    if status == "finished" and config.fallback == "auto":
+        summary["fallback"] = _gate_fallback(system, config, trainer.nets, progress)
+    run.summary = summary
     write_json(run_dir / "summary.json", run.summary)
     return run
+
+
+def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool) -> dict:
+    """``fallback="auto"``: simulate the learned law with and without the anchor's linear law outside
+    the training box (`fallback_gate`) and record which one the run uses."""
+    t0 = time.perf_counter()
+    gate = fallback_gate(system, Controller(system, nets), box_fallback(system, config), config.seed)
+    gate["seconds"] = round(time.perf_counter() - t0, 3)
+    if progress:
+        verdict = "used" if gate["used"] else "not used"
+        print(f"outside the training box: success from {gate['states']} fresh states {100 * gate['networks']:.0f} % with the "
+              f"learned law, {100 * gate['with_fallback']:.0f} % with the anchor's linear law there (linear law {verdict})", flush=True)
+    return gate
 
 
 def _gate_rollout(trainer: Trainer, progress: bool) -> dict:

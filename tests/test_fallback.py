@@ -1,0 +1,162 @@
+"""The law outside the training box (`control.fallback`) and the gate that decides whether a run uses it.
+
+Claims:
+* inside the training box the law is the networks' own; outside it, u* − Kδ with K the gain of the LQR
+  loop the anchored networks are pinned to (eig(A − BK) = the learned loop's eigenvalues at x*);
+  a state one turn away in an angle is the same state;
+* the gate uses the fallback exactly when it brings strictly more simulated states to x*;
+* a run records the decision (summary.json → fallback) and `load_run` applies it; "linear" and
+  "none" force it; runs written before the option load without it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+import idapbc_pin as ip
+from idapbc_pin.control.fallback import BoxFallback, box_fallback
+from idapbc_pin.control.baseline import LQRController
+from idapbc_pin.training import fallback_gate as gate_module
+from idapbc_pin.training.fallback_gate import fallback_gate
+
+
+def _tiny(**changes) -> ip.TrainConfig:
+    return ip.TrainConfig.fast(epochs=5, width=8, depth=1, samples=64, dtype="float64", **changes)
+
+
+@pytest.fixture(scope="module")
+def pendubot_run(tmp_path_factory):
+    system = ip.load_system("pendubot")
+    return ip.train(system, _tiny(fallback="linear"), out=tmp_path_factory.mktemp("fb"), progress=False)
+
+
+def _wide_states(system, n=400, seed=0):
+    """n states of three times the training box around x*: most of them outside it."""
+    lo, hi = system.domain
+    lo, hi = system.x_star + 3 * (lo - system.x_star), system.x_star + 3 * (hi - system.x_star)
+    return lo + (hi - lo) * np.random.default_rng(seed).random((n, system.n))
+
+
+def test_inside_the_box_the_law_is_the_networks_outside_it_the_anchors_linear_law(pendubot_run):
+    run = pendubot_run
+    ctrl = run.controller
+    assert isinstance(ctrl.fallback, BoxFallback)
+    x = _wide_states(run.system)
+    lo, hi = run.system.domain
+    inside = np.all((x >= lo) & (x <= hi), axis=1)
+    assert 0 < inside.sum() < len(x) - 100
+    u, u_nets = ctrl(x), ctrl.with_fallback(None)(x)
+    np.testing.assert_array_equal(u[inside], u_nets[inside])
+    fb = ctrl.fallback
+    delta = x[~inside] - run.system.x_star
+    delta[:, :2] = (delta[:, :2] + np.pi) % (2 * np.pi) - np.pi  # both joints are angles
+    np.testing.assert_allclose(u[~inside], fb.u_star - delta @ fb.K.T, rtol=1e-12, atol=1e-12)
+    assert not np.allclose(u[~inside], u_nets[~inside])  # the switch changes something
+
+
+def test_a_state_one_turn_away_is_inside_the_box(pendubot_run):
+    run = pendubot_run
+    x = run.system.x_star + 0.2 * (run.system.domain[1] - run.system.x_star)
+    turned = x.copy()
+    turned[0] += 2 * np.pi
+    assert not run.controller.fallback.outside(turned[None])[0]
+    np.testing.assert_allclose(run.controller(turned), run.controller(x), rtol=1e-9, atol=1e-9)
+
+
+def test_the_fallback_gain_closes_the_same_loop_as_the_networks_at_the_target(pendubot_run):
+    run = pendubot_run
+    fb = box_fallback(run.system, run.config)
+    A, Bx = run.system.linearization()
+    linear = np.sort_complex(np.linalg.eigvals(A - Bx @ fb.K))
+    learned = np.sort_complex(run.controller.eigenvalues_at_target())
+    np.testing.assert_allclose(linear, learned, rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(fb.u_star, LQRController(run.system).u_star, atol=1e-12)
+
+
+class _Law:
+    """A stand-in for a learned law: LQR inside the training box, `outside_law` beyond it; with a
+    fallback, the fallback's linear law beyond it instead (what `Controller.with_fallback` does)."""
+
+    def __init__(self, system, outside_law, fallback=None):
+        self.system, self.outside_law, self.fallback = system, outside_law, fallback
+        self.lqr = LQRController(system)
+        self.box = box_fallback(system, _tiny())
+
+    def with_fallback(self, fallback):
+        return _Law(self.system, self.outside_law, fallback)
+
+    def __call__(self, x):
+        u = self.lqr(x)
+        out = self.box.outside(x)
+        u[out] = self.outside_law(x[out])
+        return u if self.fallback is None else self.fallback.apply(x, u)
+
+
+@pytest.fixture
+def real_gate(monkeypatch):
+    """The gate's real horizon (20 s), on 40 states."""
+    monkeypatch.setattr(gate_module, "GATE_STATES", 40)
+    monkeypatch.setattr(gate_module, "GATE_HORIZON", 20.0)
+
+
+def test_the_gate_takes_the_fallback_when_the_learned_law_fails_outside_the_box(real_gate):
+    system = ip.load_system("pendubot")
+    zero = lambda x: np.zeros((len(x), system.m))  # noqa: E731  (no torque once outside the box)
+    fb = box_fallback(system, _tiny())
+    gate = fallback_gate(system, _Law(system, zero), fb, seed=0)
+    assert gate["states"] == 40 and gate["left_box"] > 0
+    assert gate["with_fallback"] > gate["networks"] and gate["used"]
+
+
+def test_the_gate_keeps_the_learned_law_when_the_fallback_does_worse(real_gate):
+    system = ip.load_system("pendubot")
+    fb = box_fallback(system, _tiny())
+    idle = dataclasses.replace(fb, K=np.zeros_like(fb.K))  # the "fallback" gives no feedback at all
+    lqr = LQRController(system)
+    gate = fallback_gate(system, _Law(system, lqr), idle, seed=0)
+    assert gate["left_box"] > 0
+    assert gate["with_fallback"] < gate["networks"] and not gate["used"]
+
+
+def test_a_run_records_the_gate_and_load_run_applies_its_decision(tmp_path):
+    system = ip.load_system("pendubot")
+    run = ip.train(system, _tiny(), out=tmp_path, progress=False)
+    record = json.loads((run.path / "summary.json").read_text())["fallback"]
+    assert set(record) >= {"states", "networks", "with_fallback", "left_box", "used"}
+    loaded = ip.load_run(run.path)
+    assert (loaded.controller.fallback is not None) == record["used"] == loaded.uses_fallback
+    for forced, expected in (("linear", True), ("none", False)):
+        other = dataclasses.replace(loaded, config=loaded.config.replace(fallback=forced))
+        assert (other.controller.fallback is not None) is expected
+
+
+def test_runs_written_before_the_option_load_without_a_fallback(pendubot_run, tmp_path):
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(pendubot_run.path, old)
+    config = json.loads((old / "config.json").read_text())
+    del config["fallback"]
+    (old / "config.json").write_text(json.dumps(config))
+    assert ip.load_run(old).controller.fallback is None
+
+
+def test_a_bad_fallback_value_is_refused_with_the_fix():
+    with pytest.raises(ip.IdapbcError, match="fallback must be 'auto', 'linear' or 'none'.*Fix"):
+        ip.TrainConfig(fallback="lqr")
+
+
+def test_the_cli_trains_with_the_fallback_named_and_prints_the_law_outside_the_box(tmp_path, capsys):
+    from idapbc_pin.cli.main import main
+
+    main(["train", "pendubot", "--fast", "--epochs", "3", "--width", "8", "--depth", "1", "--fallback", "linear",
+          "--evaluate", "0", "--out", str(tmp_path)])  # fmt: skip
+    printed = capsys.readouterr().out
+    assert "outside the training box: the anchor's linear law" in printed
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert json.loads((run_dir / "config.json").read_text())["fallback"] == "linear"
+    assert ip.load_run(run_dir).controller.fallback is not None
