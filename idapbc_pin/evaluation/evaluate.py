@@ -88,7 +88,7 @@ def evaluate_run(
     evaluation = Evaluation(run, results, found, bool(limits))
     record = evaluation.record()
     record["rho"] = ctrl.rho
-    record["fallback"] = ctrl.fallback is not None  # NIDA-PBC used the anchor's linear law outside the training box
+    record["fallback"] = getattr(ctrl, "fallback", None) is not None  # NIDA-PBC used the anchor's linear law outside the training box
     write_json(run.path / "evaluation.json", record)
     return evaluation
 
