@@ -23,9 +23,9 @@ def rng():
 @pytest.fixture(autouse=True)
 def _short_fallback_gate(monkeypatch):
     """The suite trains tiny networks by the dozen; after each, ``fallback="auto"`` runs a gate that
-    simulates 100 states for 20 s (`training.fallback_gate`). Here it simulates 8 states for 2 s;
+    simulates 100 states for 20 s (`training.fallback_gate`). Here it simulates 4 states for 0.5 s;
     tests/test_fallback.py puts the real values back where the gate's decision is the claim."""
     from idapbc_pin.training import fallback_gate
 
-    monkeypatch.setattr(fallback_gate, "GATE_STATES", 8)
-    monkeypatch.setattr(fallback_gate, "GATE_HORIZON", 2.0)
+    monkeypatch.setattr(fallback_gate, "GATE_STATES", 4)
+    monkeypatch.setattr(fallback_gate, "GATE_HORIZON", 0.5)
