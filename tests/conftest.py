@@ -20,12 +20,15 @@ def rng():
     return np.random.default_rng(12345)
 
 
-@pytest.fixture(autouse=True)
-def _short_fallback_gate(monkeypatch):
+@pytest.fixture(scope="session", autouse=True)
+def _short_fallback_gate():
     """The suite trains tiny networks by the dozen; after each, ``fallback="auto"`` runs a gate that
     simulates 100 states for 20 s (`training.fallback_gate`). Here it simulates 4 states for 0.5 s;
-    tests/test_fallback.py puts the real values back where the gate's decision is the claim."""
+    tests/test_fallback.py puts the real values back where the gate's decision is the claim.
+    Session scope: module-scoped fixtures that train are set up before function-scoped ones."""
     from idapbc_pin.training import fallback_gate
 
-    monkeypatch.setattr(fallback_gate, "GATE_STATES", 4)
-    monkeypatch.setattr(fallback_gate, "GATE_HORIZON", 0.5)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(fallback_gate, "GATE_STATES", 4)
+        patch.setattr(fallback_gate, "GATE_HORIZON", 0.5)
+        yield
