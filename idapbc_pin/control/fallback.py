@@ -51,24 +51,20 @@ class BoxFallback:
     angle_mask: np.ndarray
 
     def delta(self, x) -> np.ndarray:
-        """δ = wrap(x − x*): (N, n) -> (N, n)."""
+        """δ = wrap(x − x*): (..., n) -> (..., n)."""
         return wrap_angles(np.asarray(x, dtype=np.float64) - self.x_star, self.angle_mask)
 
     def outside(self, x) -> np.ndarray:
-        """(N, n) -> (N,) bool: True where some |δ_i| > s_i (the state is outside the training box)."""
+        """(..., n) -> (...) bool: True where some |δ_i| > s_i (the state is outside the training box)."""
         return (np.abs(self.delta(x)) > self.half).any(axis=-1)
-
-    def linear(self, x) -> np.ndarray:
-        """u* − Kδ: (N, n) -> (N, m)."""
-        return self.u_star - self.delta(x) @ self.K.T
 
     def apply(self, x, u) -> np.ndarray:
         """u where x is inside the box, u* − Kδ outside: (N, n), (N, m) -> (N, m) (a new array)."""
-        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-        u = np.array(u, dtype=np.float64, copy=True).reshape(len(x), -1)
-        out = self.outside(x)
+        d = self.delta(np.atleast_2d(x))
+        u = np.array(u, dtype=np.float64, copy=True).reshape(len(d), -1)
+        out = (np.abs(d) > self.half).any(axis=-1)
         if out.any():
-            u[out] = self.linear(x[out])
+            u[out] = self.u_star - d[out] @ self.K.T
         return u
 
     def to_json(self) -> dict:
@@ -84,6 +80,6 @@ def box_fallback(system, config) -> BoxFallback:
         K=np.array(anchor.K, dtype=np.float64),
         u_star=equilibrium_input(system),
         x_star=np.array(system.x_star, dtype=np.float64),
-        half=np.asarray(half_widths(system), dtype=np.float64).copy(),
-        angle_mask=np.asarray(system.angle_mask, bool).copy(),
+        half=np.array(half_widths(system), dtype=np.float64),
+        angle_mask=np.array(system.angle_mask, dtype=bool),
     )

@@ -56,7 +56,7 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     traj = simulate(system, plain, x0, T=T, dt=dt, limits=True)
     ok = success(traj, system)
     ok_fb = ok.copy()
-    left = fallback.outside(traj.x.reshape(-1, system.n)).reshape(traj.x.shape[:2]).any(axis=1)
+    left = fallback.outside(traj.x).any(axis=1)  # (N, T_k) -> (N,)
     if left.any():  # a trajectory that never leaves the box is the same under both laws
         ok_fb[left] = success(simulate(system, ctrl.with_fallback(fallback), x0[left], T=T, dt=dt, limits=True), system)
     rates = {"networks": float(ok.mean()), "with_fallback": float(ok_fb.mean())}
