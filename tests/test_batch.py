@@ -30,6 +30,7 @@ from idapbc_pin.batch import (
     run_batch,
     zoo_table_markdown,
 )
+from idapbc_pin.batch.batch_dir import choose_batch_dir
 from idapbc_pin.batch.job import _train_or_resume
 from idapbc_pin.cli.batch import add_batch_command
 from idapbc_pin.errors import IdapbcError
@@ -185,6 +186,14 @@ def test_missing_ray_is_a_clear_error_before_anything_runs(tmp_path, monkeypatch
     with pytest.raises(IdapbcError, match=r"Ray is not installed\. Fix: pip install 'idapbc-pin\[ray\]'"):
         run_batch(SMOKE, ray="auto", out=tmp_path / "out", progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_two_batches_started_in_the_same_second_get_two_directories(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    pipeline = load_pipeline(SMOKE, smoke=True)
+    first, second = choose_batch_dir(pipeline), choose_batch_dir(pipeline)
+    assert first != second and first.is_dir() and second.is_dir()
+    assert first.parent == second.parent == Path("runs")
 
 
 def test_cli_arguments():

@@ -26,11 +26,13 @@ __all__ = ["choose_batch_dir", "lock", "open_batch", "record_invocation"]
 
 
 def choose_batch_dir(pipeline: Pipeline, out=None, resume=None) -> Path:
-    """The directory a batch of `pipeline` runs in (not created here).
+    """The directory a batch of `pipeline` runs in.
 
     resume : an existing batch directory (it must hold batch.json). out : a new directory, or a
     batch directory to resume. Neither: the latest unfinished ``runs/batch-*`` of this pipeline
-    with the same smoke flag, else a new ``runs/batch-<stamp>`` (``runs`` of the working directory).
+    with the same smoke flag, else a new ``runs/batch-<stamp>`` (``runs`` of the working directory),
+    created here, empty, so that two batches started in the same second cannot both pick it (the
+    second gets ``batch-<stamp>-1``).
     """
     if resume is not None:
         path = Path(resume)
@@ -50,11 +52,16 @@ def choose_batch_dir(pipeline: Pipeline, out=None, resume=None) -> Path:
             latest = meta_path.parent
     if latest is not None:
         return latest
+    parent.mkdir(parents=True, exist_ok=True)
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    path, k = parent / f"batch-{stamp}", 1
-    while path.exists():
-        path, k = parent / f"batch-{stamp}-{k}", k + 1
-    return path
+    for k in range(1000):
+        path = parent / (f"batch-{stamp}-{k}" if k else f"batch-{stamp}")
+        try:
+            path.mkdir()  # atomic: of two batches that chose this name, one gets FileExistsError
+        except FileExistsError:
+            continue
+        return path
+    raise IdapbcError(f"cannot create a new batch directory under '{parent}' (1000 names taken). Fix: pass --out DIR.")
 
 
 def _pid_alive(pid: int) -> bool:
