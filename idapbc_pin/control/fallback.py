@@ -12,7 +12,8 @@ with K the gain of the LQR loop the anchored networks are pinned to at x* (`anch
 Q = anchor_q·I in physical units, R = I) and u* the input that holds x*. Inside X nothing changes:
 H_d, J_d, R_d, the certificate (whose sublevel sets lie inside X) and the linearisation at x* are
 those of the networks. The switch is discontinuous on the box's faces; the actuator limits clip
-both sides alike.
+both sides alike (docs/method.md §6 measures what the switching costs: no torque step the saturated
+law does not already take).
 
 Whether a run uses it is decided after training on states of its own (`training.fallback_gate`):
 it helped some robots and cost others (docs/results-history.md).
