@@ -284,7 +284,7 @@ def test_fully_actuated_system_with_an_exact_solution_is_matched(tmp_path):
     assert success(traj, system).all()
 
 
-def _train_summary_text(eigs, open_loop=None) -> str:
+def _train_summary_text(eigs, open_loop=None, config=None) -> str:
     """`format_train_summary` of a finished run with closed-loop eigenvalues `eigs` at x* ([re, im] pairs)."""
     from types import SimpleNamespace
 
@@ -294,7 +294,18 @@ def _train_summary_text(eigs, open_loop=None) -> str:
          "eigenvalues_at_target": eigs, "locally_exponentially_stable": True}
     if open_loop is not None:
         s["open_loop_fastest_pole"] = open_loop
-    return format_train_summary(SimpleNamespace(path="RUN", summary=s))
+    return format_train_summary(SimpleNamespace(path="RUN", summary=s, config=config))
+
+
+def test_train_summary_names_the_anchor_weight_actually_used():
+    """Box units (scaling) and the LQR weight's units (anchor_weight) are separate settings: box units
+    with the default physical weight use Q = anchor_q·I, as `control.anchor` builds it."""
+    eigs = [[-2.0, 0.0]]
+    physical = _train_summary_text(eigs, config=TrainConfig(scaling="box", anchor_q=1.0))
+    assert "anchor: LQR with anchor_q = 1 (networks in box units, Q = anchor_q·I in physical units)" in physical
+    boxed = _train_summary_text(eigs, config=TrainConfig(scaling="box", anchor_weight="box", anchor_q=1.0))
+    assert "(networks in box units, Q = anchor_q·diag(1/s²))" in boxed
+    assert "anchor_q = 10 (Q = anchor_q·I in physical units)" in _train_summary_text(eigs, config=TrainConfig(scaling="none", anchor_q=10.0))
 
 
 def test_train_summary_warns_when_the_loop_is_too_stiff_for_the_default_rk4_step():

@@ -28,7 +28,9 @@ def format_train_summary(run) -> str:
     ]
     config = getattr(run, "config", None)
     if config is not None and getattr(config, "form", "anchored") == "anchored":
-        units = "box units, Q = anchor_q·diag(1/s²)" if config.scaling == "box" else "physical units, Q = anchor_q·I"
+        box = config.scaling == "box"
+        weight = "Q = anchor_q·diag(1/s²)" if box and config.anchor_weight == "box" else "Q = anchor_q·I in physical units"
+        units = f"networks in box units, {weight}" if box else weight
         lines.insert(3, f"anchor: LQR with anchor_q = {config.anchor_q:g} ({units})")
     if getattr(run, "uses_fallback", False):
         gate = s.get("fallback") or {}
