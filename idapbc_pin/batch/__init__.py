@@ -29,28 +29,36 @@ so the same seeds give the same results.
 Modules, in the order a batch uses them: `pipeline` (TOML file → validated `Job`s), `batch_dir`
 (which directory, its lock, batch.json), `job` (`run_job` and its stages), `record` (job.json and
 its summary row), `executors` (in-process, process pool, Ray), `progress` (bar and status lines),
-`summary` (summary.csv / .md, the README's zoo table), `runner` (`run_batch`).
+`summary` (summary.csv / .md, the README's zoo table), `seeds` (the zoo table's medians over training
+seeds), `runner` (`run_batch`).
 """
 
 from .job import run_job
 from .pipeline import Job, Pipeline, PipelineError, load_pipeline
 from .record import SUMMARY_COLUMNS, VOLATILE_COLUMNS
 from .runner import BatchResult, run_batch
-from .summary import read_summary, readme_zoo_block, replace_zoo_table, write_summary, zoo_table_markdown
+from .seeds import SEED_TABLE_END, SEED_TABLE_START, seed_median_markdown, seed_medians
+from .summary import read_summary, readme_block, readme_zoo_block, replace_block, replace_zoo_table, write_summary, zoo_table_markdown
 
 __all__ = [
     "BatchResult",
     "Job",
     "Pipeline",
     "PipelineError",
+    "SEED_TABLE_END",
+    "SEED_TABLE_START",
     "SUMMARY_COLUMNS",
     "VOLATILE_COLUMNS",
     "load_pipeline",
     "read_summary",
+    "readme_block",
     "readme_zoo_block",
+    "replace_block",
     "replace_zoo_table",
     "run_batch",
     "run_job",
+    "seed_median_markdown",
+    "seed_medians",
     "write_summary",
     "zoo_table_markdown",
 ]

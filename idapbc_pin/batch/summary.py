@@ -21,7 +21,17 @@ from ._files import read_json_or_none
 from .pipeline import Pipeline
 from .record import SUMMARY_COLUMNS, summary_row
 
-__all__ = ["ZOO_TABLE_END", "ZOO_TABLE_START", "read_summary", "readme_zoo_block", "replace_zoo_table", "write_summary", "zoo_table_markdown"]
+__all__ = [
+    "ZOO_TABLE_END",
+    "ZOO_TABLE_START",
+    "read_summary",
+    "readme_block",
+    "readme_zoo_block",
+    "replace_block",
+    "replace_zoo_table",
+    "write_summary",
+    "zoo_table_markdown",
+]
 
 #: README markers around the generated zoo table.
 ZOO_TABLE_START, ZOO_TABLE_END = "<!-- zoo-table:start -->", "<!-- zoo-table:end -->"
@@ -182,17 +192,27 @@ def zoo_table_markdown(summary_csv) -> str:
     return _table(head, body) + "\n\n" + note + "\n"
 
 
+def replace_block(text: str, table: str, start_marker: str, end_marker: str) -> str:
+    """`text` with the block between two markers replaced by `table`."""
+    start, end = text.find(start_marker), text.find(end_marker)
+    if start < 0 or end < start:
+        raise IdapbcError(f"README has no {start_marker} … {end_marker} block. Fix: add both markers where the table goes.")
+    return text[: start + len(start_marker)] + "\n" + table.strip() + "\n" + text[end:]
+
+
+def readme_block(text: str, start_marker: str, end_marker: str) -> str | None:
+    """The text between two markers (stripped), or None if the markers are missing."""
+    start, end = text.find(start_marker), text.find(end_marker)
+    if start < 0 or end < start:
+        return None
+    return text[start + len(start_marker) : end].strip()
+
+
 def replace_zoo_table(readme_text: str, table: str) -> str:
     """`readme_text` with the block between the zoo-table markers replaced by `table`."""
-    start, end = readme_text.find(ZOO_TABLE_START), readme_text.find(ZOO_TABLE_END)
-    if start < 0 or end < start:
-        raise IdapbcError(f"README has no {ZOO_TABLE_START} … {ZOO_TABLE_END} block. Fix: add both markers where the table goes.")
-    return readme_text[: start + len(ZOO_TABLE_START)] + "\n" + table.strip() + "\n" + readme_text[end:]
+    return replace_block(readme_text, table, ZOO_TABLE_START, ZOO_TABLE_END)
 
 
 def readme_zoo_block(readme_text: str) -> str | None:
     """The text between the zoo-table markers (stripped), or None if the markers are missing."""
-    start, end = readme_text.find(ZOO_TABLE_START), readme_text.find(ZOO_TABLE_END)
-    if start < 0 or end < start:
-        return None
-    return readme_text[start + len(ZOO_TABLE_START) : end].strip()
+    return readme_block(readme_text, ZOO_TABLE_START, ZOO_TABLE_END)
