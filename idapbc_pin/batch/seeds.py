@@ -79,6 +79,11 @@ def _per_seed(rows: list[dict], column: str) -> str:
     return " / ".join("—" if r.get(column) in ("", None) else f"{100 * float(r[column]):.1f}" for r in rows)
 
 
+def _median_cell(value: float, fmt) -> str:
+    """A median through a summary cell formatter (`_p`, `_r`, `_s`), "—" when there is none."""
+    return fmt(str(value)) if math.isfinite(value) else "—"
+
+
 def seed_median_markdown(summary_csvs) -> str:
     """The README's table of medians over training seeds, from several summary.csv files (seed 0 first).
 
@@ -92,8 +97,13 @@ def seed_median_markdown(summary_csvs) -> str:
     body = []
     for name, entry in robots.items():
         med, rows = entry["median"], entry["rows"]
-        pct = lambda c: _p(str(med[c])) if math.isfinite(med[c]) else "—"  # noqa: E731
-        num = lambda c, f: f(str(med[c])) if math.isfinite(med[c]) else "—"  # noqa: E731
+
+        def pct(column: str) -> str:
+            return _median_cell(med[column], _p)
+
+        def num(column: str, fmt) -> str:
+            return _median_cell(med[column], fmt)
+
         body.append([
             f"`{name}`", str(len(rows)),
             f"{_per_seed(rows, 'nida_success_domain')} → **{pct('nida_success_domain')}** / {pct('lqr_success_domain')}",
