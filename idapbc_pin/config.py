@@ -31,7 +31,8 @@ FIELD_HELP = {
     "anchor_q": "state weight of the LQR anchor, Q = anchor_q·I (R = I; see `anchor_weight` for its units); larger values "
     "give a faster local loop (anchored form only). 0 = automatic: the largest of 10, 1, 0.1, 0.01 whose anchor has "
     "no pole faster than 15 1/s (a stiffer loop asks for torques the actuators saturate on: the Furuta pendulum's "
-    "17 1/s anchor gave 78 % of the half box under its 10 N·m limit, its 13 1/s anchor 88 %)",
+    "17 1/s anchor gave 78 % of the half box under its 10 N·m limit, its 13 1/s anchor 88 %); 1, the LQR baseline's "
+    "weight, when the plant itself has a pole faster than 15 1/s (no weight can meet the cap then)",
     "anchor_weight": "units of the anchor's LQR state weight: 'physical' Q = anchor_q·I in the state's own units (the LQR "
     "baseline's weight when anchor_q = 1), whatever `scaling` is; 'box' Q = anchor_q·diag(1/s²) under box scaling, "
     "which weights the light links' tiny momenta by 1/s² ≈ 1e4 and leaves a 0.5 1/s pole (settling 5× slower than LQR "

@@ -352,6 +352,20 @@ def test_automatic_units_and_anchor_weight(name, scaling, anchor_q):
     assert anchor_settings(system, TrainConfig.fast(scaling="none", anchor_q=3.0)) == ("none", 3.0)
 
 
+def test_a_plant_stiffer_than_the_cap_gets_the_lqr_baselines_weight():
+    """Light, damped links (example-robot-data's double_pendulum_simple): the plant's own −153 1/s pole
+    leaves no weight under the 15 1/s cap, and the automatic weight is then the LQR baseline's,
+    anchor_q = 1 (Q = I, R = I), not the gentlest one tried."""
+    from idapbc_pin.control.anchor import AUTO_MAX_POLE, AUTO_STIFF_PLANT_Q, anchor_settings
+
+    for joint in ("joint1", "joint2"):
+        system = ip.load_system("erd:double_pendulum_simple", actuated=[joint])
+        assert np.abs(np.linalg.eigvals(system.linearization()[0])).max() > AUTO_MAX_POLE
+        assert anchor_settings(system, TrainConfig.fast()) == ("box", AUTO_STIFF_PLANT_Q) == ("box", 1.0)
+    pendubot = ip.load_system("pendubot")  # a plant under the cap keeps the rule's own choice
+    assert anchor_settings(pendubot, TrainConfig.fast()) == ("none", 10.0)
+
+
 def test_the_run_directory_holds_the_resolved_units_and_old_runs_load_in_physical_units(tmp_path):
     import json
 
