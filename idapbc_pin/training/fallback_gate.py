@@ -21,7 +21,7 @@ from ..control.controller import Controller
 from ..control.fallback import BoxFallback
 from ..model import System
 
-__all__ = ["GATE_SEED", "GATE_STATES", "fallback_gate"]
+__all__ = ["GATE_SEED", "GATE_STATES", "fallback_gate", "gate_step"]
 
 #: States of the gate (half from the half box, half from the training box), its seed offset, and the
 #: horizon and step of its simulations (s): the judge's (DESIGN §4).
@@ -29,18 +29,32 @@ GATE_STATES = 100
 GATE_SEED = 15_485_863
 GATE_HORIZON = 20.0
 GATE_STEP = 0.01
+#: The gate's RK4 step is at most this over the fastest pole of the linear loop at x* (|λ|·dt ≤ 0.5,
+#: as `train`'s stiffness note advises): a plant with a 153 1/s damping pole (example-robot-data's
+#: double_pendulum_simple) has |λ|·dt = 1.5 at 10 ms, where LQR (no limits there) "diverged" from 155 of 200
+#: domain states and from none at 2 ms. A decision taken on such blow-ups would be noise.
+GATE_POLE_STEP = 0.5
+
+
+def gate_step(system: System, fallback: BoxFallback) -> float:
+    """The gate's RK4 step (s): `GATE_STEP`, or less where the loop A − BK at x* (the anchor's, which the
+    anchored networks reproduce there) has a pole faster than ``GATE_POLE_STEP / GATE_STEP``."""
+    A, B = system.linearization()
+    fastest = float(np.abs(np.linalg.eigvals(A - B @ fallback.K)).max())
+    return min(GATE_STEP, GATE_POLE_STEP / fastest) if fastest > 0 else GATE_STEP
 
 
 def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int) -> dict:
     """Success of `ctrl` (the learned law everywhere) and of ``ctrl.with_fallback(fallback)`` from the
     same `GATE_STATES` states, simulated on `system` with its effort limits.
 
-    Only the trajectories that leave the box at one of their 10 ms samples are simulated again with
-    the fallback; the others are the same under both laws (up to an RK4 stage grazing a face).
+    Only the trajectories that leave the box at one of their samples (every `gate_step`: 10 ms unless
+    the loop is stiffer) are simulated again with the fallback; the others are the same under both
+    laws (up to an RK4 stage grazing a face).
 
     Returns {"states", "networks", "with_fallback" (success rates in [0, 1]), "left_box" (how many
     trajectories of the learned law left the box), "used" (bool: strictly more successes with the
-    fallback)}.
+    fallback), "step" (s)}.
     """
     from ..sim.integrate import simulate  # training sits upstream of the judge; imported only here
     from ..sim.metrics import success
@@ -52,7 +66,7 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
         uniform_states(system, GATE_STATES - k, "domain", GATE_SEED + seed + 1),
     ])
     plain = ctrl.with_fallback(None)
-    T, dt = GATE_HORIZON, GATE_STEP
+    T, dt = GATE_HORIZON, gate_step(system, fallback)
     traj = simulate(system, plain, x0, T=T, dt=dt, limits=True)
     ok = success(traj, system)
     ok_fb = ok.copy()
@@ -60,4 +74,4 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     if left.any():  # a trajectory that never leaves the box is the same under both laws
         ok_fb[left] = success(simulate(system, ctrl.with_fallback(fallback), x0[left], T=T, dt=dt, limits=True), system)
     rates = {"networks": float(ok.mean()), "with_fallback": float(ok_fb.mean())}
-    return {"states": int(len(x0)), **rates, "left_box": int(left.sum()), "used": bool(ok_fb.sum() > ok.sum())}
+    return {"states": int(len(x0)), **rates, "left_box": int(left.sum()), "used": bool(ok_fb.sum() > ok.sum()), "step": dt}
