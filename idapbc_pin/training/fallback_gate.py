@@ -15,6 +15,8 @@ but pendubot 64 / 44 → 63 / 24 % and a Furuta pendulum with other masses 94 / 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..control.controller import Controller
@@ -38,10 +40,13 @@ GATE_POLE_STEP = 0.5
 
 def gate_step(system: System, fallback: BoxFallback) -> float:
     """The gate's RK4 step (s): `GATE_STEP`, or less where the loop A − BK at x* (the anchor's, which the
-    anchored networks reproduce there) has a pole faster than ``GATE_POLE_STEP / GATE_STEP``."""
+    anchored networks reproduce there) has a pole faster than ``GATE_POLE_STEP / GATE_STEP``; then the
+    largest step ≤ ``GATE_POLE_STEP / |λ|`` that divides `GATE_HORIZON` into whole steps."""
     A, B = system.linearization()
     fastest = float(np.abs(np.linalg.eigvals(A - B @ fallback.K)).max())
-    return min(GATE_STEP, GATE_POLE_STEP / fastest) if fastest > 0 else GATE_STEP
+    if fastest * GATE_STEP <= GATE_POLE_STEP:
+        return GATE_STEP
+    return GATE_HORIZON / math.ceil(GATE_HORIZON * fastest / GATE_POLE_STEP)
 
 
 def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int) -> dict:
