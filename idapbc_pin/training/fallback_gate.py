@@ -21,6 +21,7 @@ import numpy as np
 
 from ..control.controller import Controller
 from ..control.fallback import BoxFallback
+from ..control.linear import fastest_pole
 from ..model import System
 
 __all__ = ["GATE_SEED", "GATE_STATES", "fallback_gate", "gate_step"]
@@ -43,7 +44,7 @@ def gate_step(system: System, fallback: BoxFallback) -> float:
     anchored networks reproduce there) has a pole faster than ``GATE_POLE_STEP / GATE_STEP``; then the
     largest step ≤ ``GATE_POLE_STEP / |λ|`` that divides `GATE_HORIZON` into whole steps."""
     A, B = system.linearization()
-    fastest = float(np.abs(np.linalg.eigvals(A - B @ fallback.K)).max())
+    fastest = fastest_pole(A - B @ fallback.K)
     if fastest * GATE_STEP <= GATE_POLE_STEP:
         return GATE_STEP
     return GATE_HORIZON / math.ceil(GATE_HORIZON * fastest / GATE_POLE_STEP)
