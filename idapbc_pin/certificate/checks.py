@@ -137,7 +137,7 @@ def check_sublevel(H: np.ndarray, H_dot: np.ndarray, exclude: float, epsilon: fl
     )
 
 
-def settled_equilibrium(ctrl, system, n_each: int, T: float, dt: float, seed: int, limits: bool = True) -> Equilibrium:
+def settled_equilibrium(ctrl, system, n_each: int, T: float, dt: float | None, seed: int, limits: bool = True) -> Equilibrium:
     """Simulate `n_each` states near x* and `n_each` in the half box (effort limits applied unless
     `limits` is False); where do they settle?"""
     x_star = _f64(system.x_star)

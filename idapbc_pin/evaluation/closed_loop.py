@@ -24,6 +24,7 @@ from ..sim.mujoco_plant import mujoco_judge
 from ..sim.radius import RadiusResult, roa_radius
 from ..sim.roa import RoaResult, score
 from ..sim.states import evaluation_box, initial_states, uniform_states
+from ..sim.step import judge_step
 from ..sim.trajectory import Trajectory
 from ..training.run import resolve_run
 from .robustness import MeasuredController, parse_mismatch, perturbed_system
@@ -133,7 +134,7 @@ def simulate_run(
     run,
     n: int = 100,
     T: float = 20.0,
-    dt: float = 0.01,
+    dt: float | None = None,
     x0=None,
     *,
     rho: float | None = None,
@@ -157,7 +158,8 @@ def simulate_run(
     ----------
     run : a `Run` or a run directory.
     n : uniform states of `box` ("domain" or "half"), seed `seed`; or `x0` (N, n) / (N, nq).
-    T, dt : horizon and RK4 step, s.
+    T, dt : horizon and RK4 step, s (dt None: 10 ms, or shorter where either loop is stiffer at x*,
+        `judge_step` on the judge plant).
     rho : extra damping ρ for Neural IDA-PBC.
     mismatch : {kind: scale} or "mass=1.2,..." for the judge plant (`perturbed_system`).
     saturation : max |u| per input (with the effort limits: the smaller bound applies).
@@ -170,12 +172,13 @@ def simulate_run(
     """
     run = resolve_run(run)
     nominal = run.system
-    T = horizon(T, dt)
-    x0, box_name, bounds = _start_states(nominal, n, x0, box, seed)
     _check_conditions(saturation, noise, rho)
     scales = parse_mismatch(mismatch)
     plant = _judged(nominal, judge, scales)
     nida = run.controller if rho is None else run.controller.with_damping(rho)
+    dt = judge_step(plant, {"NIDA-PBC": nida, "LQR": LQRController(nominal)}, T, dt)  # noise-free laws
+    T = horizon(T, dt)
+    x0, box_name, bounds = _start_states(nominal, n, x0, box, seed)
     wrap = plant is not nominal or noise > 0
     controllers = {
         "NIDA-PBC": MeasuredController(nida, plant=plant, model=nominal, noise=noise, seed=seed) if wrap else nida,

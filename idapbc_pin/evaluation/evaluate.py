@@ -16,6 +16,7 @@ from ..control.baseline import LQRController
 from ..sim.limits import input_limits
 from ..sim.radius import RadiusResult, roa_radius
 from ..sim.roa import RoaResult, roa
+from ..sim.step import judge_step
 from ..training.run import Run
 
 __all__ = ["Evaluation", "evaluate_run", "format_evaluation"]
@@ -53,6 +54,7 @@ class Evaluation:
             out[box]["n"] = int(res.x0.shape[0])
             out[box]["seed"] = res.seed
             out[box]["T"] = res.T
+            out[box]["dt"] = res.dt
         out["limits"] = input_limits(self.run.system, self.limits).to_json()
         if self.radius is not None:
             out["radius"] = dict(self.radius.radius)
@@ -64,7 +66,7 @@ def evaluate_run(
     run: Run,
     n: int = 200,
     T: float = 20.0,
-    dt: float = 0.01,
+    dt: float | None = None,
     seed: int = 0,
     rho: float | None = None,
     boxes=("domain", "half"),
@@ -75,11 +77,13 @@ def evaluate_run(
     """ROA of the run's controller (optionally with extra damping ρ) and LQR on `n` states per box,
     and their ROA radii on `n` states per scale (the boxes' rollouts reused at s = 1 and 0.5).
 
+    dt : RK4 step (s); None: 10 ms, or shorter where either loop is stiffer at x* (`judge_step`).
     limits : apply the system's effort limits to both controllers (False lifts them).
     radius : find the ROA radii (False skips them; they cost a few more ROA evaluations).
     """
     ctrl = run.controller if rho is None else run.controller.with_damping(rho)
     controllers = {"NIDA-PBC": ctrl, "LQR": LQRController(run.system)}
+    dt = judge_step(run.system, controllers, T, dt)
     results = {box: roa(run.system, controllers, n=n, box=box, seed=seed, T=T, dt=dt, limits=limits) for box in boxes}
     found = None
     if radius:

@@ -36,6 +36,7 @@ from ..control.baseline import LQRController
 from ..errors import IdapbcError
 from ..sim.limits import InputLimits, input_limits
 from ..sim.roa import roa
+from ..sim.step import judge_step
 from ..training.run import resolve_run
 
 __all__ = [
@@ -150,6 +151,12 @@ class MeasuredController:
     def system(self):
         """The controller's model."""
         return self.model
+
+    @property
+    def noise_free(self) -> "MeasuredController":
+        """The same measurement without noise (what `idapbc_pin.sim.step.loop_pole` linearises: the
+        noisy law would draw from this one's generator)."""
+        return MeasuredController(self.ctrl, plant=self.plant, model=self.model, noise=0.0, seed=self.seed)
 
     def __call__(self, x) -> np.ndarray:
         """u for true states x: (N, n) -> (N, m) (or (n,) -> (m,))."""
@@ -273,7 +280,7 @@ def robustness_table(
     run,
     n: int = 100,
     T: float = 20.0,
-    dt: float = 0.01,
+    dt: float | None = None,
     seed: int = 0,
     box: str = "half",
     conditions: Sequence[Condition] | None = None,
@@ -288,7 +295,8 @@ def robustness_table(
     Parameters
     ----------
     run : a `Run` or a run directory (its controller, optionally with extra damping `rho`).
-    n, T, dt, seed, box : the ROA settings (`idapbc_pin.sim.roa.roa`); the same states in every row.
+    n, T, dt, seed, box : the ROA settings (`idapbc_pin.sim.roa.roa`); the same states and the same
+        step in every row (dt None: `judge_step` of both laws on the nominal plant).
     conditions : rows (default `default_conditions()`: nominal, mass ×0.8 and ×1.2, saturation at
         `saturation_factor` × LQR's median nominal peak |u|, noise σ = 0.01).
     write : write ``robustness.json`` into the run directory.
@@ -300,6 +308,7 @@ def robustness_table(
     nominal = run.system
     nida = run.controller if rho is None else run.controller.with_damping(rho)
     lqr = LQRController(nominal)
+    dt = judge_step(nominal, {"NIDA-PBC": nida, "LQR": lqr}, T, dt)
     conditions = list(default_conditions() if conditions is None else conditions)
     if conditions and conditions[0].saturation == "auto":
         raise IdapbcError("the first condition cannot use saturation='auto' (it needs a nominal row first). Fix: start with the nominal row.")

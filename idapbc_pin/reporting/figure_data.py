@@ -17,6 +17,7 @@ from ..certificate.terms import closed_loop_terms
 from ..errors import IdapbcError
 from ..evaluation.robustness import MeasuredController
 from ..sim.integrate import simulate
+from ..sim.step import judge_step
 from ..sim.states import initial_states
 
 __all__ = ["FigureData", "figure_data", "horizon"]
@@ -105,7 +106,7 @@ def figure_data(
     x0=None,
     n: int = 4,
     T: float = 20.0,
-    dt: float = 0.01,
+    dt: float | None = None,
     seed: int = 0,
     *,
     rho: float | None = None,
@@ -124,7 +125,7 @@ def figure_data(
     run : a `Run`, a run directory or a controller (see `idapbc_pin.certificate.terms`).
     x0 : (N, n) initial states or (N, nq) positions at rest; default `n` uniform states of the
         half-size box (seed `seed`).
-    T, dt : horizon and RK4 step, s.
+    T, dt : horizon and RK4 step, s (dt None: 10 ms, or shorter for a stiff loop, `judge_step`).
     rho : replace the controller's ρ ("extra damping", `Controller.with_damping`).
     epsilon : ε of E (default the run's estimate).
     plant : the judge `System` (default the controller's model), e.g. `perturbed_system(...)`.
@@ -145,6 +146,7 @@ def figure_data(
         law = ctrl if (plant is None and not noise) else MeasuredController(ctrl, plant=judge, model=system, noise=noise, seed=seed)
         if saturation is not None and not np.all(np.asarray(saturation, float) > 0):
             raise IdapbcError(f"saturation must be > 0 (max |u| per input), got {saturation!r}.")
+        dt = judge_step(judge, {"law": ctrl}, T, dt)  # the noise-free law
         traj = simulate(judge, law, x0, T=horizon(T, dt), dt=dt, saturation=saturation, limits=limits)
     N, K, nx = traj.x.shape
     terms = closed_loop_terms(ctrl, traj.x.reshape(N * K, nx), system)

@@ -71,7 +71,7 @@ def figure(
     rho_extra: float | None = None,
     path=None,
     *,
-    dt: float = 0.01,
+    dt: float | None = None,
     seed: int = 0,
     extra: bool = True,
     limits: bool = True,

@@ -22,6 +22,7 @@ import numpy as np
 
 from .judge import Judge
 from .limits import input_limits
+from .step import judge_step
 from .trajectory import Trajectory
 
 __all__ = ["DIVERGENCE_BOUND", "Controller", "simulate"]
@@ -267,7 +268,7 @@ def simulate(
     ctrl: Controller,
     x0,
     T: float = 20.0,
-    dt: float = 0.01,
+    dt: float | None = None,
     method: str = "rk4",
     saturation=None,
     record_every: int = 1,
@@ -288,7 +289,8 @@ def simulate(
     x0 : (N, n) or (n,) initial states (q, p).
     T : horizon, s; must be a multiple of `dt`.
     dt : step of the fixed-step RK4 (s); for ``"rk45"`` the initial step and, with
-        `record_every`, the sampling grid.
+        `record_every`, the sampling grid. None (the default): 10 ms, or shorter where the loop
+        linearised at x* is stiffer (`idapbc_pin.sim.step.judge_step`).
     method : ``"rk4"`` (classical fixed step, the default) or ``"rk45"`` (adaptive
         Dormand–Prince 5(4) with a step size shared by the batch, tolerances `rtol`, `atol`; a
         state that needs a step below dt/100 is flagged diverged).
@@ -305,9 +307,10 @@ def simulate(
     Trajectory with t (T_k,), x (N, T_k, n), q and v (N, T_k, nq), u (N, T_k, m) (the applied,
     clipped input), diverged (N,).
     """
-    steps = _record_steps(T, dt, method, record_every)
     nq, n, m = int(system.nq), int(system.n), int(system.m)
     x0 = _as_batch(x0, n, "x0")
+    dt = judge_step(system, {"ctrl": ctrl}, T, dt)
+    steps = _record_steps(T, dt, method, record_every)
     x_star = np.asarray(system.x_star, float)
     clip = input_limits(system, limits, saturation).bound
     rhs = _vector_field(Judge(system, threads), ctrl, clip, bound, x_star[:nq], m)

@@ -30,6 +30,7 @@ from .integrate import Controller
 from .limits import InputLimits, input_limits
 from .roa import RoaResult, score
 from .states import evaluation_box, uniform_states
+from .step import judge_step
 
 __all__ = ["RADIUS_RANGE", "RADIUS_RESOLUTION", "RADIUS_THRESHOLD", "RadiusResult", "roa_radius", "scaled_box"]
 
@@ -185,7 +186,7 @@ def roa_radius(
     n: int = 200,
     seed: int = 0,
     T: float = 20.0,
-    dt: float = 0.01,
+    dt: float | None = None,
     *,
     known: Mapping[float, RoaResult] | None = None,
     s_range: tuple[float, float] = RADIUS_RANGE,
@@ -204,7 +205,7 @@ def roa_radius(
     controllers : {name: ctrl}, ctrl (N, n) -> (N, m).
     n, seed : states per scale and their seed (the same unit draws at every scale).
     T, dt, method, saturation, limits, threads : passed to `simulate` (effort limits apply unless
-        ``limits=False``).
+        ``limits=False``); dt None: one step for all of them, `judge_step` of the stiffest loop.
     known : {s: RoaResult} already simulated (e.g. ``{1.0: domain ROA, 0.5: half-box ROA}``),
         reused where its states are exactly the states of that scale.
     s_range, resolution, threshold : the search range, the bracket width at which it stops, the
@@ -219,6 +220,7 @@ def roa_radius(
     if n < 1 or not (0 < s_lo < s_hi) or not (resolution > 0) or not (0 < threshold <= 1):
         raise ValueError(f"need n ≥ 1, 0 < s_lo < s_hi, resolution > 0, 0 < threshold ≤ 1; got {n}, {s_range}, {resolution}, {threshold}")
     need = math.ceil(threshold * n - 1e-9)
+    dt = judge_step(system, controllers, T, dt)
     sim_kw = dict(T=T, dt=dt, method=method, saturation=saturation, limits=limits, threads=threads)
     known = {float(s): r for s, r in (known or {}).items()}
     radius, bracket, below, above, probes = {}, {}, {}, {}, {}

@@ -14,6 +14,7 @@ from .integrate import Controller, simulate
 from .limits import InputLimits, input_limits
 from .metrics import equilibrium_offset, peak_input, settled, settling_time, success
 from .states import evaluation_box, uniform_states
+from .step import judge_step
 from .trajectory import Trajectory
 
 __all__ = ["ControllerScore", "RoaResult", "roa", "score"]
@@ -166,7 +167,7 @@ def roa(
     box="domain",
     seed: int = 0,
     T: float = 20.0,
-    dt: float = 0.01,
+    dt: float | None = None,
     *,
     method: str = "rk4",
     saturation=None,
@@ -183,7 +184,8 @@ def roa(
     box : ``"domain"``, ``"half"`` or (lo, hi) (see `evaluation_box`).
     seed : seed of the uniform states.
     T, dt, method, saturation, limits, threads : passed to `simulate` (the system's effort limits
-        apply to every controller alike unless ``limits=False``).
+        apply to every controller alike unless ``limits=False``); dt None: one step for all of them,
+        `judge_step` of the stiffest loop.
 
     Returns
     -------
@@ -191,6 +193,7 @@ def roa(
     """
     lo, hi = evaluation_box(system, box)
     x0 = uniform_states(system, n, (lo, hi), seed)
+    dt = judge_step(system, controllers, T, dt)
     scores = {
         name: score(system, name, ctrl, x0, T, dt, method=method, saturation=saturation, limits=limits, threads=threads)[0]
         for name, ctrl in controllers.items()

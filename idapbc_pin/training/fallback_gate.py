@@ -15,8 +15,6 @@ but pendubot 64 / 44 → 63 / 24 % and a Furuta pendulum with other masses 94 / 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..control.controller import Controller
@@ -43,11 +41,10 @@ def gate_step(system: System, fallback: BoxFallback) -> float:
     """The gate's RK4 step (s): `GATE_STEP`, or less where the loop A − BK at x* (the anchor's, which the
     anchored networks reproduce there) has a pole faster than ``GATE_POLE_STEP / GATE_STEP``; then the
     largest step ≤ ``GATE_POLE_STEP / |λ|`` that divides `GATE_HORIZON` into whole steps."""
+    from ..sim.step import step_for_pole  # training sits upstream of the judge; imported only here
+
     A, B = system.linearization()
-    fastest = fastest_pole(A - B @ fallback.K)
-    if fastest * GATE_STEP <= GATE_POLE_STEP:
-        return GATE_STEP
-    return GATE_HORIZON / math.ceil(GATE_HORIZON * fastest / GATE_POLE_STEP)
+    return step_for_pole(fastest_pole(A - B @ fallback.K), GATE_HORIZON, GATE_STEP, GATE_POLE_STEP)
 
 
 def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int) -> dict:

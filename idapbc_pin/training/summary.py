@@ -5,10 +5,11 @@ from __future__ import annotations
 
 __all__ = ["PLANT_POLE_SHARE", "STIFF_DT", "STIFF_WARN", "format_train_summary"]
 
-#: `simulate`'s default RK4 step (s), and the |λ|·dt above which `train` warns that the learned loop
-#: is too stiff for it (RK4 is stable on the negative real axis up to 2.78; measured: the Furuta
-#: pendulum's anchor with |λ| = 253 1/s, |λ|·dt = 2.5, diverged from every state at 10 ms and reached
-#: x* from 24 % of the half box at 2 ms).
+#: The judge's default RK4 step (s) (`idapbc_pin.sim.step.DEFAULT_STEP`), and the |λ|·dt above which
+#: `train` notes that the learned loop is too stiff for it, so the evaluations shorten the step (RK4 is
+#: stable on the negative real axis up to 2.78; measured: the Furuta pendulum's anchor with
+#: |λ| = 253 1/s, |λ|·dt = 2.5, diverged from every state at 10 ms and reached x* from 24 % of the
+#: half box at 2 ms).
 STIFF_DT, STIFF_WARN = 0.01, 1.0
 #: The NOTE blames the plant rather than the anchor when the open loop at x* has a pole at least this
 #: share of the fastest closed-loop one (`erd:double_pendulum`: open loop 136 1/s from joint damping on
@@ -43,17 +44,20 @@ def format_train_summary(run) -> str:
         lines.append("WARNING: x* is NOT locally exponentially stable under the learned controller (an eigenvalue has Re >= 0)")
     fastest = max((abs(complex(re, im)) for re, im in s["eigenvalues_at_target"]), default=0.0)
     if fastest * STIFF_DT > STIFF_WARN:
+        from ..sim.step import step_for_pole  # training sits upstream of the judge; imported only here
+
         plant = s.get("open_loop_fastest_pole", 0.0)
-        smaller_step = f"simulate with --dt {0.5 / fastest:.1g}"
-        fix = (
+        step = step_for_pole(fastest, 20.0)
+        why = (
             f"the plant has it too (open loop at x*: |λ| = {plant:.3g} 1/s, e.g. joint damping on light links), so no anchor "
-            f"weight removes it: {smaller_step}"
+            "weight removes it"
             if plant >= PLANT_POLE_SHARE * fastest
-            else f"{smaller_step} or train with a gentler anchor (smaller anchor_q)"
+            else "a gentler anchor (smaller anchor_q) would allow a longer step"
         )
         lines.append(
-            f"NOTE: the fastest closed-loop pole at x* has |λ| = {fastest:.3g} 1/s: |λ|·dt = {fastest * STIFF_DT:.2g} at the default "
-            f"{STIFF_DT * 1e3:g} ms RK4 step of `simulate`, near or past RK4's stability limit 2.78 (and the loop is faster "
-            f"still away from x*); {fix}"
+            f"NOTE: the fastest closed-loop pole at x* has |λ| = {fastest:.3g} 1/s: |λ|·dt = {fastest * STIFF_DT:.2g} at a "
+            f"{STIFF_DT * 1e3:g} ms RK4 step, near or past RK4's stability limit 2.78 (and the loop is faster still away from "
+            f"x*). simulate, certify, report and view judge it with a {step * 1e3:.3g} ms step for a 20 s horizon "
+            f"(--dt overrides); {why}"
         )
     return "\n".join(lines)

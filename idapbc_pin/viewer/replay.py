@@ -23,6 +23,7 @@ from ..model import load_system
 from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import initial_states
+from ..sim.step import judge_step
 from ..training.run import resolve_run
 from .animation import DEFAULT_FPS
 from .viewer import Viewer
@@ -71,12 +72,14 @@ def _system_and_controller(run_or_system, checkpoint: str | None = None):
     raise IdapbcError(f"cannot view {type(run_or_system).__name__}. Fix: pass a Run, a System, a run directory or a system source.")
 
 
-def _simulate(system, controller, x0: np.ndarray, T: float, dt: float, limits: bool = True):
-    """Rollouts from x0 (N, n) for `T` s rounded to whole steps `dt` (LQR when `controller` is None)."""
+def _simulate(system, controller, x0: np.ndarray, T: float, dt: float | None, limits: bool = True):
+    """Rollouts from x0 (N, n) for `T` s rounded to whole steps `dt` (LQR when `controller` is None;
+    dt None: `judge_step`)."""
     if controller is None:
         controller = LQRController(system)
     if not (T > 0 and math.isfinite(T)):
         raise IdapbcError(f"T must be a positive number of seconds, got {T!r}.")
+    dt = judge_step(system, {"law": controller}, T, dt)
     steps = max(1, int(round(T / dt)))
     return simulate(system, controller, x0, T=steps * dt, dt=dt, limits=limits)
 
@@ -118,7 +121,7 @@ def view(
     n: int = 3,
     pick: str = "random",
     T: float = 10.0,
-    dt: float = 0.01,
+    dt: float | None = None,
     seed: int = 0,
     html=None,
     open_server: bool = True,
@@ -145,8 +148,9 @@ def view(
     run_or_system : a trained `Run`, a `System`, a run directory or a system source (URDF path,
         zoo or built-in name, ``erd:<stem>``).
     trajectories : a `Trajectory` from `idapbc_pin.sim.simulate` (all its rollouts), a list of them,
-        or a pair (t (K,), q (K, nq) or (N, K, nq)). None: simulate `n` rollouts of `T` s (step `dt`)
-        from states drawn uniformly from the half-size training box (seed `seed`), or from `x0`,
+        or a pair (t (K,), q (K, nq) or (N, K, nq)). None: simulate `n` rollouts of `T` s (step
+        `dt`; None: 10 ms, or shorter for a stiff loop) from states drawn uniformly from the
+        half-size training box (seed `seed`), or from `x0`,
         with the run's controller, or the LQR baseline when given a `System`.
     x0 : (N, n) initial states (q, p) or (N, nq) positions at rest; overrides `n` and `pick`.
     pick : ``"random"`` (the first `n` uniform half-box states) or ``"success"``: up to `n` rollouts
