@@ -20,6 +20,21 @@ def rng():
     return np.random.default_rng(12345)
 
 
+@pytest.fixture(scope="module")
+def systems():
+    """``systems(name)``: a zoo or built-in system, loaded once per test module."""
+    import idapbc_pin as ip
+
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            cache[name] = ip.load_system(name)
+        return cache[name]
+
+    return get
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _short_fallback_gate():
     """The suite trains tiny networks by the dozen; after each, ``fallback="auto"`` runs a gate that

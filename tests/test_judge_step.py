@@ -18,18 +18,6 @@ ZOO_AND_PAPER = ["acrobot", "cart_double_pendulum", "cartpole", "double_pendulum
 
 
 @pytest.fixture(scope="module")
-def systems():
-    cache = {}
-
-    def get(name):
-        if name not in cache:
-            cache[name] = ip.load_system(name)
-        return cache[name]
-
-    return get
-
-
-@pytest.fixture(scope="module")
 def stiff():
     """example-robot-data's damped acrobot: joint damping on light links puts a 152 1/s pole in the plant."""
     with pytest.warns(UserWarning, match="no <limit effort>"):

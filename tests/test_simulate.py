@@ -26,18 +26,6 @@ from idapbc_pin.sim.states import evaluation_box, half_box, uniform_states
 from idapbc_pin.sim.trajectory import Trajectory
 
 
-@pytest.fixture(scope="module")
-def systems():
-    cache = {}
-
-    def get(name):
-        if name not in cache:
-            cache[name] = ip.load_system(name)
-        return cache[name]
-
-    return get
-
-
 def zero_ctrl(m):
     return lambda x: np.zeros((np.atleast_2d(x).shape[0], m))
 
