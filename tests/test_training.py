@@ -312,7 +312,7 @@ def test_train_summary_names_the_anchor_weight_actually_used():
 def test_train_summary_warns_when_the_loop_is_too_stiff_for_the_default_rk4_step():
     stiff = _train_summary_text([[-252.5, 0.0], [-8.6, 2.5], [-8.6, -2.5], [-0.46, 0.0]])  # the Furuta anchor with anchor_q = 10, box units
     assert "NOTE: the fastest closed-loop pole at x* has |λ| = 252 1/s" in stiff
-    assert "judge it with a 1.98 ms step" in stiff  # 20 s / ceil(20 s · 252.5 / 0.5): |λ|·dt ≤ 0.5
+    assert "will judge it with a 1.98 ms step" in stiff  # 20 s / ceil(20 s · 252.5 / 0.5): |λ|·dt ≤ 0.5
     assert "NOTE" not in _train_summary_text([[-40.4, 39.7], [-40.4, -39.7], [-4.8, 0.0]])
     assert "gentler anchor" in stiff and "plant has it too" not in stiff  # no open-loop pole recorded: blame the anchor
 
@@ -326,7 +326,7 @@ def test_the_stiffness_note_blames_the_plant_when_its_own_pole_is_that_fast():
 
     own = _train_summary_text([[-plant, 0.0], [-1.0, 0.0]], open_loop=plant)
     assert "plant has it too" in own and "gentler anchor" not in own
-    assert f"judge it with a {1e3 * step_for_pole(plant, 20.0):.3g} ms step" in own and step_for_pole(plant, 20.0) * plant <= 0.5
+    assert f"will judge it with a {1e3 * step_for_pole(plant, 20.0):.3g} ms step" in own and step_for_pole(plant, 20.0) * plant <= 0.5
     anchor = _train_summary_text([[-250.0, 0.0], [-1.0, 0.0]], open_loop=10.0)  # the Furuta anchor with anchor_q = 10
     assert "gentler anchor" in anchor and "plant has it too" not in anchor
 

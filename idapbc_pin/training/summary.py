@@ -57,7 +57,7 @@ def format_train_summary(run) -> str:
         lines.append(
             f"NOTE: the fastest closed-loop pole at x* has |λ| = {fastest:.3g} 1/s: |λ|·dt = {fastest * STIFF_DT:.2g} at a "
             f"{STIFF_DT * 1e3:g} ms RK4 step, near or past RK4's stability limit 2.78 (and the loop is faster still away from "
-            f"x*). simulate, certify, report and view judge it with a {step * 1e3:.3g} ms step for a 20 s horizon "
-            f"(--dt overrides); {why}"
+            f"x*). Every evaluation (train --evaluate, simulate, certify, report, view, batch) will judge it with a "
+            f"{step * 1e3:.3g} ms step for a 20 s horizon (simulate --dt overrides); {why}"
         )
     return "\n".join(lines)
