@@ -22,6 +22,7 @@ from idapbc_pin.control.fallback import BoxFallback, box_fallback
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.training import fallback_gate as gate_module
 from idapbc_pin.training.fallback_gate import GATE_STEP, fallback_gate, gate_step
+from idapbc_pin.training.summary import format_train_summary
 
 
 def _tiny(**changes) -> ip.TrainConfig:
@@ -149,6 +150,31 @@ def test_a_run_records_the_gate_and_load_run_applies_its_decision(tmp_path):
     for forced, expected in (("linear", True), ("none", False)):
         other = dataclasses.replace(loaded, config=loaded.config.replace(fallback=forced))
         assert (other.controller.fallback is not None) is expected
+
+
+def test_ctrl_c_during_the_gate_keeps_a_finished_run_and_resume_runs_the_gate_again(tmp_path, monkeypatch, capsys):
+    """The gate runs after the last epoch and takes 30 s or more: interrupting it must not lose the
+    trained run. The run is written as finished with the learned law everywhere, says so, and
+    `train --resume` runs the check it skipped."""
+    system = ip.load_system("pendubot")
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(gate_module, "fallback_gate", interrupted)
+        run = ip.train(system, _tiny(), out=tmp_path, progress=True)
+    printed = capsys.readouterr().out
+    assert "Ctrl-C skips the check" in printed and f"idapbc-pin train --resume {run.path}" in printed
+    summary = json.loads((run.path / "summary.json").read_text())
+    assert summary["status"] == "finished" and summary["fallback"]["interrupted"] is True
+    loaded = ip.load_run(run.path)
+    assert not loaded.uses_fallback and loaded.controller.fallback is None
+    assert "unchecked (the check was interrupted" in format_train_summary(loaded)
+
+    resumed = ip.train(system, resume=run.path, progress=False)
+    record = json.loads((resumed.path / "summary.json").read_text())["fallback"]
+    assert "interrupted" not in record and set(record) >= {"networks", "with_fallback", "used"}
 
 
 def test_runs_written_before_the_option_load_without_a_fallback(pendubot_run, tmp_path):

@@ -38,6 +38,9 @@ def format_train_summary(run) -> str:
         why = (f" (gate: {100 * gate['with_fallback']:.0f} % of {gate['states']} fresh states reach x* with it, "
                f"{100 * gate['networks']:.0f} % without)" if "with_fallback" in gate else "")
         lines.append(f"outside the training box: the anchor's linear law u* − Kδ{why}")
+    elif (s.get("fallback") or {}).get("interrupted"):
+        lines.append(f"outside the training box: the learned law, unchecked (the check was interrupted; "
+                     f"`idapbc-pin train --resume {run.path}` runs it)")
     if s["locally_exponentially_stable"]:
         lines.append("x* is locally exponentially stable (all eigenvalues have negative real part)")
     else:

@@ -27,7 +27,7 @@ from ..errors import IdapbcError
 from ..model import System
 from ._trainer import Trainer, checkpoint, metrics_row, open_metrics, restore, save_snapshot, snapshot, start
 from .loss import TERMS, loss_terms
-from .fallback_gate import fallback_gate
+from . import fallback_gate as _gate
 from .rollout import rollout_cost, rollout_gate, rollout_starts
 from .run import Run, check_checkpoints, load_weights, read_checkpoint, read_config
 
@@ -96,17 +96,28 @@ def train(
     if gate is not None:
         summary["rollout_gate"] = gate
     if status == "finished" and config.fallback == "auto":
-        summary["fallback"] = _gate_fallback(system, config, trainer.nets, progress)
+        summary["fallback"] = _gate_fallback(system, config, trainer.nets, progress, run_dir)
     run.summary = summary
     write_json(run_dir / "summary.json", run.summary)
     return run
 
 
-def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool) -> dict:
+def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool, run_dir: Path) -> dict:
     """``fallback="auto"``: simulate the learned law with and without the anchor's linear law outside
-    the training box (`fallback_gate`) and record which one the run uses."""
+    the training box (`fallback_gate`) and record which one the run uses. Ctrl-C skips the check:
+    the run then keeps the learned law everywhere, records ``"interrupted": true``, and
+    ``train --resume`` runs the check again."""
     t0 = time.perf_counter()
-    gate = fallback_gate(system, Controller(system, nets), box_fallback(system, config), config.seed)
+    if progress:
+        print(f"checking the law outside the training box: {_gate.GATE_STATES} fresh states, {_gate.GATE_HORIZON:g} s each, "
+              "with and without the anchor's linear law there (Ctrl-C skips the check) ...", flush=True)
+    try:
+        gate = _gate.fallback_gate(system, Controller(system, nets), box_fallback(system, config), config.seed)
+    except KeyboardInterrupt:
+        if progress:
+            print(f"check interrupted: the run keeps the learned law everywhere; `idapbc-pin train --resume {run_dir}` "
+                  "runs the check again", flush=True)
+        return {"interrupted": True, "used": False, "seconds": round(time.perf_counter() - t0, 3)}
     gate["seconds"] = round(time.perf_counter() - t0, 3)
     if progress:
         verdict = "used" if gate["used"] else "not used"
