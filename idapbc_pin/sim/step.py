@@ -3,8 +3,8 @@
 Classical RK4 with step dt is stable on a linear mode λ only while |λ|·dt stays inside its stability
 region (up to 2.78 on the negative real axis). A judge at a fixed 10 ms therefore declares a stiff but
 stable loop "diverged": measured on example-robot-data's damped double pendulum (plant poles of
-136–153 1/s from joint damping on light links), saturated LQR diverged from 155 of 200 domain states at
-10 ms and from none of 100 at 2 ms. Every evaluation takes ``dt=None`` to mean: `DEFAULT_STEP`, or a
+136–153 1/s from joint damping on light links, no effort limits in its URDF), LQR "diverged" from
+155 of 200 domain states at 10 ms and from none of 100 at 2 ms. Every evaluation takes ``dt=None`` to mean: `DEFAULT_STEP`, or a
 shorter step where a judged loop, linearised at x*, has a pole faster than ``POLE_STEP / DEFAULT_STEP``
 (50 1/s). Every zoo robot and paper benchmark stays at 10 ms (their fastest loop pole, LQR's on the
 reaction wheel, is 32 1/s).
