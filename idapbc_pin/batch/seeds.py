@@ -98,19 +98,16 @@ def seed_median_markdown(summary_csvs) -> str:
     for name, entry in robots.items():
         med, rows = entry["median"], entry["rows"]
 
-        def pct(column: str) -> str:
-            return _median_cell(med[column], _p)
-
-        def num(column: str, fmt) -> str:
+        def cell(column: str, fmt=_p) -> str:
             return _median_cell(med[column], fmt)
 
         body.append([
             f"`{name}`", str(len(rows)),
-            f"{_per_seed(rows, 'nida_success_domain')} → **{pct('nida_success_domain')}** / {pct('lqr_success_domain')}",
-            f"{_per_seed(rows, 'nida_success_half')} → **{pct('nida_success_half')}** / {pct('lqr_success_half')}",
-            f"{num('nida_radius', _r)} / {num('lqr_radius', _r)}",
-            f"{num('nida_settle_domain', _s)} / {num('lqr_settle_domain', _s)}",
-            f"{pct('sublevel_coverage')} / {pct('lqr_sublevel_coverage')}",
+            f"{_per_seed(rows, 'nida_success_domain')} → **{cell('nida_success_domain')}** / {cell('lqr_success_domain')}",
+            f"{_per_seed(rows, 'nida_success_half')} → **{cell('nida_success_half')}** / {cell('lqr_success_half')}",
+            f"{cell('nida_radius', _r)} / {cell('lqr_radius', _r)}",
+            f"{cell('nida_settle_domain', _s)} / {cell('lqr_settle_domain', _s)}",
+            f"{cell('sublevel_coverage')} / {cell('lqr_sublevel_coverage')}",
             f"{entry['fallback']} of {len(rows)}",
         ])  # fmt: skip
     head = ["robot", "seeds", "success, domain: NIDA-PBC per seed → median / LQR", "success, half box: NIDA-PBC per seed → median / LQR",

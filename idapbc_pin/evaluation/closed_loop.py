@@ -176,13 +176,13 @@ def simulate_run(
     scales = parse_mismatch(mismatch)
     plant = _judged(nominal, judge, scales)
     nida = run.controller if rho is None else run.controller.with_damping(rho)
-    dt = judge_step(plant, {"NIDA-PBC": nida, "LQR": LQRController(nominal)}, T, dt)  # noise-free laws
+    laws = {"NIDA-PBC": nida, "LQR": LQRController(nominal)}
+    dt = judge_step(plant, laws, T, dt)  # the noise-free laws
     T = horizon(T, dt)
     x0, box_name, bounds = _start_states(nominal, n, x0, box, seed)
     wrap = plant is not nominal or noise > 0
     controllers = {
-        "NIDA-PBC": MeasuredController(nida, plant=plant, model=nominal, noise=noise, seed=seed) if wrap else nida,
-        "LQR": MeasuredController(LQRController(nominal), plant=plant, model=nominal, noise=noise, seed=seed) if wrap else LQRController(nominal),
+        name: MeasuredController(law, plant=plant, model=nominal, noise=noise, seed=seed) if wrap else law for name, law in laws.items()
     }
     res, trajs = _scores(plant, controllers, x0, T, dt, saturation, limits, box_name, bounds, seed)
     found = None

@@ -75,7 +75,8 @@ def judge_step(system, controllers: Mapping[str, object], T: float, dt: float | 
     that names ``--dt``)."""
     if dt is not None:
         return float(dt)
-    fastest = max((loop_pole(system, c) for c in controllers.values()), default=math.nan, key=lambda p: -1.0 if math.isnan(p) else p)
+    poles = [p for p in (loop_pole(system, c) for c in controllers.values()) if not math.isnan(p)]
+    fastest = max(poles, default=math.nan)
     step = step_for_pole(fastest, T)
     if step < MIN_AUTO_STEP:
         short = step_for_pole(POLE_STEP / MIN_AUTO_STEP, T)
