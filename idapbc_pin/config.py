@@ -83,6 +83,11 @@ FIELD_HELP = {
     "networks are trained on the box only, and a saturated swing leaves it), 'none' keeps the learned law everywhere, "
     "'auto' decides after training by simulating both with the effort limits from 100 states of the run's own (the "
     "fallback is used if it brings strictly more of them to x*; summary.json → fallback). Inside the box nothing changes",
+    "fallback_gain": "gain factor k of the linear law outside the training box, u* − k·Kδ (K: the anchor's LQR gain); "
+    "0 = automatic: 3 for a robot with effort limits, whose law there then saturates on most of its course and switches "
+    "on the sign of Kδ like a bang-bang law (fast preset, seed 0, limits on both, 100 half-box states of seed 7 reaching "
+    "x*: acrobot 84 with k = 1, 92 / 94 / 91 with k = 3 / 5 / 10; Furuta pendulum 80 with k = 1, 94 with k = 3), and "
+    "1 for a robot without limits (a stiffer linear law would only ask for larger torques)",
     "bounded_structure": "J_d and R_d see the state clamped to the training box: outside it they keep their values on the "
     "box's boundary (still skew / positive definite) instead of extrapolating their networks, which made R_d's "
     "exponential diagonal grow without bound at the speeds a saturated swing reaches. H_d is not clamped (its "
@@ -130,6 +135,7 @@ class TrainConfig:
     wrap_angles: bool = True
     bounded_structure: bool = True
     fallback: str = "auto"
+    fallback_gain: float = 0.0
 
     def __post_init__(self):
         checks = [
@@ -161,6 +167,7 @@ class TrainConfig:
             (0 < self.rollout_tail <= self.rollout_horizon, "rollout_tail must be in (0, rollout_horizon]"),
             (0 < self.rollout_box <= 2, "rollout_box must be in (0, 2]"),
             (self.fallback in ("auto", "linear", "none"), "fallback must be 'auto', 'linear' or 'none'"),
+            (self.fallback_gain >= 0, f"fallback_gain must be > 0 (or 0 = automatic), got {self.fallback_gain}"),
         ]
         for ok, message in checks:
             if not ok:

@@ -1,8 +1,9 @@
 """The law outside the training box (`control.fallback`) and the gate that decides whether a run uses it.
 
 Claims:
-* inside the training box the law is the networks' own; outside it, u* − Kδ with K the gain of the LQR
-  loop the anchored networks are pinned to (eig(A − BK) = the learned loop's eigenvalues at x*);
+* inside the training box the law is the networks' own; outside it, u* − k·Kδ with K the gain of the LQR
+  loop the anchored networks are pinned to (eig(A − BK) = the learned loop's eigenvalues at x*) and k
+  the run's `fallback_gain` (automatic: 3 for a robot with effort limits, 1 without; old runs 1);
   a state one turn away in an angle is the same state;
 * the gate uses the fallback exactly when it brings strictly more simulated states to x*;
 * a run records the decision (summary.json → fallback) and `load_run` applies it; "linear" and
@@ -59,6 +60,18 @@ def test_inside_the_box_the_law_is_the_networks_outside_it_the_anchors_linear_la
     assert not np.allclose(u[~inside], u_nets[~inside])  # the switch changes something
 
 
+def test_a_limited_robot_gets_three_times_the_anchor_gain_outside_the_box_an_unlimited_one_the_gain_itself(pendubot_run):
+    run = pendubot_run
+    assert run.config.fallback_gain == 3.0  # resolved when training starts, stored in config.json
+    assert json.loads((run.path / "config.json").read_text())["fallback_gain"] == 3.0
+    fb = run.controller.fallback
+    np.testing.assert_allclose(fb.K, 3.0 * fb.anchor_K, rtol=1e-15)
+    free = dataclasses.replace(run.system, effort=np.full(run.system.m, np.inf))
+    assert not free.limited
+    np.testing.assert_allclose(box_fallback(free, _tiny()).K, fb.anchor_K, rtol=1e-12)
+    np.testing.assert_allclose(box_fallback(free, _tiny(fallback_gain=2.0)).K, 2.0 * fb.anchor_K, rtol=1e-12)
+
+
 def test_a_state_one_turn_away_is_inside_the_box(pendubot_run):
     run = pendubot_run
     x = run.system.x_star + 0.2 * (run.system.domain[1] - run.system.x_star)
@@ -72,7 +85,7 @@ def test_the_fallback_gain_closes_the_same_loop_as_the_networks_at_the_target(pe
     run = pendubot_run
     fb = box_fallback(run.system, run.config)
     A, Bx = run.system.linearization()
-    linear = np.sort_complex(np.linalg.eigvals(A - Bx @ fb.K))
+    linear = np.sort_complex(np.linalg.eigvals(A - Bx @ fb.anchor_K))
     learned = np.sort_complex(run.controller.eigenvalues_at_target())
     np.testing.assert_allclose(linear, learned, rtol=1e-6, atol=1e-8)
     np.testing.assert_allclose(fb.u_star, LQRController(run.system).u_star, atol=1e-12)
@@ -186,6 +199,12 @@ def test_runs_written_before_the_option_load_without_a_fallback(pendubot_run, tm
     del config["fallback"]
     (old / "config.json").write_text(json.dumps(config))
     assert ip.load_run(old).controller.fallback is None
+    del config["fallback_gain"]  # a run from before the gain factor: the anchor's own gain outside the box
+    config["fallback"] = "linear"
+    (old / "config.json").write_text(json.dumps(config))
+    fb = ip.load_run(old).controller.fallback
+    assert fb.gain == 1.0
+    np.testing.assert_allclose(fb.K, pendubot_run.controller.fallback.anchor_K, rtol=1e-15)
 
 
 def test_a_bad_fallback_value_is_refused_with_the_fix():
@@ -199,7 +218,7 @@ def test_the_cli_trains_with_the_fallback_named_and_prints_the_law_outside_the_b
     main(["train", "pendubot", "--fast", "--epochs", "3", "--width", "8", "--depth", "1", "--fallback", "linear",
           "--evaluate", "0", "--out", str(tmp_path)])  # fmt: skip
     printed = capsys.readouterr().out
-    assert "outside the training box: the anchor's linear law" in printed
+    assert "outside the training box: the anchor's linear law u* − 3·Kδ" in printed
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert json.loads((run_dir / "config.json").read_text())["fallback"] == "linear"
     assert ip.load_run(run_dir).controller.fallback is not None

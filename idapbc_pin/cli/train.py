@@ -42,7 +42,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from ..training.summary import format_train_summary
     from ..training.train import train
 
-    overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth", "rollout_epochs", "fallback") if getattr(args, k) is not None}
+    overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth", "rollout_epochs", "fallback", "fallback_gain") if getattr(args, k) is not None}
     if args.resume:
         saved = read_config(args.resume)
         config = saved.replace(**{k: v for k, v in (("epochs", args.epochs), ("lr", args.lr)) if v is not None})
@@ -105,4 +105,5 @@ def add_train_command(sub) -> None:
     p.add_argument("--form", choices=["anchored", "free"], help=FIELD_HELP["form"])
     p.add_argument("--damping", choices=["full", "actuated"], help=FIELD_HELP["damping"])
     p.add_argument("--fallback", choices=["auto", "linear", "none"], help=FIELD_HELP["fallback"])
+    p.add_argument("--fallback-gain", dest="fallback_gain", type=float, metavar="K", help=FIELD_HELP["fallback_gain"])
     p.set_defaults(func=_cmd_train)

@@ -6,10 +6,15 @@ left X, elbow momenta reached 34–43 box half-widths, and the successes spent a
 outside). With the fallback on, the law is
 
     u(x) = u_IDA-PBC(x)          where |wrap(x − x*)_i| ≤ s_i for every i   (s: the box's half-widths)
-    u(x) = u* − K wrap(x − x*)    elsewhere
+    u(x) = u* − k K wrap(x − x*)  elsewhere
 
 with K the gain of the LQR loop the anchored networks are pinned to at x* (`anchor.system_anchor`,
-Q = anchor_q·I in physical units, R = I) and u* the input that holds x*. Inside X nothing changes:
+Q = anchor_q·I in physical units, R = I), k the run's `fallback_gain` and u* the input that holds x*.
+For a robot with effort limits the automatic k is `LIMITED_GAIN` = 3: outside the box the law then
+saturates on most of a swing and acts like a bang-bang law switching on the sign of Kδ, which brought
+more states to x* than k = 1 (acrobot, Furuta pendulum, cart-double-pendulum; k = 3, 5 and 10 within
+noise of each other; docs/results-history.md). Its loop A − kBK at x* (never used there) has poles
+up to 71 1/s on the zoo, which a 10 ms RK4 step still integrates (|λ|·dt ≤ 0.71). Inside X nothing changes:
 H_d, J_d, R_d, the certificate (whose sublevel sets lie inside X) and the linearisation at x* are
 those of the networks. The switch is discontinuous on the box's faces; the actuator limits clip
 both sides alike (docs/method.md §6 measures what the switching costs: no torque step the saturated
@@ -29,7 +34,10 @@ from ..model.angles import wrap_angles
 from .anchor import half_widths, system_anchor
 from .baseline import equilibrium_input
 
-__all__ = ["BoxFallback", "box_fallback"]
+__all__ = ["LIMITED_GAIN", "BoxFallback", "box_fallback", "fallback_gain"]
+
+#: The automatic gain factor k of the fallback for a robot with effort limits (see the module docstring).
+LIMITED_GAIN = 3.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,7 +46,7 @@ class BoxFallback:
 
     Attributes
     ----------
-    K : (m, n) gain, in the state's physical units (u in N·m or N, x = (q, p)).
+    K : (m, n) gain applied, k times the anchor's, in the state's physical units (u in N·m or N, x = (q, p)).
     u_star : (m,) input that holds x*.
     x_star : (n,) target state.
     half : (n,) half-widths s of the training box around x* (its larger side), > 0.
@@ -50,6 +58,12 @@ class BoxFallback:
     x_star: np.ndarray
     half: np.ndarray
     angle_mask: np.ndarray
+    gain: float = 1.0
+
+    @property
+    def anchor_K(self) -> np.ndarray:
+        """(m, n) the anchor's own LQR gain K (= `K` / `gain`), the loop the networks reproduce at x*."""
+        return self.K / self.gain
 
     def delta(self, x) -> np.ndarray:
         """δ = wrap(x − x*): (..., n) -> (..., n)."""
@@ -70,15 +84,26 @@ class BoxFallback:
 
     def to_json(self) -> dict:
         """The arrays as lists (controller.json of an export)."""
-        return {k: np.asarray(getattr(self, k)).tolist() for k in ("K", "u_star", "x_star", "half", "angle_mask")}
+        return {k: np.asarray(getattr(self, k)).tolist() for k in ("K", "u_star", "x_star", "half", "angle_mask", "gain")}
+
+
+def fallback_gain(system, config) -> float:
+    """The gain factor k of `system`'s fallback: ``config.fallback_gain``, or when that is 0 (automatic)
+    `LIMITED_GAIN` for a robot with effort limits and 1 for one without."""
+    if config.fallback_gain > 0:
+        return float(config.fallback_gain)
+    return LIMITED_GAIN if system.limited else 1.0
 
 
 def box_fallback(system, config) -> BoxFallback:
-    """The fallback of `system` trained with `config` (its resolved scaling and anchor_q): the anchor's
-    LQR gain K (physical units), u* = −(gᵀg)⁻¹gᵀf(x*), and the training box's half-widths."""
+    """The fallback of `system` trained with `config` (its resolved scaling, anchor_q and fallback_gain):
+    k times the anchor's LQR gain K (physical units), u* = −(gᵀg)⁻¹gᵀf(x*), and the training box's
+    half-widths."""
     anchor = system_anchor(system, config)
+    gain = fallback_gain(system, config)
     return BoxFallback(
-        K=np.array(anchor.K, dtype=np.float64),
+        K=gain * np.array(anchor.K, dtype=np.float64),
+        gain=gain,
         u_star=equilibrium_input(system),
         x_star=np.array(system.x_star, dtype=np.float64),
         half=np.array(half_widths(system), dtype=np.float64),

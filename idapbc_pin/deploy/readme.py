@@ -136,7 +136,7 @@ def deploy_readme(record: dict) -> str:
         half = "(" + ", ".join(f"{v:.4g}" for v in fallback["half"]) + ")"
         text = (
             f"\nOutside the training box (half-widths s = {half} around x*) the run uses the linear law of its LQR "
-            "anchor instead of the learned one: K and u* are controller.json's \"fallback\" (`controller.py` applies it; "
+            f"anchor (gain × {fallback.get('gain', 1.0):g}) instead of the learned one: K and u* are controller.json's \"fallback\" (`controller.py` applies it; "
             "the ONNX graph is f̃_d alone). The networks were trained on the box only; training chose this law there "
             "because it brought more simulated states to x*.\n"
         )

@@ -59,7 +59,7 @@ DEFAULT_CHECKPOINT = "last"
 #: Values of options that runs written before the option existed trained with (their config.json
 #: lacks the key): the box-unit anchor weight diag(1/s²), physical units, H_d's ICNN fed the box-normalised state, no `effort` term, angles
 #: not wrapped, J_d and R_d extrapolated beyond the box, the learned law outside the box too.
-LEGACY_DEFAULTS = {"fallback": "none", "anchor_weight": "box", "scaling": "none", "energy_input": "box", "effort_term": False, "wrap_angles": False, "bounded_structure": False}
+LEGACY_DEFAULTS = {"fallback": "none", "anchor_weight": "box", "scaling": "none", "energy_input": "box", "effort_term": False, "wrap_angles": False, "bounded_structure": False, "fallback_gain": 1.0}
 
 
 @dataclass

@@ -37,7 +37,9 @@ def format_train_summary(run) -> str:
         gate = s.get("fallback") or {}
         why = (f" (gate: {100 * gate['with_fallback']:.0f} % of {gate['states']} fresh states reach x* with it, "
                f"{100 * gate['networks']:.0f} % without)" if "with_fallback" in gate else "")
-        lines.append(f"outside the training box: the anchor's linear law u* − Kδ{why}")
+        k = getattr(config, "fallback_gain", 1.0) or 1.0
+        law = "u* − Kδ" if k == 1 else f"u* − {k:g}·Kδ"
+        lines.append(f"outside the training box: the anchor's linear law {law}{why}")
     elif (s.get("fallback") or {}).get("interrupted"):
         lines.append(f"outside the training box: the learned law, unchecked (the check was interrupted; "
                      f"`idapbc-pin train --resume {run.path}` runs it)")

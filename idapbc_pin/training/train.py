@@ -21,7 +21,7 @@ from ..config import TrainConfig
 from ..control.anchor import anchor_settings
 from ..control.linear import fastest_pole
 from ..control.controller import Controller
-from ..control.fallback import box_fallback
+from ..control.fallback import box_fallback, fallback_gain
 from ..control.nets import build_nets
 from ..errors import IdapbcError
 from ..model import System
@@ -163,6 +163,7 @@ def _resolve(system: System, config: TrainConfig | None, out, resume) -> tuple[T
     config = config or TrainConfig()
     scaling, anchor_q = anchor_settings(system, config)
     config = config.replace(scaling=scaling, anchor_q=anchor_q)
+    config = config.replace(fallback_gain=fallback_gain(system, config))
     return config, _new_run_dir(Path(out) if out is not None else Path("runs") / system.name), None
 
 
