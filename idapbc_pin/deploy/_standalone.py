@@ -12,7 +12,8 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
     x = (q, p), p = M(q) v;   f(x) = (v, C(q, v)ᵀv − ∇U(q) − D v)   (Pinocchio on robot.urdf)
     u = (BᵀB)⁻¹Bᵀ (f̃_d(x) − f(x))_p
     u ← u* − K δ  where some |δ_i| > s_i, δ = wrap(x − x*)   (only if controller.json has a "fallback":
-                  the linear law the run uses outside its training box, half-widths s)
+                  the linear law the run uses outside its training box, half-widths s; its K is
+                  the anchor's LQR gain times the fallback's "gain")
     u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
 f̃_d = (J_d − R_d)∇H_d comes from desired_flow.py with weights.npz (the same function as
