@@ -79,9 +79,8 @@ FIELD_HELP = {
     "wrap_angles": "the control law evaluates the networks at the state whose angles (revolute and continuous joints) are "
     "wrapped to within π of the target, as the LQR baseline does: a pendulum that swings once round is not 2π away "
     "from upright. Without it the networks see angles far outside the box they were trained on",
-    "fallback": "the law outside the training box: 'linear' switches to the LQR anchor's linear law u* − k·Kδ there (k: "
-    "`fallback_gain`; the "
-    "networks are trained on the box only, and a saturated swing leaves it), 'none' keeps the learned law everywhere, "
+    "fallback": "the law outside the training box: 'linear' switches to the LQR anchor's linear law u* − k·Kδ there "
+    "(k: `fallback_gain`; the networks are trained on the box only, and a saturated swing leaves it), 'none' keeps the learned law everywhere, "
     "'auto' decides after training by simulating both with the effort limits from 100 states of the run's own (the "
     "fallback is used if it brings strictly more of them to x*; summary.json → fallback). Inside the box nothing changes",
     "fallback_gain": "gain factor k of the linear law outside the training box, u* − k·Kδ (K: the anchor's LQR gain); "

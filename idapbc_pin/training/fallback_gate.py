@@ -39,8 +39,9 @@ GATE_POLE_STEP = 0.5
 
 def gate_step(system: System, fallback: BoxFallback) -> float:
     """The gate's RK4 step (s): `GATE_STEP`, or less where the loop A − BK at x* (K the anchor's gain, whose
-    loop the anchored networks reproduce there; the fallback never acts at x*) has a pole faster than ``GATE_POLE_STEP / GATE_STEP``; then the
-    largest step ≤ ``GATE_POLE_STEP / |λ|`` that divides `GATE_HORIZON` into whole steps."""
+    loop the anchored networks reproduce there; the fallback never acts at x*) has a pole faster than
+    ``GATE_POLE_STEP / GATE_STEP``; then the largest step ≤ ``GATE_POLE_STEP / |λ|`` that divides
+    `GATE_HORIZON` into whole steps."""
     from ..sim.step import step_for_pole  # training sits upstream of the judge; imported only here
 
     A, B = system.linearization()

@@ -37,7 +37,7 @@ def format_train_summary(run) -> str:
         gate = s.get("fallback") or {}
         why = (f" (gate: {100 * gate['with_fallback']:.0f} % of {gate['states']} fresh states reach x* with it, "
                f"{100 * gate['networks']:.0f} % without)" if "with_fallback" in gate else "")
-        k = getattr(config, "fallback_gain", 1.0) or 1.0
+        k = run.fallback.gain
         law = "u* − Kδ" if k == 1 else f"u* − {k:g}·Kδ"
         lines.append(f"outside the training box: the anchor's linear law {law}{why}")
     elif (s.get("fallback") or {}).get("interrupted"):

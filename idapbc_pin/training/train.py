@@ -162,8 +162,7 @@ def _resolve(system: System, config: TrainConfig | None, out, resume) -> tuple[T
         return config, run_dir, read_checkpoint(run_dir, "last", map_location=config.device)
     config = config or TrainConfig()
     scaling, anchor_q = anchor_settings(system, config)
-    config = config.replace(scaling=scaling, anchor_q=anchor_q)
-    config = config.replace(fallback_gain=fallback_gain(system, config))
+    config = config.replace(scaling=scaling, anchor_q=anchor_q, fallback_gain=fallback_gain(system, config))
     return config, _new_run_dir(Path(out) if out is not None else Path("runs") / system.name), None
 
 
