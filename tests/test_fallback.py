@@ -124,6 +124,7 @@ def test_the_gate_takes_the_fallback_when_the_learned_law_fails_outside_the_box(
     gate = fallback_gate(system, _Law(system, zero), fb, seed=0)
     assert gate["states"] == 40 and gate["left_box"] > 0
     assert gate["with_fallback"] > gate["networks"] and gate["used"]
+    _assert_discordant_pairs_explain_the_rates(gate)
 
 
 def test_the_gate_keeps_the_learned_law_when_the_fallback_does_worse(real_gate):
@@ -134,6 +135,17 @@ def test_the_gate_keeps_the_learned_law_when_the_fallback_does_worse(real_gate):
     gate = fallback_gate(system, _Law(system, lqr), idle, seed=0)
     assert gate["left_box"] > 0
     assert gate["with_fallback"] < gate["networks"] and not gate["used"]
+    _assert_discordant_pairs_explain_the_rates(gate)
+
+
+def _assert_discordant_pairs_explain_the_rates(gate: dict) -> None:
+    """The states only one law brings to x* account for the whole difference of the two rates, and
+    the law the gate picks is the one with more of them."""
+    n = gate["states"]
+    only_nn, only_fb = gate["only_networks"], gate["only_fallback"]
+    assert 0 <= only_nn <= gate["left_box"] and 0 <= only_fb <= gate["left_box"]
+    assert round(n * gate["with_fallback"]) - round(n * gate["networks"]) == only_fb - only_nn
+    assert gate["used"] == (only_fb > only_nn)
 
 
 def test_the_gate_simulates_a_stiff_loop_with_a_step_rk4_can_take():
@@ -157,7 +169,7 @@ def test_a_run_records_the_gate_and_load_run_applies_its_decision(tmp_path):
     system = ip.load_system("pendubot")
     run = ip.train(system, _tiny(), out=tmp_path, progress=False)
     record = json.loads((run.path / "summary.json").read_text())["fallback"]
-    assert set(record) >= {"states", "networks", "with_fallback", "left_box", "used"}
+    assert set(record) >= {"states", "networks", "with_fallback", "left_box", "only_networks", "only_fallback", "used"}
     loaded = ip.load_run(run.path)
     assert (loaded.controller.fallback is not None) == record["used"] == loaded.uses_fallback
     for forced, expected in (("linear", True), ("none", False)):
@@ -222,3 +234,15 @@ def test_the_cli_trains_with_the_fallback_named_and_prints_the_law_outside_the_b
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert json.loads((run_dir / "config.json").read_text())["fallback"] == "linear"
     assert ip.load_run(run_dir).controller.fallback is not None
+
+
+def test_train_prints_how_many_states_only_one_law_brings_home(tmp_path, capsys):
+    """The gate's verdict comes with its evidence: the states where the two laws disagree."""
+    from idapbc_pin.cli.main import main
+
+    main(["train", "pendubot", "--fast", "--epochs", "3", "--width", "8", "--depth", "1", "--evaluate", "0",
+          "--out", str(tmp_path)])  # fmt: skip
+    printed = capsys.readouterr().out
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    gate = json.loads((run_dir / "summary.json").read_text())["fallback"]
+    assert f"{gate['only_fallback']} states reach x* only with it, {gate['only_networks']} only without" in printed

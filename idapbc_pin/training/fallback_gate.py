@@ -57,8 +57,9 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     laws (up to an RK4 stage grazing a face).
 
     Returns {"states", "networks", "with_fallback" (success rates in [0, 1]), "left_box" (how many
-    trajectories of the learned law left the box), "used" (bool: strictly more successes with the
-    fallback), "step" (s)}.
+    trajectories of the learned law left the box), "only_networks" and "only_fallback" (how many
+    states only that law brought to x*: the discordant pairs, the whole evidence behind the
+    decision), "used" (bool: strictly more successes with the fallback), "step" (s)}.
     """
     from ..sim.integrate import simulate  # training sits upstream of the judge; imported only here
     from ..sim.metrics import success
@@ -78,4 +79,5 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     if left.any():  # a trajectory that never leaves the box is the same under both laws
         ok_fb[left] = success(simulate(system, ctrl.with_fallback(fallback), x0[left], T=T, dt=dt, limits=True), system)
     rates = {"networks": float(ok.mean()), "with_fallback": float(ok_fb.mean())}
-    return {"states": int(len(x0)), **rates, "left_box": int(left.sum()), "used": bool(ok_fb.sum() > ok.sum()), "step": dt}
+    discordant = {"only_networks": int((ok & ~ok_fb).sum()), "only_fallback": int((ok_fb & ~ok).sum())}
+    return {"states": int(len(x0)), **rates, "left_box": int(left.sum()), **discordant, "used": bool(ok_fb.sum() > ok.sum()), "step": dt}

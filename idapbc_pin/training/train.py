@@ -122,7 +122,8 @@ def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool, ru
     if progress:
         verdict = "used" if gate["used"] else "not used"
         print(f"outside the training box: success from {gate['states']} fresh states {100 * gate['networks']:.0f} % with the "
-              f"learned law, {100 * gate['with_fallback']:.0f} % with the anchor's linear law there (linear law {verdict})", flush=True)
+              f"learned law, {100 * gate['with_fallback']:.0f} % with the anchor's linear law there (linear law {verdict}; "
+              f"{gate['only_fallback']} states reach x* only with it, {gate['only_networks']} only without)", flush=True)
     return gate
 
 
