@@ -79,5 +79,6 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     if left.any():  # a trajectory that never leaves the box is the same under both laws
         ok_fb[left] = success(simulate(system, ctrl.with_fallback(fallback), x0[left], T=T, dt=dt, limits=True), system)
     rates = {"networks": float(ok.mean()), "with_fallback": float(ok_fb.mean())}
-    discordant = {"only_networks": int((ok & ~ok_fb).sum()), "only_fallback": int((ok_fb & ~ok).sum())}
-    return {"states": int(len(x0)), **rates, "left_box": int(left.sum()), **discordant, "used": bool(ok_fb.sum() > ok.sum()), "step": dt}
+    only_nn, only_fb = int((ok & ~ok_fb).sum()), int((ok_fb & ~ok).sum())  # the pairs that decide
+    return {"states": int(len(x0)), **rates, "left_box": int(left.sum()), "only_networks": only_nn, "only_fallback": only_fb,
+            "used": only_fb > only_nn, "step": dt}
