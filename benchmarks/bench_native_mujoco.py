@@ -1,9 +1,9 @@
 """Goal: judge trained runs with MuJoCo's own integrator and a sampled controller, as a robot runs it.
 
-The project's judges (Pinocchio, `ip.mujoco_judge`) integrate with RK4 and evaluate the control law
-at every RK4 stage. A robot (and an outside judge using MuJoCo as it ships) instead steps the
-physics with MuJoCo's integrator and holds the torque for one control period. This script does
-that: MuJoCo loads the run's URDF (contacts and joint limits off, as `ip.mujoco_judge` does), the
+The project's judges (Pinocchio, `ip.mujoco_judge`) sample the law every 2 ms, hold it, and integrate
+the plant with RK4. An outside judge using MuJoCo as it ships steps the physics with MuJoCo's own
+integrator (semi-implicit Euler by default) and holds the torque for one control period. This script
+does that: MuJoCo loads the run's URDF (contacts and joint limits off, as `ip.mujoco_judge` does), the
 torque u(x) is computed once per step of `--h` seconds (zero-order hold), clipped at the effort
 limits and applied as a generalised force on the actuated joints; `mj_step` advances the state.
 Success is DESIGN §4's: over the last 2 s of T = 20 s, every joint within 0.05 of x* (angles

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from idapbc_pin.batch import SEED_TABLE_END, SEED_TABLE_START, SUMMARY_COLUMNS, readme_block, seed_median_markdown, seed_medians
+from idapbc_pin.batch.record import judge_text
 from idapbc_pin.errors import IdapbcError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,6 +57,23 @@ def test_rows_judged_on_other_states_are_refused(tmp_path):
         seed_medians([seed0, smoke])
     with pytest.raises(IdapbcError, match="not found"):
         seed_medians([tmp_path / "missing.csv"])
+
+
+def test_rows_of_another_judge_are_refused(tmp_path):
+    """A summary written before the judge held the law has no roa_judge: its rows count as judged at
+    every RK4 stage and do not mix with rows of the held law."""
+    old = _write(tmp_path / "old.csv", [_row("acrobot", "acrobot", 0.61, 0.545)])
+    new = _write(tmp_path / "new.csv", [_row("acrobot-seed1", "acrobot", 0.6, 0.5, roa_judge="held 2 ms")])
+    with pytest.raises(IdapbcError, match="held 2 ms"):
+        seed_medians([old, new])
+    same = _write(tmp_path / "same.csv", [_row("acrobot-seed2", "acrobot", 0.7, 0.5, roa_judge="held 2 ms")])
+    assert len(seed_medians([new, same])["acrobot"]["rows"]) == 2
+
+
+def test_the_summary_names_how_the_judge_ran_the_law():
+    assert judge_text({"dt": 0.002, "hold": True}) == "held 2 ms"
+    assert judge_text({"dt": 0.01}) == "every stage 10 ms"  # evaluation.json from before the held law
+    assert judge_text({}) is None
 
 
 def test_readme_seed_table_matches_the_committed_summaries():

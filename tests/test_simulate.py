@@ -107,16 +107,57 @@ def test_rk4_converges_at_order_4():
     exact = exact_linear(system, x0, 2.0)
     errors = []
     for dt in (0.1, 0.05, 0.025):
-        traj = simulate(system, lambda x: -x @ GAIN.T, x0, T=2.0, dt=dt)
+        traj = simulate(system, lambda x: -x @ GAIN.T, x0, T=2.0, dt=dt, hold=False)
         errors.append(np.abs(traj.x[:, -1] - exact).max())
     ratios = np.array(errors[:-1]) / np.array(errors[1:])
     assert np.all((ratios > 14.0) & (ratios < 18.0)), ratios
 
 
+def exact_sampled(system, x0, T, h):
+    """The exact sampled-data loop: u_k = −GAIN x_k held over [kh, (k+1)h), so
+    x_{k+1} = Φ x_k + Γ u_k with Φ, Γ from the matrix exponential of [[A, B], [0, 0]] h."""
+    A = np.array([[0.0, 1.0], [-system.omega**2, -system.c]])
+    E = sla.expm(np.block([[A, np.array([[0.0], [1.0]])], [np.zeros((1, 3))]]) * h)
+    Phi, Gamma = E[:2, :2], E[:2, 2:]
+    x = np.array(x0, float)
+    for _ in range(int(round(T / h))):
+        x = x @ Phi.T - (x @ GAIN.T) @ Gamma.T
+    return x
+
+
+def test_by_default_the_law_is_sampled_and_held_like_a_digital_controller():
+    """The judge evaluates the law once per step, at its start, and holds the input over the step:
+    it converges at RK4's fourth order to the exact sampled-data loop at that rate, which differs
+    from the continuous-time loop by far more than the integration error."""
+    system = LinearOscillator()
+    x0 = np.array([[1.0, -0.5], [0.2, 0.7]])
+    errors, calls = [], []
+    for dt in (0.1, 0.05, 0.025):
+        seen = []
+
+        def law(x):
+            seen.append(len(x))
+            return -x @ GAIN.T
+
+        traj = simulate(system, law, x0, T=2.0, dt=dt, record_every=4)
+        errors.append(np.abs(traj.x[:, -1] - exact_sampled(system, x0, 2.0, dt)).max())
+        calls.append((len(seen), set(seen)))
+        if dt == 0.1:
+            assert np.abs(traj.x[:, -1] - exact_linear(system, x0, 2.0)).max() > 100 * errors[-1]
+    ratios = np.array(errors[:-1]) / np.array(errors[1:])
+    assert np.all((ratios > 14.0) & (ratios < 18.0)), ratios
+    assert calls == [(21, {2}), (41, {2}), (81, {2})]  # once per step of dt (and at T), whatever the record grid
+
+
+def test_holding_needs_the_fixed_step_method():
+    with pytest.raises(ValueError, match="hold=False"):
+        simulate(LinearOscillator(), lambda x: -x @ GAIN.T, np.ones((1, 2)), T=1.0, dt=0.1, method="rk45")
+
+
 def test_rk45_meets_its_tolerance():
     system = LinearOscillator()
     x0 = np.array([[1.0, -0.5], [0.2, 0.7]])
-    traj = simulate(system, lambda x: -x @ GAIN.T, x0, T=2.0, dt=0.1, method="rk45", rtol=1e-9, atol=1e-12)
+    traj = simulate(system, lambda x: -x @ GAIN.T, x0, T=2.0, dt=0.1, method="rk45", hold=False, rtol=1e-9, atol=1e-12)
     assert np.abs(traj.x[:, -1] - exact_linear(system, x0, 2.0)).max() < 1e-7
     np.testing.assert_allclose(traj.t, np.arange(21) * 0.1, atol=1e-12)
 
@@ -172,8 +213,8 @@ def test_divergence_is_frozen_and_flagged(systems):
         return x @ K.T  # u = +K x
 
     x0 = np.stack([system.x_star, system.x_star + [0.1, 0, 0, 0], system.x_star + [0, -0.1, 0.2, 0]])
-    for method in ("rk4", "rk45"):
-        traj = simulate(system, destabilising, x0, T=4.0, dt=0.02, method=method)
+    for method, hold in (("rk4", True), ("rk4", False), ("rk45", False)):
+        traj = simulate(system, destabilising, x0, T=4.0, dt=0.02, method=method, hold=hold)
         assert traj.diverged.tolist() == [False, True, True]
         for a in (traj.x, traj.v, traj.u):
             assert np.all(np.isfinite(a))

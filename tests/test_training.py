@@ -314,20 +314,22 @@ def test_train_summary_warns_when_the_loop_is_too_stiff_for_the_default_rk4_step
     assert "NOTE: the fastest closed-loop pole at x* has |λ| = 252 1/s" in stiff
     assert "will judge it with a 1.98 ms step" in stiff  # 20 s / ceil(20 s · 252.5 / 0.5): |λ|·dt ≤ 0.5
     assert "NOTE" not in _train_summary_text([[-40.4, 39.7], [-40.4, -39.7], [-4.8, 0.0]])
+    assert "NOTE" not in _train_summary_text([[-240.0, 0.0], [-4.8, 0.0]])  # 0.48 at 2 ms: the judge keeps its step
     assert "gentler anchor" in stiff and "plant has it too" not in stiff  # no open-loop pole recorded: blame the anchor
 
 
 def test_the_stiffness_note_blames_the_plant_when_its_own_pole_is_that_fast():
-    """erd:double_pendulum (light links, URDF joint damping): the plant itself has a −136 1/s pole,
-    which no anchor weight removes; the NOTE says so instead of suggesting a gentler anchor."""
+    """erd:double_pendulum (light links, URDF joint damping) has a −136 1/s plant pole, which no anchor
+    weight removes; the judge's 2 ms step takes it, but a plant three times as stiff would not, and
+    then the NOTE says so instead of suggesting a gentler anchor."""
     system = ip.load_system("erd:double_pendulum", actuated=["joint1"])
     plant = float(np.abs(np.linalg.eigvals(system.linearization()[0])).max())
-    assert plant > 100.0  # the plant's damping pole: stiff for the 10 ms RK4 step on its own
+    assert plant > 100.0  # the plant's damping pole
 
-    own = _train_summary_text([[-plant, 0.0], [-1.0, 0.0]], open_loop=plant)
+    own = _train_summary_text([[-3 * plant, 0.0], [-1.0, 0.0]], open_loop=3 * plant)  # a stiffer copy of that plant
     assert "plant has it too" in own and "gentler anchor" not in own
-    assert f"will judge it with a {1e3 * step_for_pole(plant, 20.0):.3g} ms step" in own and step_for_pole(plant, 20.0) * plant <= 0.5
-    anchor = _train_summary_text([[-250.0, 0.0], [-1.0, 0.0]], open_loop=10.0)  # the Furuta anchor with anchor_q = 10
+    assert f"will judge it with a {1e3 * step_for_pole(3 * plant, 20.0):.3g} ms step" in own and step_for_pole(3 * plant, 20.0) * 3 * plant <= 0.5
+    anchor = _train_summary_text([[-300.0, 0.0], [-1.0, 0.0]], open_loop=10.0)  # a stiff anchor on a slow plant
     assert "gentler anchor" in anchor and "plant has it too" not in anchor
 
 

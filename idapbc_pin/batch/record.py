@@ -29,13 +29,23 @@ SUMMARY_COLUMNS = (
     "name", "system", "source", "actuated", "preset", "status",
     "nida_success_domain", "lqr_success_domain", "nida_success_half", "lqr_success_half",
     "nida_settle_domain", "lqr_settle_domain", "nida_settle_half", "lqr_settle_half",
-    "roa_n", "roa_T", "limit", "nida_radius", "lqr_radius", "nida_peak_half", "lqr_peak_half",
+    "roa_n", "roa_T", "roa_judge", "limit", "nida_radius", "lqr_radius", "nida_peak_half", "lqr_peak_half",
     "dissipation_fraction", "les", "sublevel_coverage", "lqr_sublevel_coverage", "certified",
     "fallback", "epochs", "train_seconds", *(f"loss_{t}" for t in TERMS),
     "job_seconds", "run_dir", "error",
 )  # fmt: skip
 #: Columns that depend on the machine (time, paths), not on the seeds.
 VOLATILE_COLUMNS = ("train_seconds", "job_seconds", "run_dir")
+
+
+def judge_text(box_record: dict) -> str | None:
+    """How the judge ran the law, from one box of ``evaluation.json``: "held 2 ms" (sampled every
+    dt and held, the default since the judge holds the law) or "every stage 10 ms" (evaluated at
+    every RK4 stage of dt, what evaluations written before that record: they have no "hold")."""
+    dt = box_record.get("dt")
+    if dt is None:
+        return None
+    return f"{'held' if box_record.get('hold', False) else 'every stage'} {1e3 * float(dt):.3g} ms"
 
 
 def new_record(job: Job) -> dict:
@@ -117,6 +127,7 @@ def summary_row(job: Job, record: dict, run=None, evaluation: dict | None = None
                 row[f"{key}_settle_{box}"] = finite_or_none(score.get("median_settling_time"))
         row["roa_n"] = evaluation.get("domain", {}).get("n")
         row["roa_T"] = evaluation.get("domain", {}).get("T")
+        row["roa_judge"] = judge_text(evaluation.get("domain", {}))
         row["limit"] = _limit_text(job, evaluation)
         radius = evaluation.get("radius") or {}
         row["nida_radius"], row["lqr_radius"] = finite_or_none(radius.get("NIDA-PBC")), finite_or_none(radius.get("LQR"))

@@ -64,10 +64,10 @@ def seed_medians(summary_csvs) -> dict[str, dict]:
             robots.setdefault(row["system"], {"rows": []})["rows"].append(row)
     for name, entry in robots.items():
         rows = entry["rows"]
-        judged = {(r.get("roa_n"), r.get("roa_T"), r.get("limit")) for r in rows}
+        judged = {(r.get("roa_n"), r.get("roa_T"), r.get("limit"), r.get("roa_judge") or "every stage") for r in rows}
         if len(judged) > 1:
             raise IdapbcError(
-                f"the rows of '{name}' were judged differently (states per box, T, limits: {sorted(judged)}). "
+                f"the rows of '{name}' were judged differently (states per box, T, limits, judge: {sorted(judged)}). "
                 "Fix: pass batches that use the same `evaluate` settings and limits."
             )
         entry["median"] = {c: _median([_float(r.get(c, "")) for r in rows]) for c in MEDIAN_COLUMNS}

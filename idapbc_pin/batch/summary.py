@@ -162,6 +162,7 @@ def zoo_table_markdown(summary_csv) -> str:
     rows = read_summary(summary_csv)
     n = next((r["roa_n"] for r in rows if r.get("roa_n")), "?")
     T = next((r["roa_T"] for r in rows if r.get("roa_T")), "?")
+    judge = next((r["roa_judge"] for r in rows if r.get("roa_judge")), "every stage")
     body = []
     for r in rows:
         if r["status"] != "done":
@@ -182,7 +183,8 @@ def zoo_table_markdown(summary_csv) -> str:
             "x* LES", "certified share: NIDA-PBC / LQR", "NIDA-PBC outside the box", "training"]  # fmt: skip
     note = (
         f"Generated from `{Path(summary_csv).name}` by `idapbc_pin.batch.zoo_table_markdown`: {n} uniform states per box, "
-        f"T = {T} s, success = within 0.05 of x* over the last 2 s, with the effort limits applied to both controllers; "
+        f"T = {T} s, the law {_judge_phrase(judge)}, success = within 0.05 of x* over the last 2 s, with the effort limits "
+        "applied to both controllers; "
         "ROA radius = largest scale s of the training box around x* at which ≥ 90 % of the states succeed; certified "
         "share = share of the box inside the largest sampled sublevel set of H_d (NIDA-PBC) or of δᵀSδ (LQR) that stays "
         "in the box with a decreasing value on every sample (see docs/method.md): sampled, not proofs. NIDA-PBC outside "
@@ -190,6 +192,14 @@ def zoo_table_markdown(summary_csv) -> str:
         "the networks'; docs/method.md §6)."
     )
     return _table(head, body) + "\n\n" + note + "\n"
+
+
+def _judge_phrase(judge: str) -> str:
+    """"held 2 ms" -> "sampled and held every 2 ms (RK4 plant)"; older summaries judged at every RK4 stage."""
+    how, _, step = judge.partition(" ") if judge.startswith("held") else ("every stage", "", judge[len("every stage"):].strip())
+    if how == "held":
+        return f"sampled and held every {step} (RK4 on the plant)"
+    return f"evaluated at every RK4 stage{f' of {step}' if step else ''}"
 
 
 def replace_block(text: str, table: str, start_marker: str, end_marker: str) -> str:

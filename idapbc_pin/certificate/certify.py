@@ -106,7 +106,7 @@ def certify(
         refined by L-BFGS-B.
     settle : trajectories from near x* and as many from the half box for the settled equilibrium
         (0: skip the simulation).
-    settle_T, dt : their horizon and step, s (dt None: 10 ms, or shorter for a stiff loop, `judge_step`).
+    settle_T, dt : their horizon and step, s (dt None: 2 ms, or shorter for a stiff loop, `judge_step`).
     write : write ``<run>/certificate.json`` (atomic) when given a run.
     limits : check the true loop with the system's effort limits (f + g·sat(u); the default);
         False lifts them.

@@ -71,7 +71,7 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("run", metavar="RUN", help="run directory (made by `idapbc-pin train`)")
     p.add_argument("--n", type=positive_int, default=100, help="initial states uniform in the box (default 100)")
     p.add_argument("--T", type=float, default=20.0, metavar="SECONDS", help="horizon (default 20)")
-    p.add_argument("--dt", type=float, default=None, metavar="SECONDS", help="RK4 step (default: 0.01, or shorter where a loop at x* has a pole faster than 50 1/s)")
+    p.add_argument("--dt", type=float, default=None, metavar="SECONDS", help="RK4 step and control period: the law is sampled once per step and held (default: 0.002, a 500 Hz controller, or shorter where a loop at x* has a pole faster than 250 1/s)")
     p.add_argument("--x0", type=float, nargs="+", action="append", metavar="V",
                    help="initial state: n values (q then p) or nq positions at rest; repeat for several (overrides --n)")
     p.add_argument("--box", choices=["domain", "half"], default="domain", help="box of the random states (default: the training domain)")

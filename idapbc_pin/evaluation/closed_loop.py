@@ -158,7 +158,7 @@ def simulate_run(
     ----------
     run : a `Run` or a run directory.
     n : uniform states of `box` ("domain" or "half"), seed `seed`; or `x0` (N, n) / (N, nq).
-    T, dt : horizon and RK4 step, s (dt None: 10 ms, or shorter where either loop is stiffer at x*,
+    T, dt : horizon and RK4 step (the control period), s (dt None: 2 ms, or shorter where either loop is stiffer at x*,
         `judge_step` on the judge plant).
     rho : extra damping ρ for Neural IDA-PBC.
     mismatch : {kind: scale} or "mass=1.2,..." for the judge plant (`perturbed_system`).
@@ -189,7 +189,7 @@ def simulate_run(
     if radius and box_name != "custom":  # random states of a box, not given ones
         known = {1.0: res} if box_name == "domain" else {0.5: res}
         found = roa_radius(plant, controllers, n=int(n), seed=seed, T=T, dt=dt, known=known, saturation=saturation, limits=limits)
-    settings = {"n": int(x0.shape[0]), "T": T, "dt": dt, "seed": seed, "box": box_name, "rho": float(nida.rho),
+    settings = {"n": int(x0.shape[0]), "T": T, "dt": dt, "hold": res.hold, "seed": seed, "box": box_name, "rho": float(nida.rho),
                 "mismatch": scales, "saturation": saturation, "noise": noise, "limits": res.limits.to_json(), "judge": judge}
     json_path, fig_path = _write(run, res, trajs, settings, x0, nida, n_figure, found) if write else (None, None)
     return SimulationResult(res, settings, json_path, fig_path, found)

@@ -55,6 +55,7 @@ class Evaluation:
             out[box]["seed"] = res.seed
             out[box]["T"] = res.T
             out[box]["dt"] = res.dt
+            out[box]["hold"] = res.hold  # the law sampled once per step of dt and held (a 1/dt Hz controller)
         out["limits"] = input_limits(self.run.system, self.limits).to_json()
         if self.radius is not None:
             out["radius"] = dict(self.radius.radius)
@@ -77,7 +78,7 @@ def evaluate_run(
     """ROA of the run's controller (optionally with extra damping ρ) and LQR on `n` states per box,
     and their ROA radii on `n` states per scale (the boxes' rollouts reused at s = 1 and 0.5).
 
-    dt : RK4 step (s); None: 10 ms, or shorter where either loop is stiffer at x* (`judge_step`).
+    dt : RK4 step and control period (s); None: 2 ms, or shorter where either loop is stiffer at x* (`judge_step`).
     limits : apply the system's effort limits to both controllers (False lifts them).
     radius : find the ROA radii (False skips them; they cost a few more ROA evaluations).
     """

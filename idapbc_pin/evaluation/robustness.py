@@ -120,7 +120,7 @@ class MeasuredController:
     """What the controller sees of the true plant: measured (q, v), nominal momentum, noise.
 
     ``u = ctrl(model.state_from(q + n_q, v + n_v))`` with (q, v) = ``plant.split(x)`` of the true
-    state x and (n_q, n_v) ~ N(0, σ²) drawn afresh at every call (every RK4 stage) from a seeded
+    state x and (n_q, n_v) ~ N(0, σ²) drawn afresh at every call (every control tick of the judge) from a seeded
     generator. With no plant and σ = 0 it is a pass-through.
 
     Parameters
@@ -272,7 +272,7 @@ class RobustnessResult:
                 peak = res.limits.peak_text(s.median_peak_input) if res.limits is not None else f"{s.median_peak_input:.3g}"
                 cells.append(f"{100 * s.success_rate:5.1f} %" + (f" ({st:5.2f}, " if math.isfinite(st) else " (  -  , ") + f"{peak})")
             lines.append(f"{label:<22}" + "".join(f"{c:>32}" for c in cells))
-        lines.append(f"{self.wall_time:.0f} s; noise on (q, v), resampled at every RK4 stage; mismatch of the judge plant only")
+        lines.append(f"{self.wall_time:.0f} s; noise on (q, v), resampled at every control tick; mismatch of the judge plant only")
         return "\n".join(lines)
 
 

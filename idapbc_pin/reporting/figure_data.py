@@ -125,7 +125,7 @@ def figure_data(
     run : a `Run`, a run directory or a controller (see `idapbc_pin.certificate.terms`).
     x0 : (N, n) initial states or (N, nq) positions at rest; default `n` uniform states of the
         half-size box (seed `seed`).
-    T, dt : horizon and RK4 step, s (dt None: 10 ms, or shorter for a stiff loop, `judge_step`).
+    T, dt : horizon and RK4 step, s (dt None: 2 ms, or shorter for a stiff loop, `judge_step`).
     rho : replace the controller's ρ ("extra damping", `Controller.with_damping`).
     epsilon : ε of E (default the run's estimate).
     plant : the judge `System` (default the controller's model), e.g. `perturbed_system(...)`.

@@ -129,7 +129,7 @@ def report(
     evaluation = evaluate_run(run, n=n_roa, T=T, seed=seed, limits=limits, radius=radius)
     cert = certify(run, n=n_certify, seed=seed, settle_T=T, limits=limits)
     ctrl, _, eps, _ = resolve_controller(run)
-    rows = _figure_rows(ctrl, eps, None, n_figure, T, 0.01, seed, rho_extra, True, limits)
+    rows = _figure_rows(ctrl, eps, None, n_figure, T, None, seed, rho_extra, True, limits)
     fig_path = save_png(plot(rows), run.path / "figure.png")
     parts = [format_evaluation(evaluation), cert.table(), f"figure: {fig_path}"]
     if html:

@@ -6,7 +6,7 @@ One concept per module, in the order a rollout uses them:
 * `judge`: the true plant in (q, v) (Pinocchio's forward dynamics, or the closed form).
 * `mujoco_plant`: `mujoco_judge`, the same system judged by MuJoCo (an independent engine, optional).
 * `limits`: the input bound a rollout applies (effort limits, saturation), `input_limits`.
-* `step`: `judge_step`, the RK4 step a loop allows (10 ms, or shorter for a loop stiffer at x*).
+* `step`: `judge_step`, the judge's step and control period (2 ms, or shorter for a loop stiffer at x*).
 * `integrate`: the closed-loop vector field, RK4 / RK45 steps, `simulate`.
 * `trajectory`: `Trajectory`, what `simulate` returns.
 * `metrics`: success, settling time, equilibrium offset, peak input of a `Trajectory`.

@@ -6,9 +6,11 @@ A controller is any callable ``ctrl(x) -> u`` with x = (q, p) of shape (N, n) an
     q̇ = v,    v̇ = forward_dynamics(q, v, B u),    u = sat(ctrl(x(q, v))),  x = (q, M(q) v),
 
 with sat the clip to the actuators' effort limits (and an optional saturation, see
-`idapbc_pin.sim.limits`),
+`idapbc_pin.sim.limits`). By default the law runs as a robot runs it, as a digital controller: u is
+computed once at the start of each step of dt from the state there and held over the step (a zero-order
+hold at 1/dt Hz; `hold=False` evaluates it at every RK4 stage instead, a continuous-time law).
 
-where forward_dynamics is the judge's (`idapbc_pin.sim.judge`): the model a controller was
+forward_dynamics is the judge's (`idapbc_pin.sim.judge`): the model a controller was
 trained on never judges it (STYLE §6). Everything is batched over initial states; states that blow
 up are frozen and flagged, never allowed to put NaN into the rest of the batch.
 """
@@ -44,28 +46,33 @@ def _out_of_bounds(q: np.ndarray, v: np.ndarray, bound: float) -> np.ndarray:
 def _vector_field(judge: Judge, ctrl: Controller, bound, bound_q: float, q_star: np.ndarray, m: int):
     """The closed loop in (q, v) with sanitised inputs, clipped to ±`bound` ((m,) or None).
 
-    Returns ``rhs(q, v) -> (q̇, v̇, u, x, bad)`` with u the applied (clipped) input: rows that are
-    non-finite or beyond `bound_q`, or for which the controller or the plant returns non-finite
-    values, are flagged ``bad`` and evaluated at (q*, 0) instead (their results are meaningless and
-    get discarded), so the controller never sees a non-finite state and no NaN reaches the other rows.
+    Returns ``rhs(q, v, held=None) -> (q̇, v̇, u, x, bad)`` with u the applied (clipped) input: rows
+    that are non-finite or beyond `bound_q`, or for which the controller or the plant returns
+    non-finite values, are flagged ``bad`` and evaluated at (q*, 0) instead (their results are
+    meaningless and get discarded), so the controller never sees a non-finite state and no NaN reaches
+    the other rows. With ``held`` (N, m), an input already applied (clipped, finite) is held: the
+    controller is not called and x is None.
     """
     bound_q, bound = float(bound_q), (None if bound is None else np.asarray(bound, float))
 
-    def rhs(q, v):
+    def rhs(q, v, held=None):
         N = q.shape[0]
         bad = _out_of_bounds(q, v, bound_q)
         if bad.any():
             q, v = q.copy(), v.copy()
             q[bad], v[bad] = q_star, 0.0
-        x = judge.state(q, v)
-        u = np.asarray(ctrl(x), dtype=float)
-        if u.size != N * m:
-            raise ValueError(f"the controller returned shape {u.shape} for {N} states; expected ({N}, {m})")
-        u = u.reshape(N, m).copy()
-        bad |= ~np.all(np.isfinite(u), axis=1)
-        u[bad] = 0.0
-        if bound is not None:
-            u = np.clip(u, -bound, bound)
+        if held is not None:
+            x, u = None, held
+        else:
+            x = judge.state(q, v)
+            u = np.asarray(ctrl(x), dtype=float)
+            if u.size != N * m:
+                raise ValueError(f"the controller returned shape {u.shape} for {N} states; expected ({N}, {m})")
+            u = u.reshape(N, m).copy()
+            bad |= ~np.all(np.isfinite(u), axis=1)
+            u[bad] = 0.0
+            if bound is not None:
+                u = np.clip(u, -bound, bound)
         a = judge.accel(q, v, u @ judge.B.T)
         bad |= ~np.all(np.isfinite(a), axis=1)
         a[bad] = 0.0
@@ -75,26 +82,29 @@ def _vector_field(judge: Judge, ctrl: Controller, bound, bound_q: float, q_star:
 
 
 # ====================================================================== integrators
-def _rk4_advance(rhs, q, v, first, n_steps: int, h: float, bound: float):
+def _rk4_advance(rhs, q, v, first, n_steps: int, h: float, bound: float, hold: bool = False):
     """`n_steps` classical RK4 steps of size h; rows that go bad are frozen at their last good state.
 
-    ``first`` = (q̇, v̇, bad) at (q, v), already evaluated for the record. Returns (q, v, bad).
+    ``first`` = (q̇, v̇, bad, u) at (q, v), already evaluated for the record. With `hold`, the input
+    of each step's first stage is held over its other stages (zero-order hold over the step).
+    Returns (q, v, bad).
     """
     q, v = q.copy(), v.copy()
     bad_all = first[2].copy()
     live = np.flatnonzero(~bad_all)
-    k1q, k1v = first[0][live], first[1][live]
+    k1q, k1v, u1 = first[0][live], first[1][live], first[3][live]
     for step in range(n_steps):
         if live.size == 0:
             break
         q0, v0 = q[live], v[live]
         if step > 0:
-            k1q, k1v, _, _, b1 = rhs(q0, v0)
+            k1q, k1v, u1, _, b1 = rhs(q0, v0)
         else:
             b1 = np.zeros(live.size, bool)
-        k2q, k2v, _, _, b2 = rhs(q0 + 0.5 * h * k1q, v0 + 0.5 * h * k1v)
-        k3q, k3v, _, _, b3 = rhs(q0 + 0.5 * h * k2q, v0 + 0.5 * h * k2v)
-        k4q, k4v, _, _, b4 = rhs(q0 + h * k3q, v0 + h * k3v)
+        held = u1 if hold else None
+        k2q, k2v, _, _, b2 = rhs(q0 + 0.5 * h * k1q, v0 + 0.5 * h * k1v, held)
+        k3q, k3v, _, _, b3 = rhs(q0 + 0.5 * h * k2q, v0 + 0.5 * h * k2v, held)
+        k4q, k4v, _, _, b4 = rhs(q0 + h * k3q, v0 + h * k3v, held)
         qn = q0 + (h / 6.0) * (k1q + 2.0 * k2q + 2.0 * k3q + k4q)
         vn = v0 + (h / 6.0) * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
         bad = b1 | b2 | b3 | b4 | _out_of_bounds(qn, vn, bound)
@@ -178,11 +188,11 @@ def _rk45_advance(rhs, q, v, first, span: float, h0: float, h_min: float, bound:
     return y[:, :nq], y[:, nq:], bad_all, h
 
 
-def _stepper(rhs, method: str, dt: float, bound: float, rtol: float, atol: float):
+def _stepper(rhs, method: str, dt: float, bound: float, rtol: float, atol: float, hold: bool):
     """``advance(q, v, first, n_sub) -> (q, v, bad)``: `n_sub` steps of dt of the chosen method
-    (RK45 carries its adapted step size from one call to the next)."""
+    (RK45 carries its adapted step size from one call to the next; it never holds the input)."""
     if method == "rk4":
-        return lambda q, v, first, n_sub: _rk4_advance(rhs, q, v, first, n_sub, dt, bound)
+        return lambda q, v, first, n_sub: _rk4_advance(rhs, q, v, first, n_sub, dt, bound, hold)
     h_adapt = dt
 
     def advance(q, v, first, n_sub):
@@ -202,10 +212,12 @@ def _as_batch(x, n: int, what: str) -> np.ndarray:
     return x
 
 
-def _record_steps(T: float, dt: float, method: str, record_every) -> list[int]:
+def _record_steps(T: float, dt: float, method: str, record_every, hold: bool) -> list[int]:
     """The steps of dt at which the record samples, 0 … T/dt (the last always); checks the grid."""
     if method not in ("rk4", "rk45"):
         raise ValueError(f"method must be 'rk4' or 'rk45', got {method!r}")
+    if hold and method != "rk4":
+        raise ValueError("hold=True needs the fixed-step method='rk4'; pass hold=False with method='rk45' (a continuous-time law)")
     if not (dt > 0 and T >= 0 and math.isfinite(T)):
         raise ValueError(f"need dt > 0 and a finite T ≥ 0, got T={T!r}, dt={dt!r}")
     n_steps = int(round(T / dt))
@@ -250,14 +262,14 @@ def _record(rhs, advance, q, v, x_last, diverged, steps: list[int], m: int):
             x_last[live] = x
             u_last[live[~b]] = u[~b]
             diverged[live[b]] = True
-            live, dq, dv = live[~b], dq[~b], dv[~b]
+            live, dq, dv, u = live[~b], dq[~b], dv[~b], u[~b]
         X[:, r], V[:, r], U[:, r] = x_last, v, u_last
         if r == K - 1:
             break
         if not live.size:  # everything diverged: the rest of the record is frozen
             X[:, r + 1 :], V[:, r + 1 :], U[:, r + 1 :] = x_last[:, None], v[:, None], u_last[:, None]
             break
-        qn, vn, b = advance(q[live], v[live], (dq, dv, np.zeros(live.size, bool)), steps[r + 1] - step)
+        qn, vn, b = advance(q[live], v[live], (dq, dv, np.zeros(live.size, bool), u), steps[r + 1] - step)
         q[live[~b]], v[live[~b]] = qn[~b], vn[~b]
         diverged[live[b]] = True
     return X, V, U, diverged
@@ -274,6 +286,7 @@ def simulate(
     record_every: int = 1,
     *,
     limits: bool = True,
+    hold: bool = True,
     bound: float = DIVERGENCE_BOUND,
     rtol: float = 1e-6,
     atol: float = 1e-9,
@@ -288,9 +301,10 @@ def simulate(
     ctrl : callable (N, n) -> (N, m): the control law u(x), x = (q, p).
     x0 : (N, n) or (n,) initial states (q, p).
     T : horizon, s; must be a multiple of `dt`.
-    dt : step of the fixed-step RK4 (s); for ``"rk45"`` the initial step and, with
-        `record_every`, the sampling grid. None (the default): 10 ms, or shorter where the loop
-        linearised at x* is stiffer (`idapbc_pin.sim.step.judge_step`).
+    dt : step of the fixed-step RK4 and, with `hold`, the control period (s); for ``"rk45"`` the
+        initial step and, with `record_every`, the sampling grid. None (the default): 2 ms (a 500 Hz
+        controller), or shorter where the loop linearised at x* is stiffer
+        (`idapbc_pin.sim.step.judge_step`).
     method : ``"rk4"`` (classical fixed step, the default) or ``"rk45"`` (adaptive
         Dormand–Prince 5(4) with a step size shared by the batch, tolerances `rtol`, `atol`; a
         state that needs a step below dt/100 is flagged diverged).
@@ -298,6 +312,10 @@ def simulate(
         the effort limits, whichever is smaller).
     limits : clip the input to the system's effort limits ``system.effort`` (DESIGN §4; the
         default); False lifts them (a system without ``effort`` is unlimited either way).
+    hold : evaluate the law once per step of dt, at its start, and hold the input over the step's
+        RK4 stages (the default: a digital controller at 1/dt Hz, as on a robot and as MuJoCo steps
+        with an applied force); False evaluates it at every stage (a continuous-time law; needed
+        with ``"rk45"``).
     record_every : record every this many steps of `dt` (the final time is always recorded).
     bound : a state with |q| or |v| above this, or non-finite, is frozen and flagged diverged.
     threads : Pinocchio threads for URDF plants (default `DEFAULT_THREADS`).
@@ -310,13 +328,13 @@ def simulate(
     nq, n, m = int(system.nq), int(system.n), int(system.m)
     x0 = _as_batch(x0, n, "x0")
     dt = judge_step(system, {"ctrl": ctrl}, T, dt)
-    steps = _record_steps(T, dt, method, record_every)
+    steps = _record_steps(T, dt, method, record_every, hold)
     x_star = np.asarray(system.x_star, float)
     clip = input_limits(system, limits, saturation).bound
     rhs = _vector_field(Judge(system, threads), ctrl, clip, bound, x_star[:nq], m)
     q, v, bad0 = _initial_state(system, x0, bound)
     x_last = np.where(bad0[:, None], x_star, x0).copy()
-    advance = _stepper(rhs, method, dt, bound, rtol, atol)
+    advance = _stepper(rhs, method, dt, bound, rtol, atol, hold)
     X, V, U, diverged = _record(rhs, advance, q, v, x_last, bad0, steps, m)
     t = np.asarray(steps, float) * dt
     return Trajectory(t=t, x=X, q=X[..., :nq], v=V, u=U, diverged=diverged)

@@ -88,6 +88,7 @@ class RoaResult:
     x0 : (N, n) initial states.
     T, dt : horizon and step, s.
     seed : seed of the states.
+    hold : the law was sampled once per step of dt and held (True), or evaluated at every RK4 stage.
     scores : {controller name: ControllerScore}, in the order given.
     limits : the input bound every controller was clipped to (`InputLimits`; None: not recorded).
     """
@@ -101,6 +102,7 @@ class RoaResult:
     seed: int
     scores: Mapping[str, ControllerScore]
     limits: InputLimits | None = None
+    hold: bool = True
 
     def __getitem__(self, name: str) -> ControllerScore:
         return self.scores[name]
@@ -110,6 +112,7 @@ class RoaResult:
         head = (
             f"ROA of {self.system}: {self.x0.shape[0]} states uniform in the {self.box_name} box "
             f"(seed {self.seed}), T = {self.T:g} s, dt = {self.dt:g} s"
+            + (f" (law sampled and held at {1.0 / self.dt:.4g} Hz)" if self.hold else " (law at every RK4 stage)")
         )
         if self.limits is not None:
             head += f"; {self.limits.describe()}"
@@ -137,15 +140,16 @@ def score(
     method: str = "rk4",
     saturation=None,
     limits: bool = True,
+    hold: bool = True,
     threads: int | None = None,
 ) -> tuple[ControllerScore, Trajectory]:
     """Simulate one controller from x0 (N, n) on `system` (the judge) and score the rollouts.
 
-    T, dt, method, saturation, limits, threads : passed to `simulate` (limits: the system's effort
-    limits apply unless False). Returns the score and the rollouts.
+    T, dt, method, saturation, limits, hold, threads : passed to `simulate` (limits: the system's
+    effort limits apply unless False). Returns the score and the rollouts.
     """
     t0 = time.perf_counter()
-    traj = simulate(system, ctrl, x0, T=T, dt=dt, method=method, saturation=saturation, limits=limits, threads=threads)
+    traj = simulate(system, ctrl, x0, T=T, dt=dt, method=method, saturation=saturation, limits=limits, hold=hold, threads=threads)
     wall = time.perf_counter() - t0
     result = ControllerScore(
         name=name,
@@ -172,6 +176,7 @@ def roa(
     method: str = "rk4",
     saturation=None,
     limits: bool = True,
+    hold: bool = True,
     threads: int | None = None,
 ) -> RoaResult:
     """Region-of-attraction estimate: every controller from the very same `n` uniform states.
@@ -183,8 +188,8 @@ def roa(
     n : number of initial states.
     box : ``"domain"``, ``"half"`` or (lo, hi) (see `evaluation_box`).
     seed : seed of the uniform states.
-    T, dt, method, saturation, limits, threads : passed to `simulate` (the system's effort limits
-        apply to every controller alike unless ``limits=False``); dt None: one step for all of them,
+    T, dt, method, saturation, limits, hold, threads : passed to `simulate` (the system's effort
+        limits apply to every controller alike unless ``limits=False``); dt None: one step for all of them,
         `judge_step` of the stiffest loop.
 
     Returns
@@ -195,7 +200,7 @@ def roa(
     x0 = uniform_states(system, n, (lo, hi), seed)
     dt = judge_step(system, controllers, T, dt)
     scores = {
-        name: score(system, name, ctrl, x0, T, dt, method=method, saturation=saturation, limits=limits, threads=threads)[0]
+        name: score(system, name, ctrl, x0, T, dt, method=method, saturation=saturation, limits=limits, hold=hold, threads=threads)[0]
         for name, ctrl in controllers.items()
     }
     box_name = box if isinstance(box, str) else "custom"
@@ -209,4 +214,5 @@ def roa(
         seed=int(seed),
         scores=scores,
         limits=input_limits(system, limits, saturation),
+        hold=bool(hold),
     )

@@ -1,13 +1,21 @@
-"""The RK4 step a closed loop allows: `loop_pole`, `step_for_pole` and `judge_step`.
+"""The judge's step: `loop_pole`, `step_for_pole` and `judge_step`.
+
+The judge runs a control law as a robot does: sampled every dt and held over the step (a 500 Hz
+digital controller at the default `DEFAULT_STEP` = 2 ms, MuJoCo's own default step), the plant
+integrated by classical RK4 over that step. Why 2 ms and not the 10 ms used before: saturated swings
+are sensitive to how the law is sampled. Measured on the zoo acrobot (seed-0 run, 100 half-box
+states of seed 7, NIDA-PBC / saturated LQR): RK4 with the law evaluated at every stage gave
+92 / 74 % at 10 ms but 80 / 66 % at 2 ms, and MuJoCo's own stepping with the torque held 79.5 / 81 %
+at 2 ms (docs/results-history.md); a judge that disagrees with the independent engine on which
+controller wins is no judge.
 
 Classical RK4 with step dt is stable on a linear mode λ only while |λ|·dt stays inside its stability
-region (up to 2.78 on the negative real axis). A judge at a fixed 10 ms therefore declares a stiff but
-stable loop "diverged": measured on example-robot-data's damped double pendulum (plant poles of
-136–153 1/s from joint damping on light links, no effort limits in its URDF), LQR "diverged" from
-155 of 200 domain states at 10 ms and from none of 100 at 2 ms. Every evaluation takes ``dt=None`` to mean: `DEFAULT_STEP`, or a
-shorter step where a judged loop, linearised at x*, has a pole faster than ``POLE_STEP / DEFAULT_STEP``
-(50 1/s). Every zoo robot and paper benchmark stays at 10 ms (their fastest loop pole, LQR's on the
-reaction wheel, is 32 1/s).
+region (up to 2.78 on the negative real axis), and a sampled law needs a step short against the loop
+too. Every evaluation takes ``dt=None`` to mean: `DEFAULT_STEP`, or a shorter step where a judged
+loop, linearised at x*, has a pole faster than ``POLE_STEP / DEFAULT_STEP`` (250 1/s). Every zoo
+robot and paper benchmark stays at 2 ms (their fastest loop pole, LQR's on the reaction wheel, is
+32 1/s), and so does example-robot-data's damped double pendulum (plant poles of 136–153 1/s from
+joint damping on light links, which made LQR "diverge" from 155 of 200 domain states at 10 ms).
 """
 
 from __future__ import annotations
@@ -22,8 +30,8 @@ from .judge import Judge
 
 __all__ = ["DEFAULT_STEP", "MIN_AUTO_STEP", "POLE_STEP", "judge_step", "loop_pole", "step_for_pole"]
 
-#: The judge's RK4 step (s) unless a loop is stiffer.
-DEFAULT_STEP = 0.01
+#: The judge's RK4 step and control period (s) unless a loop is stiffer: a 500 Hz controller.
+DEFAULT_STEP = 0.002
 #: The largest |λ|·dt an automatic step allows at x* (the loop is faster still away from x*).
 POLE_STEP = 0.5
 #: The shortest automatic step (s): a loop faster than POLE_STEP / MIN_AUTO_STEP (500 1/s) gets this

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 __all__ = ["PLANT_POLE_SHARE", "STIFF_DT", "STIFF_WARN", "format_train_summary"]
 
-#: The judge's default RK4 step (s) (`idapbc_pin.sim.step.DEFAULT_STEP`), and the |λ|·dt above which
-#: `train` notes that the learned loop is too stiff for it, so the evaluations shorten the step (RK4 is
-#: stable on the negative real axis up to 2.78; measured: the Furuta pendulum's anchor with
-#: |λ| = 253 1/s, |λ|·dt = 2.5, diverged from every state at 10 ms and reached x* from 24 % of the
-#: half box at 2 ms).
-STIFF_DT, STIFF_WARN = 0.01, 1.0
+#: The judge's default RK4 step and control period (s) (`idapbc_pin.sim.step.DEFAULT_STEP`), and the
+#: |λ|·dt above which `train` notes that the learned loop is too stiff for it, so the evaluations
+#: shorten the step: the judge's own `POLE_STEP` (RK4 is stable on the negative real axis up to 2.78,
+#: and a law sampled every dt needs a step short against the loop; measured with the earlier 10 ms
+#: step: the Furuta pendulum's anchor with |λ| = 253 1/s, |λ|·dt = 2.5, diverged from every state
+#: and reached x* from 24 % of the half box at 2 ms).
+STIFF_DT, STIFF_WARN = 0.002, 0.5
 #: The NOTE blames the plant rather than the anchor when the open loop at x* has a pole at least this
 #: share of the fastest closed-loop one (`erd:double_pendulum`: open loop 136 1/s from joint damping on
 #: light links, closed loop 136 1/s with the weakest automatic anchor).
@@ -61,8 +62,8 @@ def format_train_summary(run) -> str:
         )
         lines.append(
             f"NOTE: the fastest closed-loop pole at x* has |λ| = {fastest:.3g} 1/s: |λ|·dt = {fastest * STIFF_DT:.2g} at a "
-            f"{STIFF_DT * 1e3:g} ms RK4 step, near or past RK4's stability limit 2.78 (and the loop is faster still away from "
-            f"x*). Every evaluation (train --evaluate, simulate, certify, report, view, batch) will judge it with a "
+            f"{STIFF_DT * 1e3:g} ms RK4 step and control period, past the judge's {STIFF_WARN:g} (and the loop is faster still "
+            f"away from x*). Every evaluation (train --evaluate, simulate, certify, report, view, batch) will judge it with a "
             f"{step * 1e3:.3g} ms step for a 20 s horizon (simulate --dt overrides); {why}"
         )
     return "\n".join(lines)

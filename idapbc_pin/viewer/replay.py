@@ -149,7 +149,7 @@ def view(
         zoo or built-in name, ``erd:<stem>``).
     trajectories : a `Trajectory` from `idapbc_pin.sim.simulate` (all its rollouts), a list of them,
         or a pair (t (K,), q (K, nq) or (N, K, nq)). None: simulate `n` rollouts of `T` s (step
-        `dt`; None: 10 ms, or shorter for a stiff loop) from states drawn uniformly from the
+        `dt`; None: 2 ms, or shorter for a stiff loop) from states drawn uniformly from the
         half-size training box (seed `seed`), or from `x0`,
         with the run's controller, or the LQR baseline when given a `System`.
     x0 : (N, n) initial states (q, p) or (N, nq) positions at rest; overrides `n` and `pick`.
