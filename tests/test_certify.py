@@ -192,7 +192,9 @@ def test_exact_linear_ida_pbc_on_mass_spring_damper_is_certified_on_the_whole_do
 def test_exact_ida_pbc_on_the_fully_actuated_double_pendulum_is_certified():
     system = ip.load_system("paper_double_pendulum")
     ctrl = ExactDoublePendulum(system)
-    cert = certify(ctrl, n=3000, n_hessian=500, settle=1, settle_T=6.0, write=False)
+    # 10 s, still half the DESIGN's 20 s: after 6 s its slow mode leaves a half-box start at |p| ≈ 0.05, the
+    # settle test's own edge, on either side of it depending on how the law is sampled
+    cert = certify(ctrl, n=3000, n_hessian=500, settle=1, settle_T=10.0, write=False)
     assert cert.max_mu < 1e-12
     assert cert.structural.min_eig_R > 0 and cert.structural.min_eig_hessian > 0
     assert cert.structural.max_J_skew_error == 0.0

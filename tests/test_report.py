@@ -46,7 +46,7 @@ def test_panels_hold_the_simulated_trajectories(tiny_run):
     system, ctrl = tiny_run.system, tiny_run.controller
     x0 = uniform_states(system, 2, "half", seed=5)
     row = figure_data(tiny_run, x0, T=1.5)
-    traj = simulate(system, ctrl, x0, T=1.5, dt=0.01)  # the same simulation, run here
+    traj = simulate(system, ctrl, x0, T=1.5)  # the same simulation (the judge's default step), run here
     np.testing.assert_array_equal(row.traj.x, traj.x)
     fig = plot([row])
     nq, t = system.nq, traj.t
