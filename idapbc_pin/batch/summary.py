@@ -195,11 +195,12 @@ def zoo_table_markdown(summary_csv) -> str:
 
 
 def _judge_phrase(judge: str) -> str:
-    """"held 2 ms" -> "sampled and held every 2 ms (RK4 plant)"; older summaries judged at every RK4 stage."""
-    how, _, step = judge.partition(" ") if judge.startswith("held") else ("every stage", "", judge[len("every stage"):].strip())
-    if how == "held":
-        return f"sampled and held every {step} (RK4 on the plant)"
-    return f"evaluated at every RK4 stage{f' of {step}' if step else ''}"
+    """A summary's `roa_judge` in words: "held 2 ms" -> "sampled and held every 2 ms (RK4 on the plant)";
+    "every stage 10 ms" (or nothing, in summaries older than the column) -> "evaluated at every RK4 stage …"."""
+    if judge.startswith("held "):
+        return f"sampled and held every {judge[len('held '):]} (RK4 on the plant)"
+    step = judge[len("every stage"):].strip()
+    return "evaluated at every RK4 stage" + (f" of {step}" if step else "")
 
 
 def replace_block(text: str, table: str, start_marker: str, end_marker: str) -> str:

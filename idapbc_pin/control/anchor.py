@@ -42,7 +42,7 @@ AUTO_BOX_RATIO = 20.0
 #: faster than ``AUTO_MAX_POLE`` 1/s. Under actuator limits a stiffer loop saturates sooner: with physical
 #: weights the Furuta pendulum (10 N·m) reached 78 / 77 / 82 % of the half box (seeds 0–2, 100 states) with
 #: its 17 1/s anchor (anchor_q = 10) and 88 / 89 / 90 % with its 13 1/s one (anchor_q = 1); saturated LQR 77 %.
-#: The cap also keeps |λ|·dt ≪ 0.5 for `simulate`'s 10 ms RK4 step.
+#: The cap also keeps |λ|·dt ≪ 0.5 for the judge's 2 ms step (`idapbc_pin.sim.step.DEFAULT_STEP`).
 AUTO_ANCHOR_Q = (10.0, 1.0, 0.1, 0.01)
 AUTO_MAX_POLE = 15.0
 #: When the plant's own linearisation at x* already has a pole faster than ``AUTO_MAX_POLE`` (joint

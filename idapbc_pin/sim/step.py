@@ -2,12 +2,13 @@
 
 The judge runs a control law as a robot does: sampled every dt and held over the step (a 500 Hz
 digital controller at the default `DEFAULT_STEP` = 2 ms, MuJoCo's own default step), the plant
-integrated by classical RK4 over that step. Why 2 ms and not the 10 ms used before: saturated swings
-are sensitive to how the law is sampled. Measured on the zoo acrobot (seed-0 run, 100 half-box
-states of seed 7, NIDA-PBC / saturated LQR): RK4 with the law evaluated at every stage gave
-92 / 74 % at 10 ms but 80 / 66 % at 2 ms, and MuJoCo's own stepping with the torque held 79.5 / 81 %
-at 2 ms (docs/results-history.md); a judge that disagrees with the independent engine on which
-controller wins is no judge.
+integrated by classical RK4 over that step; MuJoCo's RK4 integrator stepping the same URDF with the
+torque held follows the judge's trajectory to 1e-6 (tests/test_mujoco_judge.py). The judge before it
+evaluated the law at every RK4 stage of 10 ms, and saturated swings are sensitive to that: on the zoo
+acrobot (seed-0 run, 100 half-box states of seed 7, NIDA-PBC / saturated LQR) it gave 92 / 74 % at
+10 ms and 80 / 66 % at 2 ms, while MuJoCo's own Euler stepping with the torque held gave 79.5 / 81 %
+on 200 such states. Which states a chaotic swing catches still depends on the integrator at any
+control rate (docs/method.md §5).
 
 Classical RK4 with step dt is stable on a linear mode λ only while |λ|·dt stays inside its stability
 region (up to 2.78 on the negative real axis), and a sampled law needs a step short against the loop
