@@ -4,7 +4,8 @@ Writes variants of the zoo URDFs (heavier or lighter links, continuous joints, m
 into a temporary folder, loads each from its path as a user would (`load_system(path, actuated=…)`,
 so the default training box follows the variant's own masses), trains it with every default of the fast preset
 (`TrainConfig.fast(seed=…)`) and judges NIDA-PBC and LQR (Q = I, R = I) with MuJoCo from the same
-uniform states (their own seed, not the evaluation's seed 0), with the URDF's effort limits on both.
+uniform states (their own seed, not the evaluation's seed 0), with the URDF's effort limits on both,
+and prints NIDA-PBC's lead with its 95 % interval (`idapbc_pin.sim.paired`).
 Run: python benchmarks/bench_outside_zoo.py [--n 200] [--seed 0] [--judge-seed 1] [--only NAME ...]
 """
 
@@ -74,6 +75,13 @@ def write_variant(v: Variant, folder: Path) -> Path:
     return path
 
 
+def _lead(res) -> str:
+    """NIDA-PBC's lead over LQR on one box in points, with its 95 % interval (`sim.paired`)."""
+    c = res.compare("NIDA-PBC", "LQR")
+    lo, hi = c.interval
+    return f"{100 * c.difference:+.1f}, CI {100 * lo:+.1f} to {100 * hi:+.1f}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=200, help="states per box (default 200)")
@@ -87,7 +95,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     chosen = [v for v in VARIANTS if args.only is None or v.name in args.only]
     print(f"cpus={os.cpu_count()} load={os.getloadavg()[0]:.2f} n={args.n} seed={args.seed} judge_seed={args.judge_seed} out={out}")
-    print("| variant | actuated (limit) | half box: NIDA-PBC / LQR | domain: NIDA-PBC / LQR | median settling, half: NIDA-PBC / LQR | training |")
+    print("| variant | actuated (limit) | half box: NIDA-PBC / LQR (lead, 95 % CI) | domain: NIDA-PBC / LQR (lead, 95 % CI) | median settling, half: NIDA-PBC / LQR | training |")
     print("|---|---|---|---|---|---|")
     for v in chosen:
         system = ip.load_system(write_variant(v, out), actuated=list(v.actuated))
@@ -97,7 +105,7 @@ def main() -> None:
         judge = ip.mujoco_judge(system)
         ctrls = {"NIDA-PBC": run.controller, "LQR": LQRController(system)}
         res = {box: roa(judge, ctrls, n=args.n, box=box, seed=args.judge_seed, limits=True) for box in ("half", "domain")}
-        rate = {box: " / ".join(f"{100 * r[k].success_rate:.1f} %" for k in ctrls) for box, r in res.items()}
+        rate = {box: " / ".join(f"{100 * r[k].success_rate:.1f} %" for k in ctrls) + f" ({_lead(r)})" for box, r in res.items()}
         settle = " / ".join(f"{res['half'][k].median_settling_time:.2f} s" for k in ctrls)
         limit = ", ".join(f"{j}={e:g}" for j, e in zip(v.actuated, system.effort))
         print(f"| {v.name} | {limit} | {rate['half']} | {rate['domain']} | {settle} | {seconds:.0f} s |", flush=True)

@@ -25,6 +25,7 @@ from .evaluation.robustness import perturbed_system, robustness_table
 from .control.baseline import LQRController
 from .sim.integrate import simulate
 from .sim.mujoco_plant import mujoco_judge
+from .sim.paired import paired_comparison
 from .sim.radius import roa_radius
 from .sim.roa import roa
 from .model import System, load_system
@@ -47,6 +48,7 @@ __all__ = [
     "load_run",
     "load_system",
     "mujoco_judge",
+    "paired_comparison",
     "perturbed_system",
     "report",
     "robustness_table",

@@ -265,6 +265,12 @@ def test_evaluation_applies_limits_and_writes_the_radii(tmp_path):
         assert ev.radius.probes["LQR"][scale] == (int(ev.results[box]["LQR"].success.sum()), 8)
     text = format_evaluation(ev)
     assert "ROA radius" in text and " / 20" in text and "|u| ≤ 20 (effort limits)" in text
+    # the same law under both names: no state separates them, so no lead and no evidence of one
+    for box in ("domain", "half"):
+        paired = data[box]["paired"]
+        assert paired["only_a"] == paired["only_b"] == 0 and paired["difference"] == 0.0 and paired["p_value"] == 1.0
+        assert paired["interval"][0] < 0.0 < paired["interval"][1]
+    assert "NIDA-PBC − LQR: +0.0 points" in text
     free = evaluate_run(run, n=8, T=4.0, dt=0.02, limits=False, radius=False)
     data = json.loads((tmp_path / "evaluation.json").read_text())
     assert "radius" not in data and free.radius is None

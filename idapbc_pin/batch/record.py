@@ -23,12 +23,14 @@ __all__ = ["SUMMARY_COLUMNS", "VOLATILE_COLUMNS", "crash_record", "new_record", 
 #: dissipation_fraction, les, sublevel_coverage, certified come from `certify` (les falls back to
 #: the trainer's eigenvalue check), lqr_sublevel_coverage from its LQR baseline (δᵀSδ); limit is the
 #: actuators' effort limits applied in the evaluation ("none" when unlimited or lifted); *_radius the
-#: ROA radii; *_peak_half the median peak |u| on the half box; fallback whether NIDA-PBC switches to
+#: ROA radii; *_lead_low / *_lead_high the 95 % interval of NIDA-PBC's success rate minus LQR's on the
+#: box's states and *_lead_p McNemar's exact p-value (`sim.paired`); *_peak_half the median peak |u| on the half box; fallback whether NIDA-PBC switches to
 #: the anchor's linear law outside the training box (`control.fallback`); loss_* the final epoch's loss terms.
 SUMMARY_COLUMNS = (
     "name", "system", "source", "actuated", "preset", "status",
     "nida_success_domain", "lqr_success_domain", "nida_success_half", "lqr_success_half",
     "nida_settle_domain", "lqr_settle_domain", "nida_settle_half", "lqr_settle_half",
+    "domain_lead_low", "domain_lead_high", "domain_lead_p", "half_lead_low", "half_lead_high", "half_lead_p",
     "roa_n", "roa_T", "roa_judge", "limit", "nida_radius", "lqr_radius", "nida_peak_half", "lqr_peak_half",
     "dissipation_fraction", "les", "sublevel_coverage", "lqr_sublevel_coverage", "certified",
     "fallback", "epochs", "train_seconds", *(f"loss_{t}" for t in TERMS),
@@ -125,6 +127,10 @@ def summary_row(job: Job, record: dict, run=None, evaluation: dict | None = None
                 score = evaluation.get(box, {}).get(ctrl, {})
                 row[f"{key}_success_{box}"] = finite_or_none(score.get("success_rate"))
                 row[f"{key}_settle_{box}"] = finite_or_none(score.get("median_settling_time"))
+            paired = evaluation.get(box, {}).get("paired") or {}
+            low, high = paired.get("interval") or (None, None)
+            row[f"{box}_lead_low"], row[f"{box}_lead_high"] = finite_or_none(low), finite_or_none(high)
+            row[f"{box}_lead_p"] = finite_or_none(paired.get("p_value"))
         row["roa_n"] = evaluation.get("domain", {}).get("n")
         row["roa_T"] = evaluation.get("domain", {}).get("T")
         row["roa_judge"] = judge_text(evaluation.get("domain", {}))

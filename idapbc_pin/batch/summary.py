@@ -91,6 +91,14 @@ def _r(v: str) -> str:
     return "—" if v in ("", None) else f"{float(v):.2f}"
 
 
+def _lead(r: dict, box: str) -> str:
+    """NIDA-PBC's lead over LQR on a box, in points, with its 95 % interval: "+18.0 (+11.1 to +24.6)"."""
+    nida, lqr, low, high = (r.get(k) for k in (f"nida_success_{box}", f"lqr_success_{box}", f"{box}_lead_low", f"{box}_lead_high"))
+    if any(v in ("", None) for v in (nida, lqr, low, high)):
+        return "—"
+    return f"{100 * (float(nida) - float(lqr)):+.1f} ({100 * float(low):+.1f} to {100 * float(high):+.1f})"
+
+
 def _dur(v: str) -> str:
     """A duration in s, min or h."""
     if v in ("", None):
@@ -131,10 +139,10 @@ def _summary_markdown(rows: list[dict], pipeline: Pipeline) -> str:
         "",
         _table(
             ["job", "system", "actuated", "preset", "status", "success domain NIDA-PBC / LQR", "success half NIDA-PBC / LQR",
-             "settling domain NIDA-PBC / LQR", "dissipation", "LES", "sublevel", "certified"],
+             "half: NIDA-PBC − LQR, points (95 % CI)", "settling domain NIDA-PBC / LQR", "dissipation", "LES", "sublevel", "certified"],
             [[r["name"], r["system"], r["actuated"], r["preset"], r["status"],
               f"{_p(r['nida_success_domain'])} / {_p(r['lqr_success_domain'])}", f"{_p(r['nida_success_half'])} / {_p(r['lqr_success_half'])}",
-              f"{_s(r['nida_settle_domain'])} / {_s(r['lqr_settle_domain'])}", _p(r["dissipation_fraction"]), r["les"] or "—",
+              _lead(r, "half"), f"{_s(r['nida_settle_domain'])} / {_s(r['lqr_settle_domain'])}", _p(r["dissipation_fraction"]), r["les"] or "—",
               _p(r["sublevel_coverage"]), r["certified"] or "—"] for r in rows],
         ),
         "",
@@ -156,7 +164,7 @@ def zoo_table_markdown(summary_csv) -> str:
     """The README's zoo table, rendered from a summary.csv (deterministic: no times of day, no paths).
 
     One row per job: actuated joints, success rate of NIDA-PBC next to LQR on the training box and
-    on its half-size box, median settling times on the training box, local exponential stability,
+    on its half-size box, NIDA-PBC's lead on the half box with its 95 % interval, median settling times on the training box, local exponential stability,
     the certificate's dissipation share and sublevel coverage, and the training time.
     """
     rows = read_summary(summary_csv)
@@ -167,24 +175,26 @@ def zoo_table_markdown(summary_csv) -> str:
     for r in rows:
         if r["status"] != "done":
             reason = f": {r['error'][:80]}" if r.get("error") else ""
-            body.append([f"`{r['name']}`", r["actuated"], f"{r['status']}{reason}"] + [""] * 8)
+            body.append([f"`{r['name']}`", r["actuated"], f"{r['status']}{reason}"] + [""] * 9)
             continue
         body.append([
             f"`{r['name']}`", r["actuated"],
             f"{_p(r['nida_success_domain'])} / {_p(r['lqr_success_domain'])}", f"{_p(r['nida_success_half'])} / {_p(r['lqr_success_half'])}",
-            f"{_r(r.get('nida_radius'))} / {_r(r.get('lqr_radius'))}",
+            _lead(r, "half"), f"{_r(r.get('nida_radius'))} / {_r(r.get('lqr_radius'))}",
             f"{_s(r['nida_settle_domain'])} / {_s(r['lqr_settle_domain'])}",
             f"{_s(r.get('nida_peak_half'), '')} / {_s(r.get('lqr_peak_half'), '')} (limit {r.get('limit') or '—'})", r["les"] or "—",
             f"{_p(r['sublevel_coverage'])} / {_p(r.get('lqr_sublevel_coverage'))}",
             {"yes": "linear law", "no": "networks"}.get(r.get("fallback") or "", "—"), _dur(r["train_seconds"]),
         ])  # fmt: skip
     head = ["robot", "actuated", "success, domain: NIDA-PBC / LQR", "success, half box: NIDA-PBC / LQR",
-            "ROA radius: NIDA-PBC / LQR", "median settling: NIDA-PBC / LQR", "median peak abs(u), half box: NIDA-PBC / LQR",
+            "half box: NIDA-PBC − LQR, points (95 % CI)", "ROA radius: NIDA-PBC / LQR", "median settling: NIDA-PBC / LQR", "median peak abs(u), half box: NIDA-PBC / LQR",
             "x* LES", "certified share: NIDA-PBC / LQR", "NIDA-PBC outside the box", "training"]  # fmt: skip
     note = (
         f"Generated from `{Path(summary_csv).name}` by `idapbc_pin.batch.zoo_table_markdown`: {n} uniform states per box, "
         f"T = {T} s, the law {_judge_phrase(judge)}, success = within 0.05 of x* over the last 2 s, with the effort limits "
         "applied to both controllers; "
+        "NIDA-PBC − LQR = the lead on the same states with its 95 % interval (Tango's score interval, from the states where the "
+        "two laws disagree; `idapbc_pin.sim.paired`): an interval that contains 0 is no evidence of a lead; "
         "ROA radius = largest scale s of the training box around x* at which ≥ 90 % of the states succeed; certified "
         "share = share of the box inside the largest sampled sublevel set of H_d (NIDA-PBC) or of δᵀSδ (LQR) that stays "
         "in the box with a decreasing value on every sample (see docs/method.md): sampled, not proofs. NIDA-PBC outside "

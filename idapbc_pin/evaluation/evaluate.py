@@ -35,7 +35,8 @@ class Evaluation:
     limits: bool = True
 
     def record(self) -> dict:
-        """JSON-ready summary: per box and controller, success rate and medians; the radii
+        """JSON-ready summary: per box and controller, success rate and medians, and NIDA-PBC's lead over
+        LQR on the box's states (``"paired"``: counts, interval, McNemar's p; `sim.paired`); the radii
         ``"radius": {controller: s}`` (with ``"radius_search"``: settings, brackets, probes) and the
         input bound applied (``"limits"``)."""
         out = {}
@@ -56,6 +57,8 @@ class Evaluation:
             out[box]["T"] = res.T
             out[box]["dt"] = res.dt
             out[box]["hold"] = res.hold  # the law sampled once per step of dt and held (a 1/dt Hz controller)
+            if {"NIDA-PBC", "LQR"} <= set(res.scores):  # the lead on these states, its interval and p-value
+                out[box]["paired"] = res.compare("NIDA-PBC", "LQR").to_dict()
         out["limits"] = input_limits(self.run.system, self.limits).to_json()
         if self.radius is not None:
             out["radius"] = dict(self.radius.radius)

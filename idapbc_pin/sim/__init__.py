@@ -12,5 +12,7 @@ One concept per module, in the order a rollout uses them:
 * `metrics`: success, settling time, equilibrium offset, peak input of a `Trajectory`.
 * `roa`: `score` (one controller's rollouts → `ControllerScore`) and `roa` (several controllers
   from the same states → `RoaResult`).
+* `paired`: `paired_comparison`, how sure a lead is (interval and McNemar's p on the states where
+  two controllers disagree).
 * `radius`: `roa_radius`, the largest scale of the training box at which 90 % of the states succeed.
 """

@@ -13,6 +13,7 @@ import numpy as np
 from .integrate import Controller, simulate
 from .limits import InputLimits, input_limits
 from .metrics import equilibrium_offset, peak_input, settled, settling_time, success
+from .paired import PairedComparison, paired_comparison
 from .states import evaluation_box, uniform_states
 from .step import judge_step
 from .trajectory import Trajectory
@@ -107,6 +108,11 @@ class RoaResult:
     def __getitem__(self, name: str) -> ControllerScore:
         return self.scores[name]
 
+    def compare(self, a: str, b: str, level: float = 0.95) -> PairedComparison:
+        """Controller `a` against `b` on these states: the lead, its interval and McNemar's p-value
+        (`paired.paired_comparison`)."""
+        return paired_comparison(self.scores[a].success, self.scores[b].success, a, b, level)
+
     def table(self) -> str:
         """The scores side by side, one row per controller."""
         head = (
@@ -126,6 +132,8 @@ class RoaResult:
                 f"{peak_cell:>16}{s.n_diverged:>10d}{s.wall_time:>9.1f}"
             )
         rows.append("settle, offset, peak |u|: medians over successes, settled states, all states")
+        names = list(self.scores)
+        rows += [self.compare(names[0], other).text() for other in names[1:]]
         return "\n".join(rows)
 
 
