@@ -2,11 +2,21 @@
 
 from __future__ import annotations
 
+import signal
+
 import numpy as np
 import pytest
 import torch
 
 torch.set_num_threads(1)
+
+# The Ctrl-C tests send SIGINT to a child Python, as a terminal would. A shell that starts the
+# suite in the background without job control (`cmd &` in a script, nohup) makes it ignore SIGINT,
+# and an ignored signal stays ignored in every child: the child's Python then never raises
+# KeyboardInterrupt and those tests wait out their timeouts (measured: a clean-clone CI run under
+# `nohup bash -c …`). Restore the terminal's disposition; children start from SIG_DFL again.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def sample_domain(system, n: int, seed: int = 0) -> np.ndarray:
