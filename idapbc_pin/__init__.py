@@ -24,6 +24,7 @@ from .reporting.report import figure, report
 from .evaluation.robustness import perturbed_system, robustness_table
 from .control.baseline import LQRController
 from .sim.integrate import simulate
+from .sim.invariance import invariant_share
 from .sim.mujoco_plant import mujoco_judge
 from .sim.paired import paired_comparison
 from .sim.radius import roa_radius
@@ -45,6 +46,7 @@ __all__ = [
     "evaluate_run",
     "export",
     "figure",
+    "invariant_share",
     "load_run",
     "load_system",
     "mujoco_judge",

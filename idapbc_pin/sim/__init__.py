@@ -15,4 +15,6 @@ One concept per module, in the order a rollout uses them:
 * `paired`: `paired_comparison`, how sure a lead is (interval and McNemar's p on the states where
   two controllers disagree).
 * `radius`: `roa_radius`, the largest scale of the training box at which 90 % of the states succeed.
+* `invariance`: `invariant_share`, the share of the box whose trajectory succeeds without leaving
+  it: the most any certificate of that loop (a sublevel set inside the box) could cover.
 """
