@@ -32,18 +32,19 @@ DT = 0.002  # the judge's control period, s
 
 
 class PlanThenLQR:
-    """u = plan[:, k] during tick k·DT < horizon (one plan per row of the batch), then saturated
-    LQR. Called once per 2 ms tick by `simulate` (zero-order hold), which advances the tick."""
+    """u = plan[:, k] during tick k·DT < horizon (one plan per row of the batch), then LQR; the
+    judge's effort limits saturate both. Called once per 2 ms tick by `simulate` (zero-order hold),
+    which advances the tick."""
 
-    def __init__(self, plan: np.ndarray, horizon: float, lqr: LQRController, bound: np.ndarray):
-        self.plan, self.horizon, self.lqr, self.bound, self.tick = plan, horizon, lqr, bound, 0
+    def __init__(self, plan: np.ndarray, horizon: float, lqr: LQRController):
+        self.plan, self.horizon, self.lqr, self.tick = plan, horizon, lqr, 0
 
     def __call__(self, x):
         k = int(self.tick * DT * self.plan.shape[2] / self.horizon)
         self.tick += 1
         if k < self.plan.shape[2]:
             return self.plan[:, :, k].copy()
-        return np.clip(self.lqr(x), -self.bound, self.bound)
+        return self.lqr(x)
 
 
 def _score(system, traj) -> np.ndarray:
@@ -58,7 +59,7 @@ def search(system, lqr, x0, bound, args, rng) -> np.ndarray:
     best, best_cost = mean[None], np.inf
     for _ in range(args.iterations):
         plans = np.clip(mean + std * rng.standard_normal((args.population,) + mean.shape), -bound[:, None], bound[:, None])
-        traj = simulate(system, PlanThenLQR(plans, args.horizon, lqr, bound), np.repeat(x0[None], args.population, 0), T=args.score_T, dt=DT)
+        traj = simulate(system, PlanThenLQR(plans, args.horizon, lqr), np.repeat(x0[None], args.population, 0), T=args.score_T, dt=DT)
         cost = _score(system, traj)
         elite = plans[np.argsort(cost)[: args.population // 8]]
         if cost.min() < best_cost:
@@ -86,7 +87,7 @@ def main() -> None:
         system = ip.load_system(args.source, effort=dict(args.effort) or None)
     except ip.IdapbcError as exc:
         parser.error(str(exc))
-    bound = np.where(np.isfinite(system.effort), system.effort, 1e3)
+    bound = np.where(np.isfinite(system.effort), system.effort, 1e3)  # the plans' search range, N·m or N
     lqr = LQRController(system)
     x0 = uniform_states(system, args.n, args.box, args.seed)
     lost = np.flatnonzero(~success(simulate(system, lqr, x0, T=20.0, dt=DT), system))
@@ -96,11 +97,11 @@ def main() -> None:
     judge = ip.mujoco_judge(system) if args.mujoco else None
     for j, i in enumerate(lost):
         plan = search(system, lqr, x0[i], bound, args, rng)
-        ok = bool(success(simulate(system, PlanThenLQR(plan, args.horizon, lqr, bound), x0[i : i + 1], T=20.0, dt=DT), system)[0])
+        ok = bool(success(simulate(system, PlanThenLQR(plan, args.horizon, lqr), x0[i : i + 1], T=20.0, dt=DT), system)[0])
         recovered += ok
         note = ""
         if ok and checked < args.mujoco:
-            traj = simulate(judge, PlanThenLQR(plan, args.horizon, lqr, bound), x0[i : i + 1], T=20.0, dt=DT)
+            traj = simulate(judge, PlanThenLQR(plan, args.horizon, lqr), x0[i : i + 1], T=20.0, dt=DT)
             checked += 1
             note = f"; MuJoCo's dynamics: {'reaches x*' if success(traj, judge)[0] else 'FAILS'}, peak |u| {np.abs(traj.u).max():.2f}"
         elapsed = time.perf_counter() - start
