@@ -5,7 +5,7 @@ or of each trained run (NIDA-PBC and LQR on the same states) and the wall time p
 in total, with the integrator settings used. The actuators' effort limits apply unless --no-limits.
 With --radius it also times the ROA radius search (`roa_radius`, --radius-states per scale, the
 ROA above reused at s = 1 when --box domain and the state counts agree) and prints every probe.
-Run: python benchmarks/bench_roa.py [--states 1000] [--T 20] [--dt 0.01] [--box domain|half]
+Run: python benchmarks/bench_roa.py [--states 1000] [--T 20] [--dt S] [--box domain|half]
                                     [--threads N] [--no-limits] [--radius] [--radius-states 200]
                                     [names ...] [--run RUN_DIR ...]
 """
@@ -28,7 +28,7 @@ def main() -> None:
     parser.add_argument("names", nargs="*", help="systems for an LQR-only timing (default acrobot paper_cartpole without --run)")
     parser.add_argument("--states", type=int, default=1000)
     parser.add_argument("--T", type=float, default=20.0)
-    parser.add_argument("--dt", type=float, default=0.01)
+    parser.add_argument("--dt", type=float, default=None, help="RK4 step and control period, s (default: the judge's, 2 ms unless the loop is stiffer)")
     parser.add_argument("--box", default="domain", choices=["domain", "half"])
     parser.add_argument("--run", action="append", default=[], help="a trained run directory: time NIDA-PBC and LQR")
     parser.add_argument("--threads", type=int, default=None, help=f"Pinocchio threads (default {DEFAULT_THREADS})")
@@ -38,7 +38,7 @@ def main() -> None:
     args = parser.parse_args()
     limits = not args.no_limits
     print(f"cpus={os.cpu_count()} load={os.getloadavg()[0]:.2f} threads={args.threads or DEFAULT_THREADS} "
-          f"states={args.states} T={args.T:g}s dt={args.dt:g}s rk4")
+          f"states={args.states} T={args.T:g}s dt={args.dt or 'judge'}{'s' if args.dt else ''} rk4")
     names = args.names or ([] if args.run else ["acrobot", "paper_cartpole"])
     jobs = [(ip.load_system(name), {"lqr": None}) for name in names]
     for path in args.run:
