@@ -10,6 +10,9 @@ per state. This benchmark asks whether their torques can be turned into one feed
    first 6 s.
 2. **A plain feedback** (an MLP of wrap(x − x*)/s, two tanh layers of `--width`, output
    ū·tanh(·)) fitted to the labels by least squares (Adam).
+   With `--dagger K`, K rounds of DAgger (Ross et al., 2011) follow: the fitted law runs from new
+   starts, the states its failures visit are labelled the same way, and the law is refitted on
+   all labels.
 3. **The IDA-PBC networks** of `--run RUN` (optional), trained on the same robot and limits, then
    trained further for `--epochs` epochs on their residual terms plus `--weight` × an imitation
    term: the saturated law's distance to the labels, in units of ū (where a label sits at the
@@ -19,7 +22,7 @@ Each law is judged like every controller here (T = 20 s, law held every 2 ms, li
 from `--n` states of the evaluation seed, beside saturated LQR on the same states, optionally also on
 MuJoCo's dynamics (`--mujoco`).
 Run: python benchmarks/bench_distill.py pendubot --effort shoulder=8 [--run RUN] [--starts 240]
-     [--workers 2] [--mujoco]
+     [--workers 2] [--mujoco] [--dagger K] [--labels FILE.npz]
 """
 
 from __future__ import annotations
@@ -157,6 +160,25 @@ def _all_labels(args, effort, x0: np.ndarray, start: float):
     return X, U, sum(p[2] for p in parts), sum(p[3] for p in parts)
 
 
+def _dagger_round(args, effort, system, mlp: MlpLaw, X: np.ndarray, U: np.ndarray, r: int, start: float):
+    """One DAgger round: run the MLP from `args.dagger_starts` starts of the box (seed 300 + r); from the
+    states its failures visit at 0.5, 1.5 and 3 s, label as before (LQR where it succeeds, else a
+    plan); refit a fresh MLP on all labels. Returns the grown labels and the new MLP."""
+    traj = simulate(system, mlp, uniform_states(system, args.dagger_starts, args.box, 300 + r), T=20.0, dt=DT)
+    failed = np.flatnonzero(~success(traj, system))
+    visited = np.concatenate([traj.x[failed, round(t / DT)] for t in (0.5, 1.5, 3.0)])
+    plan_seed = args.plan_seed + 1000 * (r + 1)  # fresh plan streams for every round
+    args_round = argparse.Namespace(**{**vars(args), "plan_seed": plan_seed})
+    Xr, Ur, lqr_ok, recovered = _all_labels(args_round, effort, visited, start) if visited.size else (X[:0], U[:0], 0, 0)
+    mlp = MlpLaw(system, args.width, seed=0)
+    X, U = np.concatenate([X, Xr]), np.concatenate([U, Ur])
+    mse = mlp.fit(X, U, args.steps, seed=0)
+    print(f"DAgger round {r + 1}: the MLP failed from {failed.size} of {args.dagger_starts} starts; of the {len(visited)} states "
+          f"they visited, LQR brings {lqr_ok} to x*, plans {recovered}; refitted on {len(X)} labels, mean squared error {mse:.4f} "
+          f"[{time.perf_counter() - start:.0f} s]", flush=True)
+    return X, U, mlp
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("source", help="zoo name or URDF path")
@@ -173,6 +195,8 @@ def main() -> None:
     parser.add_argument("--weight", type=float, default=100.0, help="imitation weight in the fine-tuning (default 100)")
     parser.add_argument("--workers", type=int, default=2, help="processes searching plans (default 2)")
     parser.add_argument("--mujoco", action="store_true", help="also judge on MuJoCo's dynamics")
+    parser.add_argument("--dagger", type=int, default=0, help="rounds of DAgger after the first fit (default 0)")
+    parser.add_argument("--dagger-starts", type=int, default=30, help="half-box starts of the MLP per DAgger round (default 30)")
     parser.add_argument("--labels", help="an .npz of labels: read it if it exists (no plans searched), else write the new labels there")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -201,6 +225,8 @@ def main() -> None:
     mlp = MlpLaw(system, args.width, seed=0)
     mse = mlp.fit(X, U, args.steps, seed=0)
     print(f"MLP fitted: mean squared error {mse:.4f} (u/ū) [{time.perf_counter() - start:.0f} s]")
+    for r in range(args.dagger):
+        X, U, mlp = _dagger_round(args, effort, system, mlp, X, U, r, start)
     laws = {"saturated LQR": LQRController(system), "distilled MLP": mlp}
     if run is not None:
         laws["NIDA-PBC (run)"] = ip.load_run(args.run).controller
