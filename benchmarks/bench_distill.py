@@ -5,14 +5,16 @@ a weak pendubot to x*, where saturated LQR and NIDA-PBC bring a quarter. Plans a
 per state. This benchmark asks whether their torques can be turned into one feedback law u(x):
 
 1. **Labels.** From `--starts` uniform start states (seed `--plan-seed`, never the evaluation's),
-   saturated LQR runs first; where it fails, the cross-entropy search of `bench_recoverable.py` finds
-   a plan (then LQR). Every start that reaches x* gives labels (x(t), u(t)) every 10 ms over its
-   first 6 s.
-2. **A plain feedback** (an MLP of wrap(x − x*)/s, two tanh layers of `--width`, output
-   ū·tanh(·)) fitted to the labels by least squares (Adam).
+   saturated LQR runs first; where it fails, a cross-entropy plan within the limits is searched
+   (`idapbc_pin.training.plans`), then LQR. Every start that reaches x* gives labels (x(t), u(t))
+   every 10 ms over its first 6 s (`idapbc_pin.training.recovery.collect_labels`).
+2. **A plain feedback** (`control.recovery.RecoveryLaw`: an MLP of wrap(x − x*)/s, two tanh layers
+   of `--width`, output ū·tanh(·)) fitted to the labels by least squares (Adam).
    With `--dagger K`, K rounds of DAgger (Ross et al., 2011) follow: the fitted law runs from new
    starts, the states its failures visit are labelled the same way, and the law is refitted on
-   all labels.
+   all labels. `idapbc-pin recover RUN` runs the same steps and attaches the law to a run.
+   (The README's figures were measured when this code lived here: the DAgger starts had seeds
+   300 + r, now plan_seed + 300 + r.)
 3. **The IDA-PBC networks** of `--run RUN` (optional), trained on the same robot and limits, then
    trained further for `--epochs` epochs on their residual terms plus `--weight` × an imitation
    term: the saturated law's distance to the labels, in units of ū (where a label sits at the
@@ -29,79 +31,20 @@ from __future__ import annotations
 
 import argparse
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import torch
-from bench_recoverable import DT, PlanThenLQR, search
 
 import idapbc_pin as ip
 from idapbc_pin.cli._args import key_value
 from idapbc_pin.control.baseline import LQRController
-from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
 from idapbc_pin.sim.states import uniform_states
 from idapbc_pin.training.loss import loss_terms
-
-LABEL_EVERY, LABEL_SPAN = 5, 3000  # a label every 5 ticks (10 ms) over the first 3000 ticks (6 s)
-
-
-def _labels(job) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """Worker: (X (K, n), U (K, m), LQR successes, plans that reached x*) for one chunk of start states."""
-    source, effort, x0, first, plan_seed = job
-    torch.set_num_threads(1)
-    system = ip.load_system(source, effort=effort)
-    lqr = LQRController(system)
-    cem = argparse.Namespace(horizon=2.0, knots=20, population=48, iterations=8, score_T=6.0)
-    traj = simulate(system, lqr, x0, T=20.0, dt=DT)
-    ok = success(traj, system)
-    X = [traj.x[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
-    U = [traj.u[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
-    recovered = 0
-    for i in np.flatnonzero(~ok):
-        plan = search(system, lqr, x0[i], np.asarray(system.effort), cem, np.random.default_rng((plan_seed, first + i)))
-        t = simulate(system, PlanThenLQR(plan, cem.horizon, lqr), x0[i : i + 1], T=20.0, dt=DT)
-        if success(t, system)[0]:
-            recovered += 1
-            X.append(t.x[0, :LABEL_SPAN:LABEL_EVERY])
-            U.append(t.u[0, :LABEL_SPAN:LABEL_EVERY])
-    return np.concatenate(X), np.concatenate(U), int(ok.sum()), recovered
-
-
-class MlpLaw:
-    """u = ū·tanh(MLP(wrap(x − x*)/s)): (N, n) -> (N, m), within the limits ū by construction."""
-
-    def __init__(self, system, width: int, seed: int):
-        torch.manual_seed(seed)
-        lo, hi = (np.asarray(b, dtype=np.float64) for b in system.domain)
-        self.system, self.scale, self.effort = system, (hi - lo) / 2, np.asarray(system.effort)
-        self.net = torch.nn.Sequential(
-            torch.nn.Linear(system.n, width), torch.nn.Tanh(), torch.nn.Linear(width, width), torch.nn.Tanh(), torch.nn.Linear(width, system.m)
-        ).double()
-
-    def features(self, x: np.ndarray) -> torch.Tensor:
-        return torch.as_tensor(wrap_angles(np.atleast_2d(x) - self.system.x_star, self.system.angle_mask) / self.scale)
-
-    def fit(self, X: np.ndarray, U: np.ndarray, steps: int, seed: int) -> float:
-        """Least squares on u/ū, minibatches of 4096; returns the last batch's mean squared error."""
-        F, Y = self.features(X), torch.as_tensor(U / self.effort)
-        gen = torch.Generator().manual_seed(seed)
-        opt = torch.optim.Adam(self.net.parameters(), 3e-3)
-        for k in range(steps):
-            if k == 2 * steps // 3:
-                opt.param_groups[0]["lr"] = 3e-4
-            idx = torch.randint(0, len(F), (4096,), generator=gen)
-            loss = (torch.tanh(self.net(F[idx])) - Y[idx]).pow(2).mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        return float(loss.detach())
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return self.effort * torch.tanh(self.net(self.features(x))).numpy()
+from idapbc_pin.training.plans import PLAN_STEP as DT
+from idapbc_pin.training.recovery import RecoveryConfig, collect_labels, dagger_round, fit_recovery_law
 
 
 def imitation(nets, x: torch.Tensor, f: torch.Tensor, u_label: torch.Tensor, effort: torch.Tensor) -> torch.Tensor:
@@ -147,38 +90,6 @@ def _judge(system, laws: dict, x0: np.ndarray) -> dict:
     return {name: float(success(simulate(system, law, x0, T=20.0, dt=DT), system).mean()) for name, law in laws.items()}
 
 
-def _all_labels(args, effort, x0: np.ndarray, start: float):
-    """`_labels` over chunks of the start states x0 (K, n) in `args.workers` processes."""
-    chunks = np.array_split(np.arange(len(x0)), max(1, 4 * args.workers))
-    jobs = [(args.source, effort, x0[c], int(c[0]), args.plan_seed) for c in chunks if c.size]
-    parts = []
-    with ProcessPoolExecutor(args.workers) as pool:
-        for k, part in enumerate(pool.map(_labels, jobs)):
-            parts.append(part)
-            print(f"  plans: chunk {k + 1}/{len(jobs)} done  [{time.perf_counter() - start:.0f} s]", flush=True)
-    X, U = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
-    return X, U, sum(p[2] for p in parts), sum(p[3] for p in parts)
-
-
-def _dagger_round(args, effort, system, mlp: MlpLaw, X: np.ndarray, U: np.ndarray, r: int, start: float):
-    """One DAgger round: run the MLP from `args.dagger_starts` starts of the box (seed 300 + r); from the
-    states its failures visit at 0.5, 1.5 and 3 s, label as before (LQR where it succeeds, else a
-    plan); refit a fresh MLP on all labels. Returns the grown labels and the new MLP."""
-    traj = simulate(system, mlp, uniform_states(system, args.dagger_starts, args.box, 300 + r), T=20.0, dt=DT)
-    failed = np.flatnonzero(~success(traj, system))
-    visited = np.concatenate([traj.x[failed, round(t / DT)] for t in (0.5, 1.5, 3.0)])
-    plan_seed = args.plan_seed + 1000 * (r + 1)  # fresh plan streams for every round
-    args_round = argparse.Namespace(**{**vars(args), "plan_seed": plan_seed})
-    Xr, Ur, lqr_ok, recovered = _all_labels(args_round, effort, visited, start) if visited.size else (X[:0], U[:0], 0, 0)
-    mlp = MlpLaw(system, args.width, seed=0)
-    X, U = np.concatenate([X, Xr]), np.concatenate([U, Ur])
-    mse = mlp.fit(X, U, args.steps, seed=0)
-    print(f"DAgger round {r + 1}: the MLP failed from {failed.size} of {args.dagger_starts} starts; of the {len(visited)} states "
-          f"they visited, LQR brings {lqr_ok} to x*, plans {recovered}; refitted on {len(X)} labels, mean squared error {mse:.4f} "
-          f"[{time.perf_counter() - start:.0f} s]", flush=True)
-    return X, U, mlp
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("source", help="zoo name or URDF path")
@@ -212,22 +123,23 @@ def main() -> None:
         parser.error(f"the run was trained with effort {list(run.system.effort)}, not {list(system.effort)}. Fix: give the run's limits with --effort.")
 
     start = time.perf_counter()
+    config = RecoveryConfig(starts=args.starts, plan_seed=args.plan_seed, dagger=args.dagger, dagger_starts=args.dagger_starts,
+                            width=args.width, steps=args.steps, workers=args.workers)  # fmt: skip
     if args.labels and Path(args.labels).is_file():
         with np.load(args.labels) as saved:
             X, U, lqr_ok, recovered, args.starts = saved["X"], saved["U"], int(saved["lqr_ok"]), int(saved["recovered"]), int(saved["starts"])
         print(f"labels read from {args.labels} (its --starts and --plan-seed apply)")
     else:
-        X, U, lqr_ok, recovered = _all_labels(args, effort, uniform_states(system, args.starts, args.box, args.plan_seed), start)
+        X, U, lqr_ok, recovered = collect_labels(system, uniform_states(system, args.starts, args.box, args.plan_seed), args.plan_seed, config, True, start)
         if args.labels:
             np.savez(args.labels, X=X, U=U, lqr_ok=lqr_ok, recovered=recovered, starts=args.starts)
     print(f"labels: saturated LQR reaches x* from {lqr_ok} of {args.starts} starts, plans from {recovered} of the other {args.starts - lqr_ok}; {len(X)} labels [{time.perf_counter() - start:.0f} s]")
 
-    mlp = MlpLaw(system, args.width, seed=0)
-    mse = mlp.fit(X, U, args.steps, seed=0)
+    law, mse = fit_recovery_law(system, X, U, args.width, args.steps)
     print(f"MLP fitted: mean squared error {mse:.4f} (u/ū) [{time.perf_counter() - start:.0f} s]")
     for r in range(args.dagger):
-        X, U, mlp = _dagger_round(args, effort, system, mlp, X, U, r, start)
-    laws = {"saturated LQR": LQRController(system), "distilled MLP": mlp}
+        law, X, U, _ = dagger_round(system, law, X, U, r, config, True, start)
+    laws = {"saturated LQR": LQRController(system), "distilled MLP": law.law}
     if run is not None:
         laws["NIDA-PBC (run)"] = ip.load_run(args.run).controller
         terms = finetune(run, X, U, args.epochs, args.weight, seed=0)

@@ -23,49 +23,11 @@ import torch
 import idapbc_pin as ip
 from idapbc_pin.cli._args import key_value
 from idapbc_pin.control.baseline import LQRController
-from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
 from idapbc_pin.sim.states import uniform_states
-
-DT = 0.002  # the judge's control period, s
-
-
-class PlanThenLQR:
-    """u = plan[:, k] during tick k·DT < horizon (one plan per row of the batch), then LQR; the
-    judge's effort limits saturate both. Called once per 2 ms tick by `simulate` (zero-order hold),
-    which advances the tick."""
-
-    def __init__(self, plan: np.ndarray, horizon: float, lqr: LQRController):
-        self.plan, self.horizon, self.lqr, self.tick = plan, horizon, lqr, 0
-
-    def __call__(self, x):
-        k = int(self.tick * DT * self.plan.shape[2] / self.horizon)
-        self.tick += 1
-        if k < self.plan.shape[2]:
-            return self.plan[:, :, k].copy()
-        return self.lqr(x)
-
-
-def _score(system, traj) -> np.ndarray:
-    d = wrap_angles(traj.x[:, -1] - system.x_star, system.angle_mask)[:, : system.nq]
-    return np.where(traj.diverged, 1e3, np.abs(d).sum(1) + 0.3 * np.abs(traj.v[:, -1]).sum(1))
-
-
-def search(system, lqr, x0, bound, args, rng) -> np.ndarray:
-    """Cross-entropy search of a (1, m, knots) plan for the start state x0 (n,)."""
-    mean = np.zeros((system.m, args.knots))
-    std = np.broadcast_to(bound[:, None], mean.shape).copy()
-    best, best_cost = mean[None], np.inf
-    for _ in range(args.iterations):
-        plans = np.clip(mean + std * rng.standard_normal((args.population,) + mean.shape), -bound[:, None], bound[:, None])
-        traj = simulate(system, PlanThenLQR(plans, args.horizon, lqr), np.repeat(x0[None], args.population, 0), T=args.score_T, dt=DT)
-        cost = _score(system, traj)
-        elite = plans[np.argsort(cost)[: args.population // 8]]
-        if cost.min() < best_cost:
-            best, best_cost = plans[np.argmin(cost)][None], float(cost.min())
-        mean, std = elite.mean(0), elite.std(0) + 0.04 * bound[:, None]
-    return best
+from idapbc_pin.training.plans import PLAN_STEP as DT
+from idapbc_pin.training.plans import PlanSettings, PlanThenLaw, search_plan
 
 
 def main() -> None:
@@ -93,15 +55,16 @@ def main() -> None:
     lost = np.flatnonzero(~success(simulate(system, lqr, x0, T=20.0, dt=DT), system))
     limits = ", ".join(f"{j}={e:g}" for j, e in zip(system.actuated, system.effort))
     print(f"{system.name}, effort {limits}: saturated LQR brings {args.n - lost.size} of {args.n} {args.box}-box states (seed {args.seed}) to x*", flush=True)
+    settings = PlanSettings(horizon=args.horizon, knots=args.knots, population=args.population, iterations=args.iterations, score_T=args.score_T)
     rng, recovered, checked, start = np.random.default_rng(0), 0, 0, time.perf_counter()
     judge = ip.mujoco_judge(system) if args.mujoco else None
     for j, i in enumerate(lost):
-        plan = search(system, lqr, x0[i], bound, args, rng)
-        ok = bool(success(simulate(system, PlanThenLQR(plan, args.horizon, lqr), x0[i : i + 1], T=20.0, dt=DT), system)[0])
+        plan = search_plan(system, lqr, x0[i], bound, settings, rng)
+        ok = bool(success(simulate(system, PlanThenLaw(plan, args.horizon, lqr), x0[i : i + 1], T=20.0, dt=DT), system)[0])
         recovered += ok
         note = ""
         if ok and checked < args.mujoco:
-            traj = simulate(judge, PlanThenLQR(plan, args.horizon, lqr), x0[i : i + 1], T=20.0, dt=DT)
+            traj = simulate(judge, PlanThenLaw(plan, args.horizon, lqr), x0[i : i + 1], T=20.0, dt=DT)
             checked += 1
             note = f"; MuJoCo's dynamics: {'reaches x*' if success(traj, judge)[0] else 'FAILS'}, peak |u| {np.abs(traj.u).max():.2f}"
         elapsed = time.perf_counter() - start

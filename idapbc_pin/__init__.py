@@ -8,6 +8,7 @@ Public API (see the README and docs/method.md)::
     run = ip.train(sys, ip.TrainConfig.fast(), out="runs/cartpole")
     ctrl = run.controller; ip.simulate(sys, ctrl, x0, T=20.0); ip.certify(run); ip.view(run)
     ip.export(run, "deploy/")                           # standalone controller (numpy + pin), ONNX f̃_d
+    ip.recover(run)                                     # weak actuators: a recovery law beside the IDA-PBC one
 
 Evaluations apply the actuators' effort limits (``sys.effort``) to every controller unless
 ``limits=False``. The subpackages follow the data flow: model → control → training → sim →
@@ -30,6 +31,7 @@ from .sim.paired import paired_comparison
 from .sim.radius import roa_radius
 from .sim.roa import roa
 from .model import System, load_system
+from .training.recovery import RecoveryConfig, recover
 from .training.run import Run, load_run
 from .training.train import train
 from .viewer import view, write_html
@@ -39,6 +41,7 @@ __version__ = "0.1.0"
 __all__ = [
     "IdapbcError",
     "LQRController",
+    "RecoveryConfig",
     "Run",
     "System",
     "TrainConfig",
@@ -52,6 +55,7 @@ __all__ = [
     "mujoco_judge",
     "paired_comparison",
     "perturbed_system",
+    "recover",
     "report",
     "robustness_table",
     "roa",

@@ -5,7 +5,8 @@ Claims (issue #14, item 4):
   equals B·saturate(u(x)) of the library's controller on 1000 states, to 1e-9 (float64 networks;
   float32 networks: the same numbers as the library's numpy one-state path), saturation included;
 * a continuous joint ((cos θ, sin θ) in Pinocchio) maps like the library's;
-* a run's linear law outside the training box (`fallback`) is exported and applied the same way;
+* a run's linear law outside the training box (`fallback`) is exported and applied the same way,
+  and so is a run's recovery law outside its inner box (`idapbc-pin recover`);
 * onnxruntime's desired_flow.onnx equals f̃_d = (J_d − R_d)∇H_d (autograd path) on 1000 states;
 * bad input exits 2 with one line, and nothing is half-written.
 """
@@ -159,6 +160,36 @@ def test_standalone_switches_to_the_linear_law_outside_the_box_as_the_library_do
     out = _run_standalone(folder, q, v, tmp_path)
     expected = run.controller.torque(q, v)
     assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))
+    _close(out["batched"], expected, 1e-9)
+    _close(out["single"], expected, 1e-9)
+
+
+def test_standalone_applies_a_recovery_law_as_the_library_does(runs, tmp_path):
+    """A run with a recovery law (`control.recovery`): controller.json carries its weights and inner
+    box, and the standalone τ equals the library's to 1e-9 on states mostly outside the inner box."""
+    from tests.test_recovery import random_law
+
+    from idapbc_pin.training.run import RECOVERY_FILE
+
+    path = tmp_path / "run"
+    shutil.copytree(runs["pendubot"].path, path)
+    law = random_law(runs["pendubot"].system, inner_scale=0.3)
+    np.savez(path / RECOVERY_FILE, **law.arrays())
+    summary = json.loads((path / "summary.json").read_text()) | {"recovery": {"used": True, "inner_scale": 0.3}}
+    (path / "summary.json").write_text(json.dumps(summary))
+    run = ip.load_run(path)
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    record = json.loads((folder / "controller.json").read_text())
+    assert record["fallback"]["kind"] == "recovery" and record["fallback"]["inner"] == pytest.approx(list(law.inner))
+    assert "recovery law" in (folder / "README.md").read_text()
+    q, v = _states(run.system)
+    q_star = run.system.x_star[: run.system.nq]
+    q[:500], v[:500] = q_star + 0.08 * (q[:500] - q_star), 0.08 * v[:500]  # half of them near x*, in the inner box
+    outside = law.outside(run.system.state_from(q, v))
+    assert 0.3 < outside.mean() < 0.9
+    expected = run.controller.torque(q, v)
+    assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))
+    out = _run_standalone(folder, q, v, tmp_path)
     _close(out["batched"], expected, 1e-9)
     _close(out["single"], expected, 1e-9)
 

@@ -38,6 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .export import add_export_command
 
     add_export_command(sub)
+
+    from .recover import add_recover_command
+
+    add_recover_command(sub)
     return parser
 
 

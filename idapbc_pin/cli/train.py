@@ -60,6 +60,10 @@ def _cmd_train(args: argparse.Namespace) -> int:
     if run.summary.get("status") == "interrupted":
         print(f"interrupted: resume with  idapbc-pin train --resume {run.path}")
         return 130
+    if args.recover:
+        from ..training.recovery import recover
+
+        recover(run)
     if args.evaluate > 0:
         from ..evaluation.evaluate import evaluate_run, format_evaluation
 
@@ -106,4 +110,7 @@ def add_train_command(sub) -> None:
     p.add_argument("--damping", choices=["full", "actuated"], help=FIELD_HELP["damping"])
     p.add_argument("--fallback", choices=["auto", "linear", "none"], help=FIELD_HELP["fallback"])
     p.add_argument("--fallback-gain", dest="fallback_gain", type=float, metavar="K", help=FIELD_HELP["fallback_gain"])
+    p.add_argument("--recover", action="store_true",
+                   help="weak actuators: after training, fit a recovery law to torque plans within the limits and keep it "
+                        "if simulation shows it helps (`idapbc-pin recover`; 10-20 min on 2 cores for a 2-DoF robot)")
     p.set_defaults(func=_cmd_train)

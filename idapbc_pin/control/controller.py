@@ -5,7 +5,8 @@ G⁻¹, in torch) with the `System` for numpy, float64 use at run time:
 
     ctrl(x) -> u (N, m);  ctrl.torque(q, v) -> τ (N, nv);  ctrl.with_damping(ρ) -> Controller
     ctrl.H_d(x), ctrl.J_d(x), ctrl.R_d(x), ctrl.f_d(x), ctrl.mismatch(x)
-    ctrl.fallback: the linear law used outside the training box, or None (`fallback.BoxFallback`)
+    ctrl.fallback: the law used where the networks' does not act, or None: the linear law outside the
+        training box (`fallback.BoxFallback`) or a recovery law outside an inner box (`recovery.RecoveryLaw`)
 
 Desired closed loop (eq. CLPH): f̃_d = (J_d − R_d)∇H_d. Mismatch (eq. mismatch): μ = −g⊥(f − f̃_d);
 the closed loop is ẋ = f̃_d + ξ with ξ = G⁻¹(0; μ) (Proposition 1). g is constant for every system
@@ -23,6 +24,7 @@ from ..model import System
 from ._runtime import snapshot
 from .desired_flow import DesiredFlow
 from .fallback import BoxFallback
+from .recovery import RecoveryLaw
 from .nets import IdaPbcNets
 
 __all__ = ["Controller"]
@@ -41,12 +43,13 @@ class Controller:
     ----------
     system : the plant (its f(x) enters the control law).
     nets : trained `IdaPbcNets`.
-    fallback : the linear law that replaces the learned one outside the training box
-        (`fallback.BoxFallback`; a run's own comes from `Run.controller`), or None: the learned
-        law everywhere.
+    fallback : the law that replaces the learned one where it does not act, through its
+        ``apply(x, u)``: the linear law outside the training box (`fallback.BoxFallback`) or a
+        recovery law outside an inner box (`recovery.RecoveryLaw`); a run's own comes from
+        `Run.controller`. None: the learned law everywhere.
     """
 
-    def __init__(self, system: System, nets: IdaPbcNets, fallback: BoxFallback | None = None):
+    def __init__(self, system: System, nets: IdaPbcNets, fallback: BoxFallback | RecoveryLaw | None = None):
         self.system = system
         self.nets = nets.eval()
         self.fallback = fallback
@@ -72,7 +75,8 @@ class Controller:
 
         The law is evaluated at x* + wrap(x − x*) when the networks wrap angles (`IdaPbcNets.wrap`,
         `TrainConfig.wrap_angles`): a state one turn away from x* gets the torque of x*'s neighbour.
-        With a `fallback`, states outside the training box get its linear law instead.
+        With a `fallback`, the states it covers (outside the training box, or outside a recovery
+        law's inner box) get its law instead.
         """
         xb, single = self._batch(x)
         xb = self.nets.wrap(xb)
@@ -147,8 +151,8 @@ class Controller:
             nets.register_buffer(name, buf, persistent=name not in self.nets._non_persistent_buffers_set)
         return Controller(self.system, nets, self.fallback)
 
-    def with_fallback(self, fallback: BoxFallback | None) -> "Controller":
-        """Same networks, another law outside the training box (None: the learned law everywhere)."""
+    def with_fallback(self, fallback: BoxFallback | RecoveryLaw | None) -> "Controller":
+        """Same networks, another law where they do not act (None: the learned law everywhere)."""
         return Controller(self.system, self.nets, fallback)
 
     @property

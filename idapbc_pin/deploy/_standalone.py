@@ -14,6 +14,8 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
     u ← u* − K δ  where some |δ_i| > s_i, δ = wrap(x − x*)   (only if controller.json has a "fallback":
                   the linear law the run uses outside its training box, half-widths s; its K is
                   the anchor's LQR gain times the fallback's "gain")
+    u ← ū tanh(MLP(δ / s))  where some |δ_i| > inner_i        (instead, if the "fallback" has kind
+                  "recovery": the run's recovery law outside an inner box; tanh hidden layers)
     u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
 f̃_d = (J_d − R_d)∇H_d comes from desired_flow.py with weights.npz (the same function as
@@ -67,8 +69,9 @@ class ExportedController:
         self.wrap = np.zeros(len(self.joints), bool) if wrap is None else np.array(wrap, bool)[: len(self.joints)]
         fallback = meta.get("fallback")  # null: the learned law everywhere
         self.fallback = None if fallback is None else {
-            k: np.array(fallback[k], dtype=bool if k == "angle_mask" else np.float64) for k in ("K", "u_star", "x_star", "half", "angle_mask")
+            k: np.array(v, dtype=bool if k == "angle_mask" else np.float64) for k, v in fallback.items() if k != "kind"
         }
+        self.recovery = fallback is not None and fallback.get("kind") == "recovery"
         self.flow = _load_sibling(directory, "desired_flow").load_flow(directory / meta["weights"])
         self.model = pin.buildModelFromUrdf(str(directory / meta["urdf"]))
         self.data = self.model.createData()
@@ -119,15 +122,24 @@ class ExportedController:
         return u if self.fallback is None else self.outside_box(x, u)
 
     def outside_box(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """u* − Kδ on the rows of x (N, n) outside the training box, u (N, m) elsewhere."""
+        """On the rows of x (N, n) outside the fallback's box, u* − Kδ (linear) or the recovery law;
+        u (N, m) elsewhere."""
         fb = self.fallback
         d = x - fb["x_star"]
         d[:, fb["angle_mask"]] = np.pi - np.mod(np.pi - d[:, fb["angle_mask"]], 2 * np.pi)  # wrap to (−π, π]
-        out = (np.abs(d) > fb["half"]).any(axis=1)
+        out = (np.abs(d) > fb["inner" if self.recovery else "half"]).any(axis=1)
         if out.any():
             u = u.copy()
-            u[out] = fb["u_star"] - d[out] @ fb["K"].T
+            u[out] = self.recovery_law(d[out]) if self.recovery else fb["u_star"] - d[out] @ fb["K"].T
         return u
+
+    def recovery_law(self, d: np.ndarray) -> np.ndarray:
+        """ū tanh(MLP(δ / s)) for δ (N, n) -> (N, m): W0, b0, W1, b1, … of controller.json's "fallback"."""
+        fb = self.fallback
+        z, depth = d / fb["scale"], sum(1 for k in fb if k.startswith("W"))
+        for k in range(depth - 1):
+            z = np.tanh(z @ fb[f"W{k}"].T + fb[f"b{k}"])
+        return fb["effort"] * np.tanh(z @ fb[f"W{depth - 1}"].T + fb[f"b{depth - 1}"])
 
     def torque(self, q, v) -> np.ndarray:
         """τ = B clip(u, ±EFFORT): (N, nv) ×2 -> (N, nv), or (nv,) ×2 -> (nv,)."""

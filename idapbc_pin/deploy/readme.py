@@ -131,7 +131,16 @@ def deploy_readme(record: dict) -> str:
     )
     fallback = record.get("fallback")
     line, text = "", ""
-    if fallback is not None:
+    if fallback is not None and fallback.get("kind") == "recovery":
+        line = "    u    ← ū tanh(MLP(δ / s))  where some |δ_i| > inner_i,  δ = wrap(x − x*)  (the recovery law)\n"
+        inner = "(" + ", ".join(f"{v:.4g}" for v in fallback["inner"]) + ")"
+        text = (
+            f"\nOutside an inner box (half-widths {inner} around x*) the run uses its recovery law, a small MLP fitted to "
+            "torque plans within the limits (`idapbc-pin recover`), instead of the IDA-PBC law: its weights are "
+            "controller.json's \"fallback\" (`controller.py` applies it; the ONNX graph is f̃_d alone). It was kept because it "
+            "brought more simulated states to x* under the effort limits; no certificate covers it.\n"
+        )
+    elif fallback is not None:
         line = "    u    ← u* − K δ   where some |δ_i| > s_i,  δ = wrap(x − x*)              (outside the training box)\n"
         half = "(" + ", ".join(f"{v:.4g}" for v in fallback["half"]) + ")"
         text = (

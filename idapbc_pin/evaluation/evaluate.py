@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from .._io import finite_or_none, write_json
 from ..control.baseline import LQRController
+from ..control.recovery import RecoveryLaw
 from ..sim.limits import input_limits
 from ..sim.radius import RadiusResult, roa_radius
 from ..sim.roa import RoaResult, roa
@@ -96,7 +97,9 @@ def evaluate_run(
     evaluation = Evaluation(run, results, found, bool(limits))
     record = evaluation.record()
     record["rho"] = ctrl.rho
-    record["fallback"] = getattr(ctrl, "fallback", None) is not None  # NIDA-PBC used the anchor's linear law outside the training box
+    law = getattr(ctrl, "fallback", None)
+    record["recovery"] = isinstance(law, RecoveryLaw)  # NIDA-PBC used a recovery law outside an inner box (`idapbc-pin recover`)
+    record["fallback"] = law is not None and not record["recovery"]  # NIDA-PBC used the anchor's linear law outside the training box
     write_json(run.path / "evaluation.json", record)
     return evaluation
 

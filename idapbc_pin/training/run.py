@@ -5,6 +5,7 @@ Layout of a run directory (`<out>/<stamp>/`, `out` defaults to ``runs/<system>``
     config.json      resolved TrainConfig          system.json   source, actuated, target, domain, URDF hash
     robot.urdf       copy of the URDF (if any)     metrics.csv   one row per epoch, every term by name
     checkpoints/last.pt, best.pt                   summary.json  final terms, ε, eigenvalues at x*, status
+    recovery.npz     the recovery law, when `idapbc-pin recover` kept one (`control.recovery`)
 
 Every file is read here (JSON through `_io.read_json`, checkpoints through `read_checkpoint`), so a
 damaged file always gives the same one-line error that names it and the fix.
@@ -22,6 +23,7 @@ import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from .._io import DamagedFileError, atomic_write_bytes, read_json
@@ -29,11 +31,13 @@ from ..config import TrainConfig
 from ..control.controller import Controller
 from ..control.fallback import BoxFallback, box_fallback
 from ..control.nets import IdaPbcNets, build_nets
+from ..control.recovery import RecoveryLaw
 from ..errors import IdapbcError
 from ..model import System, load_system
 
 __all__ = [
     "CHECKPOINTS",
+    "RECOVERY_FILE",
     "Run",
     "check_checkpoints",
     "load_run",
@@ -41,6 +45,7 @@ __all__ = [
     "load_weights",
     "read_checkpoint",
     "read_config",
+    "read_recovery",
     "resolve_run",
     "save_checkpoint",
     "system_record",
@@ -55,6 +60,8 @@ CHECKPOINTS = ("best", "last")
 #: paper cartpole (seeds 0-2, domain) 75.5 / 77.5 / 76 % against 81.5 / 87.5 / 75 %: the loss is a
 #: mean of residuals over one batch, not the region of attraction.
 DEFAULT_CHECKPOINT = "last"
+#: The recovery law of a run, beside its IDA-PBC law (`training.recovery.recover`).
+RECOVERY_FILE = "recovery.npz"
 
 #: Values of options that runs written before the option existed trained with (their config.json
 #: lacks the key): the box-unit anchor weight diag(1/s²), physical units, H_d's ICNN fed the box-normalised state, no `effort` term, angles
@@ -72,12 +79,12 @@ class Run:
     nets: IdaPbcNets
     summary: dict = field(default_factory=dict)
     checkpoint: str = DEFAULT_CHECKPOINT
-    _fallback: BoxFallback | None = field(default=None, init=False, repr=False, compare=False)
+    _fallback: BoxFallback | RecoveryLaw | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def controller(self) -> Controller:
         """The control law u = (gᵀg)⁻¹gᵀ(f̃_d − f) with the trained networks, and the run's law
-        outside the training box (`fallback`)."""
+        where they do not act (`fallback`)."""
         return Controller(self.system, self.nets, self.fallback)
 
     @property
@@ -90,13 +97,36 @@ class Run:
         return self.config.fallback == "linear"
 
     @property
-    def fallback(self) -> BoxFallback | None:
-        """The linear law used outside the training box (`control.fallback`), or None."""
-        if not self.uses_fallback:
-            return None
+    def uses_recovery(self) -> bool:
+        """True when `idapbc-pin recover` kept a recovery law (summary.json → recovery → used)."""
+        return bool((self.summary.get("recovery") or {}).get("used", False))
+
+    @property
+    def fallback(self) -> BoxFallback | RecoveryLaw | None:
+        """The law that replaces the networks' where they do not act, or None: the recovery law
+        outside its inner box when the run has one (`control.recovery`), else the linear law
+        outside the training box when the run uses it (`control.fallback`)."""
         if self._fallback is None:
-            self._fallback = box_fallback(self.system, self.config)
+            if self.uses_recovery:
+                self._fallback = read_recovery(self.path)
+            elif self.uses_fallback:
+                self._fallback = box_fallback(self.system, self.config)
         return self._fallback
+
+
+def read_recovery(run_dir) -> RecoveryLaw:
+    """The run's recovery law (``recovery.npz``, read without pickles); a missing or damaged file
+    raises a one-line `DamagedFileError`."""
+    path = Path(run_dir) / RECOVERY_FILE
+    fix = "run `idapbc-pin recover RUN` again (or delete summary.json's \"recovery\" entry to drop the law)"
+    if not path.is_file():
+        raise DamagedFileError(f"'{path}' is missing, but summary.json says the run uses a recovery law. Fix: {fix}.")
+    try:
+        with np.load(path, allow_pickle=False) as arrays:
+            return RecoveryLaw.from_arrays(arrays)
+    except (ValueError, KeyError, OSError, zipfile.BadZipFile, EOFError) as exc:
+        reason = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
+        raise DamagedFileError(f"{path} is damaged ({reason}). Fix: {fix}.") from None
 
 
 # ------------------------------------------------------------------------------------ checkpoints
@@ -293,7 +323,10 @@ def load_run(path, checkpoint: str | None = None) -> Run:
     torch.manual_seed(config.seed)
     nets = build_nets(system, config)
     load_weights(nets, state, path / "checkpoints" / f"{name}.pt")
-    return Run(path, system, config, nets, _read_summary(path), checkpoint=name)
+    run = Run(path, system, config, nets, _read_summary(path), checkpoint=name)
+    if run.uses_recovery:
+        run.fallback  # noqa: B018 -- reads recovery.npz now: a damaged one is refused at load, like a checkpoint
+    return run
 
 
 def _read_summary(path: Path) -> dict:

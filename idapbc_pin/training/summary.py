@@ -38,12 +38,19 @@ def format_train_summary(run) -> str:
         gate = s.get("fallback") or {}
         why = (f" (gate: {100 * gate['with_fallback']:.0f} % of {gate['states']} fresh states reach x* with it, "
                f"{100 * gate['networks']:.0f} % without)" if "with_fallback" in gate else "")
-        k = run.fallback.gain
+        from ..control.fallback import fallback_gain
+
+        k = fallback_gain(run.system, run.config)
         law = "u* − Kδ" if k == 1 else f"u* − {k:g}·Kδ"
         lines.append(f"outside the training box: the anchor's linear law {law}{why}")
     elif (s.get("fallback") or {}).get("interrupted"):
         lines.append(f"outside the training box: the learned law, unchecked (the check was interrupted; "
                      f"`idapbc-pin train --resume {run.path}` runs it)")
+    if getattr(run, "uses_recovery", False):
+        gate = s["recovery"].get("gate") or {}
+        why = f" (gate: {gate['with_recovery']} of {gate['states']} fresh states reach x* with it, {gate['run']} without)" if "with_recovery" in gate else ""
+        lines.append(f"outside an inner box of {s['recovery']['inner_scale']:g} × the training box around x*: the recovery law "
+                     f"(`idapbc-pin recover`){why}")
     if s["locally_exponentially_stable"]:
         lines.append("x* is locally exponentially stable (all eigenvalues have negative real part)")
     else:

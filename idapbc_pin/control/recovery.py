@@ -1,0 +1,105 @@
+"""A recovery law beside the IDA-PBC one, for weak actuators: `RecoveryLaw`.
+
+Under tight effort limits most of the box cannot be brought to x* by a saturated smooth law: the
+actuator has to pump, and the matched IDA-PBC law cannot hold such a swing (its H_d would have to
+decrease along every pumping trajectory; README, "Can one feedback law learn the plans?"). A
+recovery law is a plain state feedback fitted to torque plans within the limits
+(`training.recovery`); the IDA-PBC law keeps the neighbourhood of x*:
+
+    u(x) = u_IDA-PBC(x)                 where |δ_i| ≤ r·s_i for every i   (the inner box)
+    u(x) = ū ⊙ tanh(MLP(δ / s))         elsewhere, inside and outside the training box
+
+with δ = wrap(x − x*), s the training box's half-widths, r the inner scale chosen on validation
+states (`training.recovery.choose_inner`) and ū the effort limits: the recovery law stays within
+the limits by construction. The MLP has tanh hidden layers and a linear output. Like
+`fallback.BoxFallback` it acts through `apply(x, u)`, so `Controller`, `simulate`, `export` and the
+exported controller.py treat both alike; the switch is discontinuous on the inner box's faces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..model.angles import wrap_angles
+
+__all__ = ["RecoveryLaw"]
+
+
+@dataclass(frozen=True, eq=False)
+class RecoveryLaw:
+    """The fitted recovery law and the inner box where the IDA-PBC law keeps control.
+
+    Attributes
+    ----------
+    weights : per layer (out, in) matrices, the last one (m, width).
+    biases : per layer (out,) vectors.
+    x_star : (n,) target state.
+    scale : (n,) s, the training box's half-widths (the MLP sees δ / s).
+    effort : (m,) ū, the effort limits (finite), N·m or N.
+    angle_mask : (n,) bool, components wrapped to within π of x*.
+    inner : (n,) half-widths r·s of the inner box (0: the recovery law everywhere but exactly x*).
+    """
+
+    weights: tuple
+    biases: tuple
+    x_star: np.ndarray
+    scale: np.ndarray
+    effort: np.ndarray
+    angle_mask: np.ndarray
+    inner: np.ndarray
+
+    def delta(self, x) -> np.ndarray:
+        """δ = wrap(x − x*): (..., n) -> (..., n)."""
+        return wrap_angles(np.asarray(x, dtype=np.float64) - self.x_star, self.angle_mask)
+
+    def law(self, x) -> np.ndarray:
+        """The recovery law alone, ū ⊙ tanh(MLP(δ/s)): (N, n) -> (N, m), within ±ū."""
+        z = self.delta(np.atleast_2d(x)) / self.scale
+        for W, b in zip(self.weights[:-1], self.biases[:-1]):
+            z = np.tanh(z @ W.T + b)
+        return self.effort * np.tanh(z @ self.weights[-1].T + self.biases[-1])
+
+    def outside(self, x) -> np.ndarray:
+        """(..., n) -> (...) bool: True where the state is outside the inner box (the recovery law acts)."""
+        return (np.abs(self.delta(x)) > self.inner).any(axis=-1)
+
+    def apply(self, x, u) -> np.ndarray:
+        """u inside the inner box, the recovery law outside: (N, n), (N, m) -> (N, m) (a new array)."""
+        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        u = np.array(u, dtype=np.float64, copy=True).reshape(len(x), -1)
+        out = self.outside(x)
+        if out.any():
+            u[out] = self.law(x[out])
+        return u
+
+    def with_inner(self, inner_scale: float) -> "RecoveryLaw":
+        """The same law with the inner box r·s for another r (s = `scale`)."""
+        return RecoveryLaw(self.weights, self.biases, self.x_star, self.scale, self.effort, self.angle_mask, inner_scale * self.scale)
+
+    def arrays(self) -> dict:
+        """The law as named arrays (recovery.npz of a run): W0, b0, W1, b1, …, x_star, scale, effort, angle_mask, inner."""
+        out = {f"W{k}": W for k, W in enumerate(self.weights)} | {f"b{k}": b for k, b in enumerate(self.biases)}
+        return out | {k: np.asarray(getattr(self, k)) for k in ("x_star", "scale", "effort", "angle_mask", "inner")}
+
+    @classmethod
+    def from_arrays(cls, arrays) -> "RecoveryLaw":
+        """Inverse of `arrays` (a dict or an open .npz); raises ValueError when a piece is missing or misshapen."""
+        depth = sum(1 for k in arrays if k.startswith("W"))
+        weights = tuple(np.asarray(arrays[f"W{k}"], dtype=np.float64) for k in range(depth))
+        biases = tuple(np.asarray(arrays[f"b{k}"], dtype=np.float64) for k in range(depth))
+        x_star, scale, effort, inner = (np.asarray(arrays[k], dtype=np.float64) for k in ("x_star", "scale", "effort", "inner"))
+        law = cls(weights, biases, x_star, scale, effort, np.asarray(arrays["angle_mask"], dtype=bool), inner)
+        n, m = len(x_star), len(effort)
+        widths = [n] + [len(b) for b in biases]
+        shapes_ok = depth >= 1 and all(W.shape == (widths[k + 1], widths[k]) for k, W in enumerate(weights)) and widths[-1] == m
+        if not shapes_ok or any(a.shape != (n,) for a in (scale, law.angle_mask, inner)):
+            raise ValueError("the recovery law's arrays do not fit together")
+        if not all(np.isfinite(a).all() for a in (*weights, *biases, x_star, scale, effort, inner)) or not (scale > 0).all():
+            raise ValueError("the recovery law has non-finite weights, limits or scales")
+        return law
+
+    def to_json(self) -> dict:
+        """controller.json's "fallback" of an export (kind "recovery"): every array as lists."""
+        return {"kind": "recovery"} | {k: np.asarray(v).tolist() for k, v in self.arrays().items()}

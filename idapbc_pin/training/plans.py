@@ -1,0 +1,86 @@
+"""Open-loop torque plans within the effort limits: `PlanSettings`, `PlanThenLaw`, `search_plan`.
+
+Where a saturated law loses a state, a short plan may still bring it to x*: piecewise-constant
+inputs over `knots` intervals of the first `horizon` seconds, then a feedback law (saturated LQR)
+takes over. The plan is found by a cross-entropy search (Rubinstein 1999): `population` plans per
+iteration drawn around a mean, the best eighth refits the mean and spread, `iterations` times. A
+plan is scored by the distance to x* after `score_T` seconds (wrapped angle errors plus 0.3 × the
+speeds; a diverged rollout scores 1e3). Plans are per state and open loop: they are the labels a
+recovery law is fitted to (`training.recovery`), and a lower bound on what the limited actuator can
+do (`benchmarks/bench_recoverable.py`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..model.angles import wrap_angles
+from ..sim.integrate import simulate
+
+__all__ = ["PLAN_STEP", "PlanSettings", "PlanThenLaw", "search_plan"]
+
+#: The control period of a plan and of the law after it, s: the judge's (the law held at 500 Hz).
+PLAN_STEP = 0.002
+
+
+@dataclass(frozen=True)
+class PlanSettings:
+    """The cross-entropy search of one plan.
+
+    Attributes
+    ----------
+    horizon : length of the plan, s; the feedback law acts after it.
+    knots : pieces of the piecewise-constant plan.
+    population : plans simulated per iteration.
+    iterations : cross-entropy iterations.
+    score_T : simulated time of a plan's score, s.
+    """
+
+    horizon: float = 2.0
+    knots: int = 20
+    population: int = 48
+    iterations: int = 8
+    score_T: float = 6.0
+
+
+class PlanThenLaw:
+    """u = plan[:, :, k] during tick k·PLAN_STEP < horizon (one plan per row of the batch), then
+    `law`; the judge's effort limits saturate both. Called once per tick by `simulate` with the law
+    held (its default), which advances the tick: use a fresh instance per simulation.
+
+    plan : (N, m, knots) inputs, N·m or N.
+    """
+
+    def __init__(self, plan: np.ndarray, horizon: float, law):
+        self.plan, self.horizon, self.law, self.tick = plan, horizon, law, 0
+
+    def __call__(self, x):
+        k = int(self.tick * PLAN_STEP * self.plan.shape[2] / self.horizon)
+        self.tick += 1
+        if k < self.plan.shape[2]:
+            return self.plan[:, :, k].copy()
+        return self.law(x)
+
+
+def _score(system, traj) -> np.ndarray:
+    d = wrap_angles(traj.x[:, -1] - system.x_star, system.angle_mask)[:, : system.nq]
+    return np.where(traj.diverged, 1e3, np.abs(d).sum(1) + 0.3 * np.abs(traj.v[:, -1]).sum(1))
+
+
+def search_plan(system, law, x0: np.ndarray, bound: np.ndarray, settings: PlanSettings, rng: np.random.Generator) -> np.ndarray:
+    """The best (1, m, knots) plan found for the start state x0 (n,) within ±bound (m,), then `law`."""
+    mean = np.zeros((system.m, settings.knots))
+    std = np.broadcast_to(bound[:, None], mean.shape).copy()
+    best, best_cost = mean[None], np.inf
+    for _ in range(settings.iterations):
+        plans = np.clip(mean + std * rng.standard_normal((settings.population,) + mean.shape), -bound[:, None], bound[:, None])
+        starts = np.repeat(x0[None], settings.population, 0)
+        traj = simulate(system, PlanThenLaw(plans, settings.horizon, law), starts, T=settings.score_T, dt=PLAN_STEP)
+        cost = _score(system, traj)
+        elite = plans[np.argsort(cost)[: settings.population // 8]]
+        if cost.min() < best_cost:
+            best, best_cost = plans[np.argmin(cost)][None], float(cost.min())
+        mean, std = elite.mean(0), elite.std(0) + 0.04 * bound[:, None]
+    return best

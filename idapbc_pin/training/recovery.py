@@ -1,0 +1,285 @@
+"""`recover`: fit a recovery law for a run on a weak actuator, and keep it only where it helps.
+
+The steps (`RecoveryConfig` holds every number):
+
+1. **Labels.** From `starts` uniform start states of the half box (seed `plan_seed`, never an
+   evaluation seed), saturated LQR runs first; where it fails, a torque plan within the limits is
+   searched (`plans.search_plan`), then LQR. Every start that reaches x* gives labels (x(t), u(t))
+   every 10 ms over its first 6 s.
+2. **Fit.** A `control.recovery.RecoveryLaw` MLP (two tanh layers of `width`) by least squares on
+   u/ū (Adam, minibatches of 4096).
+3. **DAgger** (Ross, Gordon, Bagnell 2011), `dagger` rounds: the fitted law runs from
+   `dagger_starts` new half-box starts; the states its failures visit at 0.5, 1.5 and 3 s are
+   labelled as in step 1, and a fresh law is fitted on all labels.
+4. **Gate.** The run's law as it is, and the law with the recovery law outside an inner box of
+   each scale in `inner_scales`, run from `gate_states` states of their own (half from the half
+   box, half from the training box). The best inner box is kept only if it brings at least
+   `margin` more of those states to x*; otherwise the run is left as it was.
+
+What it buys, measured (README, "Can one feedback law learn the plans?"): on a pendubot with an
+8 N·m shoulder the distilled law brought 53 % of the half box to x* where saturated LQR and the
+IDA-PBC law brought about 25 %; on an acrobot with a 5 N·m elbow it tied. Plans cost 10–20 minutes
+per robot on 2 cores (`workers` processes).
+
+The result is written into the run directory: ``recovery.npz`` (the law, when the gate keeps it)
+and the ``"recovery"`` entry of summary.json, both atomically; `Run.controller` then applies it.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+
+from .._io import atomic_write_bytes, write_json
+from ..control.baseline import LQRController
+from ..control.fallback import box_fallback
+from ..control.recovery import RecoveryLaw
+from ..errors import IdapbcError
+from ..model.angles import wrap_angles
+from ..sim.integrate import simulate
+from ..sim.metrics import success
+from ..sim.states import uniform_states
+from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan
+from .run import RECOVERY_FILE, resolve_run
+
+__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "choose_inner", "collect_labels", "dagger_round", "fit_recovery_law", "recover"]
+
+#: A label every LABEL_EVERY ticks (10 ms) over the first LABEL_SPAN ticks (6 s) of a successful start.
+LABEL_EVERY, LABEL_SPAN = 5, 3000
+#: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
+RECOVERY_GATE_SEED = 7_368_787
+
+
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """How `recover` fits and gates a recovery law (defaults: the settings measured in the README).
+
+    Attributes
+    ----------
+    starts : half-box start states labelled by LQR or plans.
+    plan_seed : seed of those start states and of the plans' searches.
+    dagger : DAgger rounds after the first fit.
+    dagger_starts : half-box starts of the fitted law per DAgger round.
+    width : width of the MLP's two tanh layers.
+    steps : Adam steps of each fit.
+    gate_states : states of the gate (half from the half box, half from the training box).
+    inner_scales : candidate scales r of the inner box r·s where the IDA-PBC law keeps control.
+    margin : successes the best candidate must add to the run's law on the gate's states to be kept.
+    workers : processes searching plans.
+    plan : the cross-entropy search of each plan.
+    """
+
+    starts: int = 240
+    plan_seed: int = 101
+    dagger: int = 2
+    dagger_starts: int = 30
+    width: int = 128
+    steps: int = 4500
+    gate_states: int = 100
+    inner_scales: tuple = (0.1, 0.25, 0.5)
+    margin: int = 3
+    workers: int = 2
+    plan: PlanSettings = field(default_factory=PlanSettings)
+
+    def __post_init__(self):
+        checks = [
+            (self.starts >= 1 and self.dagger_starts >= 1 and self.gate_states >= 2, "starts, dagger_starts must be ≥ 1 and gate_states ≥ 2"),
+            (self.dagger >= 0 and self.width >= 1 and self.steps >= 1 and self.workers >= 1, "dagger ≥ 0, width, steps and workers ≥ 1"),
+            (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
+        ]
+        for ok, what in checks:
+            if not ok:
+                raise IdapbcError(f"bad recovery setting: {what}. Fix: pass valid values.")
+
+
+# ------------------------------------------------------------------------------------ labels
+def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Worker: (X (K, n), U (K, m), LQR successes, plans that reached x*) for one chunk of starts."""
+    system, x0, first, plan_seed, settings = job
+    torch.set_num_threads(1)
+    lqr = LQRController(system)
+    traj = simulate(system, lqr, x0, T=20.0, dt=PLAN_STEP)
+    ok = success(traj, system)
+    X = [traj.x[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
+    U = [system.saturate(traj.u[i, :LABEL_SPAN:LABEL_EVERY]) for i in np.flatnonzero(ok)]
+    recovered = 0
+    for i in np.flatnonzero(~ok):
+        plan = search_plan(system, lqr, x0[i], np.asarray(system.effort), settings, np.random.default_rng((plan_seed, first + i)))
+        t = simulate(system, PlanThenLaw(plan, settings.horizon, lqr), x0[i : i + 1], T=20.0, dt=PLAN_STEP)
+        if success(t, system)[0]:
+            recovered += 1
+            X.append(t.x[0, :LABEL_SPAN:LABEL_EVERY])
+            U.append(system.saturate(t.u[0, :LABEL_SPAN:LABEL_EVERY]))
+    empty = (np.empty((0, system.n)), np.empty((0, system.m)))
+    return (np.concatenate(X), np.concatenate(U), int(ok.sum()), recovered) if X else (*empty, int(ok.sum()), recovered)
+
+
+def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfig, progress: bool = True, start: float | None = None):
+    """Labels (X (K, n), U (K, m)) of `system` from the start states x0 (N, n), with the counts of
+    starts saturated LQR and the plans brought to x*: (X, U, lqr_ok, recovered). The plan of start i
+    draws from the stream (plan_seed, i); `config.workers` processes (the system is pickled to them)."""
+    start = time.perf_counter() if start is None else start
+    chunks = [c for c in np.array_split(np.arange(len(x0)), max(1, 4 * config.workers)) if c.size]
+    jobs = [(system, x0[c], int(c[0]), plan_seed, config.plan) for c in chunks]
+    parts = []
+    if config.workers == 1:
+        results = map(_label_chunk, jobs)
+        pool = None
+    else:
+        pool = ProcessPoolExecutor(config.workers)
+        results = pool.map(_label_chunk, jobs)
+    try:
+        for k, part in enumerate(results):
+            parts.append(part)
+            if progress:
+                elapsed = time.perf_counter() - start
+                print(f"  plans: chunk {k + 1}/{len(jobs)}  [{elapsed:.0f} s]", flush=True)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    X, U = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+    return X, U, sum(p[2] for p in parts), sum(p[3] for p in parts)
+
+
+# ------------------------------------------------------------------------------------ fit
+def fit_recovery_law(system, X: np.ndarray, U: np.ndarray, width: int, steps: int, seed: int = 0) -> tuple[RecoveryLaw, float]:
+    """Least-squares fit of ū ⊙ tanh(MLP(δ/s)) to labels X (K, n), U (K, m) in units of ū; returns
+    the law (inner box empty) and the last minibatch's mean squared error."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in system.domain)
+    effort = np.asarray(system.effort, dtype=np.float64)
+    scale = (hi - lo) / 2
+    x_star, mask = np.asarray(system.x_star, dtype=np.float64), np.asarray(system.angle_mask, dtype=bool)
+    gen = torch.Generator().manual_seed(seed)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        layers = [torch.nn.Linear(system.n, width), torch.nn.Linear(width, width), torch.nn.Linear(width, system.m)]
+    net = torch.nn.Sequential(layers[0], torch.nn.Tanh(), layers[1], torch.nn.Tanh(), layers[2]).double()
+    F = torch.as_tensor(wrap_angles(X - x_star, mask) / scale)
+    Y = torch.as_tensor(U / effort)
+    opt = torch.optim.Adam(net.parameters(), 3e-3)
+    loss = torch.zeros(())
+    for k in range(steps):
+        if k == 2 * steps // 3:
+            opt.param_groups[0]["lr"] = 3e-4
+        idx = torch.randint(0, len(F), (min(4096, len(F)),), generator=gen)
+        loss = (torch.tanh(net(F[idx])) - Y[idx]).pow(2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    weights = tuple(m.weight.detach().numpy().copy() for m in layers)
+    biases = tuple(m.bias.detach().numpy().copy() for m in layers)
+    return RecoveryLaw(weights, biases, x_star, scale, effort, mask, np.zeros(system.n)), float(loss.detach())
+
+
+def _successes(system, law, x0: np.ndarray) -> np.ndarray:
+    return success(simulate(system, law, x0, T=20.0, dt=PLAN_STEP), system)
+
+
+# ------------------------------------------------------------------------------------ gate
+def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig) -> dict:
+    """Simulate the run's law and the law with `law` outside each inner box of `config.inner_scales`
+    from the gate's states; returns {"states", "run": successes, "candidates": {r: successes},
+    "inner_scale": best r, "with_recovery": its successes, "used": those ≥ run + margin}."""
+    system, seed = run.system, RECOVERY_GATE_SEED + run.config.seed
+    half = config.gate_states // 2
+    x0 = np.concatenate([uniform_states(system, half, "half", seed), uniform_states(system, config.gate_states - half, "domain", seed + 1)])
+    ctrl = run.controller.with_fallback(box_fallback(system, run.config) if run.uses_fallback else None)  # not an earlier recovery law
+    base = int(_successes(system, ctrl, x0).sum())
+    candidates = {float(r): int(_successes(system, ctrl.with_fallback(law.with_inner(r)), x0).sum()) for r in config.inner_scales}
+    best = max(candidates, key=lambda r: (candidates[r], r))  # ties: the larger inner box (more IDA-PBC)
+    return {"states": int(len(x0)), "run": base, "candidates": candidates, "inner_scale": best, "with_recovery": candidates[best],
+            "used": candidates[best] >= base + config.margin}
+
+
+# ------------------------------------------------------------------------------------ recover
+def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int, config: RecoveryConfig, progress: bool = True, start: float | None = None):
+    """DAgger round r: run `law` alone from `config.dagger_starts` half-box starts (seed
+    plan_seed + 300 + r), label the states its failures visit at 0.5, 1.5 and 3 s (`collect_labels`,
+    plan streams plan_seed + 1000 (r + 1)), and fit a fresh law on all labels.
+    Returns (law, X, U, counts of the round)."""
+    start = time.perf_counter() if start is None else start
+    x0 = uniform_states(system, config.dagger_starts, "half", config.plan_seed + 300 + r)
+    traj = simulate(system, law.law, x0, T=20.0, dt=PLAN_STEP)
+    failed = np.flatnonzero(~success(traj, system))
+    visited = np.concatenate([traj.x[failed, round(t / PLAN_STEP)] for t in (0.5, 1.5, 3.0)]) if failed.size else x0[:0]
+    if progress:
+        print(f"DAgger round {r + 1}/{config.dagger}: the law fails from {failed.size} of {config.dagger_starts} starts; "
+              f"labelling the {len(visited)} states they visit  [{time.perf_counter() - start:.0f} s]", flush=True)
+    if visited.size:
+        Xr, Ur, lqr_ok, recovered = collect_labels(system, visited, config.plan_seed + 1000 * (r + 1), config, progress, start)
+        X, U = np.concatenate([X, Xr]), np.concatenate([U, Ur])
+    else:
+        lqr_ok = recovered = 0
+    law, mse = fit_recovery_law(system, X, U, config.width, config.steps)
+    if progress:
+        print(f"DAgger round {r + 1}/{config.dagger}: of those states LQR brings {lqr_ok} to x*, plans {recovered}; refitted on "
+              f"{len(X)} labels, mean squared error {mse:.4f}  [{time.perf_counter() - start:.0f} s]", flush=True)
+    return law, X, U, {"failed": int(failed.size), "visited": int(len(visited)), "lqr": int(lqr_ok), "plans": int(recovered), "mse": mse}
+
+
+def _check_limits(system) -> None:
+    if system.m == 0 or not np.all(np.isfinite(system.effort)):
+        raise IdapbcError(
+            f"{system.name} has an actuated joint without an effort limit; a recovery law plans within the limits. "
+            "Fix: train with the limits given (--effort JOINT=LIMIT, or <limit effort> in the URDF), then recover that run."
+        )
+
+
+def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True) -> dict:
+    """Fit, gate and save a recovery law for a run (see the module docstring); returns the summary
+    entry written to summary.json → "recovery". The run directory gets ``recovery.npz`` only when
+    the gate keeps the law; an earlier recovery law is replaced either way."""
+    run = resolve_run(run_or_path)
+    system = run.system
+    _check_limits(system)
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    x0 = uniform_states(system, config.starts, "half", config.plan_seed)
+    X, U, lqr_ok, recovered = collect_labels(system, x0, config.plan_seed, config, progress, start)
+    if not len(X):
+        raise IdapbcError(f"no start state reached x*, with LQR or with a plan: nothing to fit a recovery law to ({system.name}). Fix: check the limits.")
+    if progress:
+        print(f"labels: saturated LQR brings {lqr_ok} of {config.starts} starts to x*, plans {recovered} of the other "
+              f"{config.starts - lqr_ok}; {len(X)} labels  [{time.perf_counter() - start:.0f} s]", flush=True)
+    law, mse = fit_recovery_law(system, X, U, config.width, config.steps)
+    if progress:
+        print(f"fitted: mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
+    rounds = []
+    for r in range(config.dagger):
+        law, X, U, info = dagger_round(system, law, X, U, r, config, progress, start)
+        rounds.append(info)
+    gate = choose_inner(run, law, config)
+    entry = {
+        "used": bool(gate["used"]), "inner_scale": gate["inner_scale"], "gate": gate, "labels": int(len(X)),
+        "lqr_starts": int(lqr_ok), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
+        "config": asdict(config) | {"inner_scales": list(config.inner_scales)}, "seconds": round(time.perf_counter() - start, 1),
+    }
+    _save(run, law.with_inner(gate["inner_scale"]) if gate["used"] else None, entry)
+    if progress:
+        cands = ", ".join(f"r = {r:g}: {s}" for r, s in gate["candidates"].items())
+        verdict = f"kept, inner box r = {gate['inner_scale']:g}" if gate["used"] else f"not kept (needs {config.margin} more than the run's law)"
+        print(f"gate: {gate['states']} states, the run's law brings {gate['run']} to x*, with the recovery law {cands}: {verdict}  "
+              f"[{time.perf_counter() - start:.0f} s]", flush=True)
+    return entry
+
+
+def _save(run, law: RecoveryLaw | None, entry: dict) -> None:
+    """Write recovery.npz and then summary.json → "recovery" (a new law), or summary.json and then
+    remove an earlier recovery.npz (none kept): each write atomic, and in an order that never leaves
+    summary.json naming a law that is not on disk."""
+    path = run.path / RECOVERY_FILE
+    if law is not None:
+        buf = io.BytesIO()
+        np.savez(buf, **law.arrays())
+        atomic_write_bytes(path, buf.getvalue())
+    summary = dict(run.summary) | {"recovery": entry}
+    write_json(run.path / "summary.json", summary)
+    if law is None:
+        path.unlink(missing_ok=True)
+    run.summary = summary
+    run._fallback = None

@@ -1,0 +1,210 @@
+"""A recovery law beside the IDA-PBC law, for weak actuators (`control.recovery`, `training.plans`,
+`training.recovery`).
+
+Claims:
+* the recovery law stays within the effort limits everywhere, leaves the IDA-PBC law in charge
+  inside its inner box, and sees angles wrapped to within π of x*;
+* a fit recovers a saturated linear law from its own labels, the same for the same seed;
+* labels are torques within the limits of trajectories that reach x*;
+* a torque plan within the limits brings a pendubot with an 8 N·m shoulder to x* from a half-box
+  state saturated LQR loses;
+* `recover` writes recovery.npz exactly when its gate keeps the law, and the run's controller then
+  applies it; a later `recover` that does not keep one removes it;
+* a damaged or missing recovery.npz is refused when the run loads, with one line.
+(The exported controller.py applies it as the library does: tests/test_export.py.)
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+import idapbc_pin as ip
+from idapbc_pin._io import DamagedFileError
+from idapbc_pin.cli.main import main
+from idapbc_pin.control.baseline import LQRController
+from idapbc_pin.control.recovery import RecoveryLaw
+from idapbc_pin.model.angles import wrap_angles
+from idapbc_pin.sim.integrate import simulate
+from idapbc_pin.sim.metrics import success
+from idapbc_pin.sim.states import uniform_states
+from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan
+from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, recover
+from idapbc_pin.training.run import RECOVERY_FILE
+
+from .conftest import sample_domain
+
+
+def random_law(system, inner_scale: float, seed: int = 0, width: int = 16) -> RecoveryLaw:
+    """A recovery law with random weights (large enough that the output saturates somewhere)."""
+    rng = np.random.default_rng(seed)
+    sizes = [system.n, width, width, system.m]
+    weights = tuple(2.0 * rng.standard_normal((b, a)) for a, b in zip(sizes[:-1], sizes[1:]))
+    biases = tuple(rng.standard_normal(b) for b in sizes[1:])
+    lo, hi = system.domain
+    scale = (hi - lo) / 2
+    effort = np.where(np.isfinite(system.effort), system.effort, 5.0)
+    return RecoveryLaw(weights, biases, system.x_star, scale, effort, np.asarray(system.angle_mask), inner_scale * scale)
+
+
+@pytest.fixture(scope="module")
+def weak_pendubot():
+    return ip.load_system("pendubot", effort={"shoulder": 8.0})
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    system = ip.load_system("pendubot", effort={"shoulder": 8.0})
+    config = ip.TrainConfig.fast(epochs=5, width=8, depth=1, samples=64, dtype="float64")
+    return ip.train(system, config, out=tmp_path_factory.mktemp("runs"), progress=False)
+
+
+def test_the_recovery_law_stays_within_the_limits_and_keeps_the_inner_box(weak_pendubot):
+    system = weak_pendubot
+    law = random_law(system, inner_scale=0.5)
+    x = np.concatenate([sample_domain(system, 1000), system.x_star + 4 * (sample_domain(system, 1000, seed=1) - system.x_star)])
+    u_law = law.law(x)
+    assert np.abs(u_law).max() <= law.effort.max() * (1 + 1e-12)
+    assert (np.abs(u_law) > 0.9 * law.effort).any()  # the weights are large enough to reach the limit
+    u_ida = np.full((len(x), system.m), 123.0)  # stands for the IDA-PBC law's output
+    u = law.apply(x, u_ida)
+    inside = (np.abs(wrap_angles(x - system.x_star, system.angle_mask)) <= law.inner).all(axis=1)
+    assert 0 < inside.sum() < len(x)
+    np.testing.assert_array_equal(u[inside], 123.0)
+    np.testing.assert_array_equal(u[~inside], u_law[~inside])
+    turned = x.copy()
+    turned[:, 0] += 2 * np.pi  # one turn of the shoulder: the same state for the law
+    np.testing.assert_allclose(law.law(turned), u_law, atol=1e-12)
+    np.testing.assert_array_equal(law.with_inner(0.25).inner, 0.25 * law.scale)
+
+
+def test_arrays_round_trip_and_bad_arrays_are_refused(weak_pendubot):
+    law = random_law(weak_pendubot, inner_scale=0.1)
+    again = RecoveryLaw.from_arrays(law.arrays())
+    x = sample_domain(weak_pendubot, 50)
+    np.testing.assert_array_equal(again.apply(x, np.zeros((50, 1))), law.apply(x, np.zeros((50, 1))))
+    bad = law.arrays() | {"W1": np.zeros((3, 3))}
+    with pytest.raises(ValueError, match="do not fit"):
+        RecoveryLaw.from_arrays(bad)
+    with pytest.raises(ValueError, match="non-finite"):
+        RecoveryLaw.from_arrays(law.arrays() | {"b0": np.full(16, np.nan)})
+
+
+def test_a_fit_recovers_a_saturated_linear_law_from_its_labels(weak_pendubot):
+    """Labels of u = sat(−Kδ) on box states: the fitted law is within 5 % of ū of it on new states,
+    and the same seed gives the same weights."""
+    system = weak_pendubot
+    K = LQRController(system).K
+
+    def target(x):
+        return system.saturate(-wrap_angles(x - system.x_star, system.angle_mask) @ K.T)
+
+    X = sample_domain(system, 4000, seed=1)
+    law, mse = fit_recovery_law(system, X, target(X), width=32, steps=1500, seed=3)
+    x_new = sample_domain(system, 1000, seed=2)
+    err = np.abs(law.law(x_new) - target(x_new)) / system.effort
+    assert np.sqrt(np.mean(err**2)) < 0.05, np.sqrt(np.mean(err**2))
+    assert mse < 0.01
+    again, _ = fit_recovery_law(system, X, target(X), width=32, steps=1500, seed=3)
+    np.testing.assert_array_equal(again.weights[0], law.weights[0])
+
+
+def test_a_plan_within_the_limits_recovers_a_state_saturated_lqr_loses(weak_pendubot):
+    system = weak_pendubot
+    lqr = LQRController(system)
+    x0 = uniform_states(system, 12, "half", seed=101)
+    lost = np.flatnonzero(~success(simulate(system, lqr, x0, T=20.0, dt=PLAN_STEP), system))
+    assert lost.size > 0  # with 8 N·m saturated LQR loses most of the half box
+    bound = np.asarray(system.effort)
+    plan = search_plan(system, lqr, x0[lost[0]], bound, PlanSettings(), np.random.default_rng(0))
+    assert plan.shape == (1, system.m, PlanSettings().knots) and np.abs(plan).max() <= bound.max()
+    traj = simulate(system, PlanThenLaw(plan, PlanSettings().horizon, lqr), x0[lost[:1]], T=20.0, dt=PLAN_STEP)
+    assert success(traj, system)[0]
+    assert np.abs(traj.u).max() <= bound.max() * (1 + 1e-12)
+
+
+def test_labels_are_torques_within_the_limits_of_trajectories_that_reach_the_target(weak_pendubot):
+    system = weak_pendubot
+    x0 = uniform_states(system, 2, "half", 101)
+    X, U, lqr_ok, recovered = collect_labels(system, x0, 101, RecoveryConfig(workers=1), progress=False)
+    assert lqr_ok + recovered >= 1
+    assert len(X) == len(U) == (lqr_ok + recovered) * (LABEL_SPAN // LABEL_EVERY)
+    assert np.all(np.abs(U) <= 8.0 + 1e-12) and np.isfinite(X).all()
+
+
+TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, inner_scales=(0.25,), workers=1,
+            plan=PlanSettings(population=8, iterations=2, score_T=2.0))  # fmt: skip
+
+
+@pytest.mark.slow
+def test_recover_keeps_the_law_exactly_when_its_gate_does(tiny_run, tmp_path):
+    path = tmp_path / "run"
+    shutil.copytree(tiny_run.path, path)
+    kept = recover(path, RecoveryConfig(**TINY, margin=-4), progress=False)  # margin −4: kept whatever the gate sees
+    assert kept["used"] and (path / RECOVERY_FILE).is_file()
+    assert kept["gate"]["states"] == 4 and all(0 <= s <= 4 for s in kept["gate"]["candidates"].values())
+    assert len(kept["dagger"]) == 1 and kept["labels"] > 0
+    run = ip.load_run(path)
+    assert run.uses_recovery and isinstance(run.controller.fallback, RecoveryLaw)
+    np.testing.assert_allclose(run.controller.fallback.inner, kept["inner_scale"] * run.controller.fallback.scale)
+    x = uniform_states(run.system, 200, "domain", seed=5)
+    u = run.controller(x)
+    outside = run.controller.fallback.outside(x)
+    assert outside.any()
+    np.testing.assert_allclose(u[outside], run.controller.fallback.law(x[outside]), atol=1e-12)
+    assert json.loads((path / "summary.json").read_text())["recovery"]["used"] is True
+
+    dropped = recover(path, RecoveryConfig(**TINY, margin=5), progress=False)  # more than the 4 states: never kept
+    assert not dropped["used"] and not (path / RECOVERY_FILE).exists()
+    run = ip.load_run(path)
+    assert not run.uses_recovery and not isinstance(run.controller.fallback, RecoveryLaw)
+
+
+def _with_recovery(tiny_run, tmp_path):
+    path = tmp_path / "run"
+    shutil.copytree(tiny_run.path, path)
+    law = random_law(tiny_run.system, 0.25)
+    np.savez(path / RECOVERY_FILE, **law.arrays())
+    summary = json.loads((path / "summary.json").read_text()) | {"recovery": {"used": True, "inner_scale": 0.25}}
+    (path / "summary.json").write_text(json.dumps(summary))
+    return path, law
+
+
+def test_a_run_with_a_recovery_law_applies_it(tiny_run, tmp_path):
+    path, law = _with_recovery(tiny_run, tmp_path)
+    run = ip.load_run(path)
+    x = uniform_states(run.system, 300, "domain", seed=3)
+    np.testing.assert_allclose(run.controller(x), law.apply(x, tiny_run.controller.with_fallback(None)(x)), atol=1e-12)
+
+
+@pytest.mark.parametrize("damage", ["missing", "truncated", "misshapen"])
+def test_a_damaged_recovery_law_is_refused_at_load_with_one_line(tiny_run, tmp_path, capsys, damage):
+    path, law = _with_recovery(tiny_run, tmp_path)
+    target = path / RECOVERY_FILE
+    if damage == "missing":
+        target.unlink()
+    elif damage == "truncated":
+        target.write_bytes(target.read_bytes()[:200])
+    else:
+        np.savez(target, **(law.arrays() | {"W0": np.zeros((2, 2))}))
+    with pytest.raises(DamagedFileError, match="recover"):
+        ip.load_run(path)
+    assert main(["simulate", str(path), "--n", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "recovery.npz" in err[0] and "Fix:" in err[0]
+
+
+def test_recover_refuses_a_robot_without_limits_in_one_line(tmp_path, capsys):
+    """`train --recover` (and `recover`) on an actuator without an effort limit: exit 2, one line."""
+    argv = ["train", "pendubot", "--effort", "shoulder=inf", "--fast", "--epochs", "2", "--width", "8", "--depth", "1",
+            "--evaluate", "0", "--out", str(tmp_path), "--recover"]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "effort limit" in err[-1] and "Fix:" in err[-1] and not any("Traceback" in line for line in err)
+    (run_dir,) = tmp_path.iterdir()
+    assert main(["recover", str(run_dir), "--starts", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "effort limit" in err[0]
