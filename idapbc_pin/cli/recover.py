@@ -31,7 +31,7 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
         description=(
             "Search torque plans within RUN's effort limits from half-box states LQR loses, fit a small feedback law to "
             "them (then DAgger rounds), and use it outside an inner box around x* if simulation on states of its own "
-            "shows it brings more states to x*. Writes RUN/recovery.npz and summary.json → recovery. Takes 10-20 "
+            "shows it brings more states to x*. Writes RUN/recovery.npz and summary.json → recovery. Took 20-50 "
             "minutes on 2 cores for a 2-DoF robot."
         ),
     )

@@ -112,5 +112,5 @@ def add_train_command(sub) -> None:
     p.add_argument("--fallback-gain", dest="fallback_gain", type=float, metavar="K", help=FIELD_HELP["fallback_gain"])
     p.add_argument("--recover", action="store_true",
                    help="weak actuators: after training, fit a recovery law to torque plans within the limits and keep it "
-                        "if simulation shows it helps (`idapbc-pin recover`; 10-20 min on 2 cores for a 2-DoF robot)")
+                        "if simulation shows it helps (`idapbc-pin recover`; 20-50 min on 2 cores for a 2-DoF robot)")
     p.set_defaults(func=_cmd_train)

@@ -18,8 +18,10 @@ The steps (`RecoveryConfig` holds every number):
 
 What it buys, measured (README, "Can one feedback law learn the plans?"): on a pendubot with an
 8 N·m shoulder the distilled law brought 53 % of the half box to x* where saturated LQR and the
-IDA-PBC law brought about 25 %; on an acrobot with a 5 N·m elbow it tied. Plans cost 10–20 minutes
-per robot on 2 cores (`workers` processes).
+IDA-PBC law brought about 25 %; on an acrobot with a 5 N·m elbow it tied. With the gate, `recover`
+doubled the half-box basin of two weak pendubots and added 1 to 7.5 points on the acrobot (README,
+"A recovery law for weak actuators"). Plans cost 20–50 minutes per robot on 2 shared cores
+(`workers` processes).
 
 The result is written into the run directory: ``recovery.npz`` (the law, when the gate keeps it)
 and the ``"recovery"`` entry of summary.json, both atomically; `Run.controller` then applies it.
