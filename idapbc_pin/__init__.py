@@ -9,6 +9,7 @@ Public API (see the README and docs/method.md)::
     ctrl = run.controller; ip.simulate(sys, ctrl, x0, T=20.0); ip.certify(run); ip.view(run)
     ip.export(run, "deploy/")                           # standalone controller (numpy + pin), ONNX f̃_d
     ip.recover(run)                                     # weak actuators: a recovery law beside the IDA-PBC one
+    ip.auto_recover(run)                                # ... only where the torque limits bind (`train`'s default)
 
 Evaluations apply the actuators' effort limits (``sys.effort``) to every controller unless
 ``limits=False``. The subpackages follow the data flow: model → control → training → sim →
@@ -33,6 +34,7 @@ from .sim.roa import roa
 from .model import System, load_system
 from .training.recovery import RecoveryConfig, recover
 from .training.run import Run, load_run
+from .training.weak_actuators import auto_recover, limits_bind
 from .training.train import train
 from .viewer import view, write_html
 
@@ -45,11 +47,13 @@ __all__ = [
     "Run",
     "System",
     "TrainConfig",
+    "auto_recover",
     "certify",
     "evaluate_run",
     "export",
     "figure",
     "invariant_share",
+    "limits_bind",
     "load_run",
     "load_system",
     "mujoco_judge",

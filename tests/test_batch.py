@@ -85,6 +85,7 @@ def test_committed_pipelines_are_valid():
     assert len(smoke.jobs) == 2
     weak = load_pipeline(ROOT / "pipelines" / "weak_actuators.toml")
     assert {job.name: job.effort for job in weak.jobs} == {"pendubot_8Nm": {"shoulder": 8.0}, "acrobot_5Nm": {"elbow": 5.0}}
+    assert {job.recover for job in weak.jobs} == {"never"}  # its committed summary is the IDA-PBC law alone
 
 
 def test_smoke_flag_shrinks_every_job_and_changes_its_fingerprint():
@@ -92,6 +93,7 @@ def test_smoke_flag_shrinks_every_job_and_changes_its_fingerprint():
     small = load_pipeline(ROOT / "pipelines" / "zoo.toml", smoke=True)
     for a, b in zip(full.jobs, small.jobs):
         assert b.config["epochs"] <= 20 and b.config["width"] <= 16 and b.evaluate["n"] <= 12
+        assert a.recover == "auto" and b.recover == "never"  # as `train`; a smoke run never spends minutes on plans
         assert a.fingerprint() != b.fingerprint()
 
 
@@ -111,6 +113,7 @@ BAD_JOBS = [
     ('name = "weak"\nsource = "pendubot"\neffort = { elbow = 8.0 }\n', "elbow"),
     ('name = "zero"\nsource = "pendubot"\neffort = { shoulder = 0.0 }\n', "must be > 0"),
     ('name = "text"\nsource = "pendubot"\neffort = { shoulder = "8" }\n', "effort.shoulder must be a number"),
+    ('name = "plans"\nsource = "pendubot"\nrecover = "yes"\n', "recover must be one of"),
 ]
 
 
@@ -234,7 +237,8 @@ def test_smoke_pipeline_on_two_workers_gives_a_complete_summary(smoke_batch):
     for name, record in result.records.items():
         run_dir = result.path / name / record["run_dir"]
         assert record["status"] == "done" and record["error"] is None
-        assert {"load", "train", "evaluate", "certify", "figure", "html", "total"} <= set(record["timings"])
+        assert {"load", "train", "recover", "evaluate", "certify", "figure", "html", "total"} <= set(record["timings"])
+        assert record["recovery"] is False  # --smoke: recover = "never"
         assert (run_dir / "evaluation.json").is_file() and (run_dir / "replay.html").is_file()
         assert (run_dir / "certificate.json").is_file() == _optional_module("certificate")
         assert (run_dir / "figure.png").is_file() == _optional_module("reporting")

@@ -10,7 +10,10 @@ Claims:
   state saturated LQR loses;
 * `recover` writes recovery.npz exactly when its gate keeps the law, and the run's controller then
   applies it; a later `recover` that does not keep one removes it;
-* a damaged or missing recovery.npz is refused when the run loads, with one line.
+* a damaged or missing recovery.npz is refused when the run loads, with one line;
+* `train --recover auto` (the default) fits one exactly when the torque limits bind: saturated LQR
+  loses ≥ 10 % of the half box that unsaturated LQR keeps (an 8 N·m pendubot shoulder, not the
+  zoo's 20 N·m), and never tests a robot without limits.
 (The exported controller.py applies it as the library does: tests/test_export.py.)
 """
 
@@ -27,6 +30,7 @@ from idapbc_pin._io import DamagedFileError
 from idapbc_pin.cli.main import main
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.control.recovery import RecoveryLaw
+from idapbc_pin.errors import IdapbcError
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
@@ -34,6 +38,7 @@ from idapbc_pin.sim.states import uniform_states
 from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan
 from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, recover
 from idapbc_pin.training.run import RECOVERY_FILE
+from idapbc_pin.training.weak_actuators import BIND_POINTS, BIND_STATES, auto_recover, limits_bind
 
 from .conftest import sample_domain
 
@@ -208,3 +213,33 @@ def test_recover_refuses_a_robot_without_limits_in_one_line(tmp_path, capsys):
     assert main(["recover", str(run_dir), "--starts", "2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "effort limit" in err[0]
+
+
+# ------------------------------------------------------------------ when `train` recovers on its own
+def test_the_limits_bind_on_an_8_nm_shoulder_and_not_at_the_zoo_pendubots_20():
+    """Saturated LQR loses ≥ 10 % of the half box to an 8 N·m shoulder, not to the URDF's 20 N·m."""
+    weak = limits_bind(ip.load_system("pendubot", effort={"shoulder": 8.0}))
+    zoo = limits_bind(ip.load_system("pendubot"))
+    assert weak["binds"] and weak["unsaturated"] - weak["saturated"] >= BIND_POINTS * BIND_STATES / 100
+    assert not zoo["binds"] and weak["unsaturated"] == zoo["unsaturated"]  # same states, same unsaturated LQR
+
+
+def test_a_robot_without_limits_is_never_tested_and_never_binds():
+    for system in (ip.load_system("pendubot", effort={"shoulder": np.inf}), ip.load_system("paper_mass_spring_damper")):
+        assert limits_bind(system) == {"states": 0, "saturated": 0, "unsaturated": 0, "binds": False}
+
+
+def test_auto_recovers_exactly_when_the_limits_bind(tiny_run, tmp_path, capsys):
+    path = tmp_path / "run"
+    shutil.copytree(tiny_run.path, path)
+    config = RecoveryConfig(**TINY, margin=-4)
+    assert auto_recover(ip.load_run(path), "never", config) is None
+    entry = auto_recover(ip.load_run(path), "auto", config)  # tiny_run: the 8 N·m pendubot
+    assert "they bind" in capsys.readouterr().out and entry["used"] and (path / RECOVERY_FILE).is_file()
+    strong = tmp_path / "strong"
+    main(["train", "pendubot", "--fast", "--epochs", "2", "--width", "8", "--depth", "1", "--evaluate", "0", "--out", str(strong)])
+    assert "they do not bind" in capsys.readouterr().out
+    (run_dir,) = strong.iterdir()
+    assert not (run_dir / RECOVERY_FILE).exists() and "recovery" not in json.loads((run_dir / "summary.json").read_text())
+    with pytest.raises(IdapbcError, match="unknown recover mode"):
+        auto_recover(ip.load_run(path), "sometimes", config)

@@ -1,4 +1,4 @@
-"""One job of a batch: load → train (or resume) → evaluate → certify → figure → HTML replay.
+"""One job of a batch: load → train (or resume) → recover → evaluate → certify → figure → HTML replay.
 
 `run_job` is the function every executor runs (in this process, in a spawned worker process, as a
 Ray task), so the same seeds give the same results everywhere. It never raises for a failing job:
@@ -25,6 +25,7 @@ from ..model import load_system
 from ..reporting.report import figure
 from ..training.run import load_run, read_checkpoint, read_config
 from ..training.train import train
+from ..training.weak_actuators import auto_recover
 from ..viewer import view
 from ._files import read_json_or_none, timestamp
 from ._shipping import pack_dir, sees_batch_dir
@@ -72,7 +73,7 @@ def _train_or_resume(system, config, workdir: Path):
 def run_job(job: Job, job_dir: str | Path, batch_token: str | None = None) -> dict:
     """Run one job into `job_dir` and return its record (also written to ``job_dir/job.json``).
 
-    Stages: load → train (or resume) → evaluate (ROA of NIDA-PBC and LQR on the domain and half
+    Stages: load → train (or resume) → recover (`training.weak_actuators.auto_recover`) → evaluate (ROA of NIDA-PBC and LQR on the domain and half
     boxes) → certify → figure → html. Any exception stops the job and is recorded with its stage;
     it is never raised (Ctrl-C is: the job is recorded as interrupted first). Sets one torch thread
     (restored afterwards) so that N workers use N cores.
@@ -142,6 +143,10 @@ def _stages(job: Job, workdir: Path, record: dict):
             raise KeyboardInterrupt
         if run.summary.get("status") != "finished":
             raise IdapbcError(f"training ended with status {run.summary.get('status')!r}")
+    with stage("recover"):  # where the limits bind (as `train`); a reused run keeps the law it has
+        if "recovery" not in run.summary:
+            auto_recover(run, job.recover)
+        record["recovery"] = bool(run.uses_recovery)
     ev = job.evaluate
     with stage("evaluate"):
         evaluation = evaluate_run(run, n=ev["n"], T=ev["T"], seed=ev["seed"], limits=ev["limits"]).record()

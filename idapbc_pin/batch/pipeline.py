@@ -21,6 +21,8 @@ Format (``pipelines/*.toml``)::
     domain = { shoulder = [-1.0, 1.0], p_shoulder = [-2.0, 2.0] }   # optional: NAME = [lo, hi]
     effort = { elbow = 8.0 }   # optional: actuator limits (N·m or N) over the URDF's <limit effort>
                                # (inf lifts one); the limits apply to training and evaluation
+    recover = "auto"           # optional: a recovery law after training where the limits bind
+                               # ("auto", as `train`), "always" or "never"; --smoke: "never"
 
 Every job is checked before the first one starts: unknown keys, wrong types, the system itself
 (`load_system`: unknown source, unknown joint, a target that is not an equilibrium, an empty domain)
@@ -40,12 +42,13 @@ from pathlib import Path
 from ..config import TrainConfig
 from ..errors import IdapbcError
 from ..model import load_system
+from ..training.weak_actuators import RECOVER_MODES
 
 __all__ = ["Job", "Pipeline", "PipelineError", "load_pipeline", "SMOKE_TRAIN", "SMOKE_EVALUATE", "SMOKE_CERTIFY", "SMOKE_FIGURE", "SMOKE_VIEW"]
 
 PRESETS = ("paper", "fast")
 TOP_KEYS = ("description", "defaults", "job")
-JOB_KEYS = ("name", "source", "actuated", "target", "domain", "effort", "preset", "train", "evaluate", "certify", "figure", "view", "description")
+JOB_KEYS = ("name", "source", "actuated", "target", "domain", "effort", "preset", "train", "recover", "evaluate", "certify", "figure", "view", "description")
 EVALUATE_DEFAULTS = {"n": 200, "T": 20.0, "seed": 0, "limits": True}
 CERTIFY_DEFAULTS = {"n": 20000, "settle": 4, "T": 20.0}
 FIGURE_DEFAULTS = {"n": 4, "T": 20.0}
@@ -89,6 +92,7 @@ class Job:
     evaluate : {"n", "T", "seed"} of the ROA; certify : {"n", "settle", "T"} of `certify`;
     figure : {"n", "T"} of `report.figure`; view : {"n", "T"} of the HTML replay.
     smoke : shrunk by ``--smoke``.
+    recover : ``"auto"``, ``"always"`` or ``"never"``: a recovery law after training, as ``train --recover``.
     line : line of the job's ``[[job]]`` header in the pipeline file (None if not found).
     system_name, actuated_resolved : from loading the system during validation.
     """
@@ -112,6 +116,7 @@ class Job:
     actuated_resolved: tuple[str, ...] = ()
     description: str = ""
     effort: dict | None = None
+    recover: str = "auto"
 
     def system_arguments(self) -> dict:
         """The keyword arguments of `load_system` for this job (after `source_path`)."""
@@ -128,6 +133,7 @@ class Job:
             "target": self.target,
             "domain": self.domain,
             **({"effort": self.effort} if self.effort is not None else {}),  # jobs without one keep their old fingerprint
+            **({"recover": self.recover} if self.recover != "auto" else {}),
             "config": self.config,
             "evaluate": self.evaluate,
             "certify": self.certify,
@@ -274,12 +280,16 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
     train = dict(_check_type(raw.get("train", {}), dict, "'train'"))
     tables = _stage_tables(raw)
     description = _check_type(raw.get("description", ""), str, "'description'")
+    recover = _check_type(raw.get("recover", "auto"), str, "'recover'")
+    if recover not in RECOVER_MODES:
+        raise IdapbcError(f"recover must be one of {', '.join(repr(m) for m in RECOVER_MODES)}, got {recover!r}")
 
     # the training config: preset, then overrides, then smoke shrinking (TrainConfig validates)
     base_config = TrainConfig.fast().to_dict() if preset == "fast" else TrainConfig().to_dict()
     config = TrainConfig.from_dict({**base_config, **train})
     if smoke:
         config = config.replace(**{k: min(getattr(config, k), v) for k, v in SMOKE_TRAIN.items()}, fallback="none" if config.fallback == "auto" else config.fallback)
+        recover = "never"
         for key, small in (("evaluate", SMOKE_EVALUATE), ("certify", SMOKE_CERTIFY), ("figure", SMOKE_FIGURE), ("view", SMOKE_VIEW)):
             tables[key] = {**tables[key], **{k: min(tables[key][k], v) for k, v in small.items()}}
 
@@ -308,6 +318,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
         system_name=system.name,
         actuated_resolved=tuple(system.actuated),
         description=description,
+        recover=recover,
     )
 
 

@@ -63,13 +63,14 @@ def new_record(job: Job) -> dict:
         "timings": {},
         "run_dir": None,
         "resumed": None,
+        "recovery": None,
         "files": {},
         "started_at": timestamp(),
         "finished_at": None,
         "host": socket.gethostname(),
         "pid": os.getpid(),
         "job": {"source": job.source, "actuated": job.actuated, "target": job.target, "domain": job.domain, "effort": job.effort, "preset": job.preset,
-                "train": job.train, "config": job.config, "evaluate": job.evaluate, "certify": job.certify, "figure": job.figure, "view": job.view, "smoke": job.smoke},
+                "recover": job.recover, "train": job.train, "config": job.config, "evaluate": job.evaluate, "certify": job.certify, "figure": job.figure, "view": job.view, "smoke": job.smoke},
     }  # fmt: skip
 
 
