@@ -73,8 +73,8 @@ def _train_or_resume(system, config, workdir: Path):
 def run_job(job: Job, job_dir: str | Path, batch_token: str | None = None) -> dict:
     """Run one job into `job_dir` and return its record (also written to ``job_dir/job.json``).
 
-    Stages: load → train (or resume) → recover (`training.weak_actuators.auto_recover`) → evaluate (ROA of NIDA-PBC and LQR on the domain and half
-    boxes) → certify → figure → html. Any exception stops the job and is recorded with its stage;
+    Stages: load → train (or resume) → recover (`training.weak_actuators.auto_recover`) → evaluate
+    (ROA of NIDA-PBC and LQR on the domain and half boxes) → certify → figure → html. Any exception stops the job and is recorded with its stage;
     it is never raised (Ctrl-C is: the job is recorded as interrupted first). Sets one torch thread
     (restored afterwards) so that N workers use N cores.
 

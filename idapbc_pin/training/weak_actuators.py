@@ -7,13 +7,14 @@ actuators"). The test is that comparison, on `BIND_STATES` uniform states of the
 no evaluation uses): the limits **bind** when saturated LQR brings at least `BIND_POINTS` per cent
 of them fewer to x* than unsaturated LQR.
 
-Measured on 100 states (seeds 7 368 787 and 11; saturated / unsaturated LQR, % of the half box):
-every zoo robot at its URDF limits is within 2 points either way or saturated LQR does better
-(pendubot 53 / 55 and 52 / 51, acrobot 72 / 2 and 78 / 7, cart_double_pendulum 19 / 17, furuta
-77 / 70, cartpole, reaction_wheel and double_pendulum 100 / 100), so `train --recover auto`
-leaves them alone; a pendubot with an 8 N·m shoulder gives 27 / 55 and 21 / 51, so it fits one.
-An acrobot with a 5 N·m elbow gives 7 / 2: its linear law fails with or without the limits, and the
-recovery law added 1–7.5 points there, so auto leaves it alone too (`--recover always` does not).
+Measured with these defaults (successes of the 100 states, saturated / unsaturated LQR; the full
+table is in docs/method.md §6): no zoo robot at its URDF limits binds (pendubot 61 / 61, acrobot
+69 / 6, cart_double_pendulum 22 / 18, furuta 81 / 69, cartpole, reaction_wheel and double_pendulum
+100 / 100), so `train --recover auto` leaves them alone; a pendubot with an 8 N·m shoulder gives
+24 / 61, a cartpole with a 10 N slider 80 / 100 and a reaction wheel with a 2 N·m wheel 76 / 100, so
+they get one. An acrobot with a 5 N·m elbow gives 13 / 6: its linear law fails with or without the
+limits, and the recovery law added only 1–7.5 points there, so auto leaves it alone too
+(`--recover always` does not).
 """
 
 from __future__ import annotations
@@ -21,10 +22,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..control.baseline import LQRController
+from ..errors import IdapbcError
 from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import uniform_states
-from ..errors import IdapbcError
 from .plans import PLAN_STEP
 from .recovery import RecoveryConfig, recover
 
