@@ -10,12 +10,7 @@ __all__ = ["add_recover_command"]
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    defaults = RecoveryConfig()
-    config = RecoveryConfig(
-        starts=args.starts if args.starts is not None else defaults.starts,
-        dagger=args.dagger if args.dagger is not None else defaults.dagger,
-        workers=args.workers if args.workers is not None else defaults.workers,
-    )
+    config = RecoveryConfig(**{k: getattr(args, k) for k in ("starts", "dagger", "workers") if getattr(args, k) is not None})
     entry = recover(args.run, config)
     kept = "kept: `simulate`, `view` and `export` of RUN now use it" if entry["used"] else "not kept: RUN is unchanged"
     print(f"recovery law {kept} ({entry['seconds']:.0f} s; summary.json → recovery)")
