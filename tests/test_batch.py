@@ -9,6 +9,7 @@ states): their numbers say nothing about control quality, only that every stage 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import signal
@@ -252,6 +253,22 @@ def test_zoo_table_renders_from_a_summary(smoke_batch):
     assert zoo_table_markdown(smoke_batch.summary_csv) == table  # deterministic
     readme = "intro\n<!-- zoo-table:start -->\nold\n<!-- zoo-table:end -->\nrest\n"
     assert readme_zoo_block(replace_zoo_table(readme, table)) == table.strip()
+
+
+def test_the_zoo_table_names_a_recovery_law_where_a_run_keeps_one(smoke_batch, tmp_path):
+    rows = read_summary(smoke_batch.summary_csv)
+    assert [r["recovery"] for r in rows] == ["no", "no"]  # --smoke: recover = "never"
+    before = {r["name"]: r["fallback"] for r in rows}
+    rows[0]["recovery"] = "yes"  # as a job whose recover stage kept a law would write it
+    path = tmp_path / "summary.csv"
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=SUMMARY_COLUMNS, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+    lines = {line.split(" | ")[0]: line for line in zoo_table_markdown(path).splitlines() if line.startswith("| `")}
+    outside = {"yes": "linear law", "no": "networks"}
+    assert "| recovery law |" in lines[f"| `{rows[0]['name']}`"]
+    assert f"| {outside[before[rows[1]['name']]]} |" in lines[f"| `{rows[1]['name']}`"]
 
 
 def test_a_job_failing_at_run_time_is_recorded_and_the_others_finish(tmp_path):

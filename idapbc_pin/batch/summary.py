@@ -111,6 +111,14 @@ def _g(v: str) -> str:
     return "—" if v in ("", None) else f"{float(v):.2e}"
 
 
+def _outside(r: dict) -> str:
+    """What NIDA-PBC runs away from where its networks act: "recovery law" (outside its inner box),
+    "linear law" (outside the training box) or "networks"; "—" for rows written before either."""
+    if r.get("recovery") == "yes":
+        return "recovery law"
+    return {"yes": "linear law", "no": "networks"}.get(r.get("fallback") or "", "—")
+
+
 def _cell(text) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
@@ -184,7 +192,7 @@ def zoo_table_markdown(summary_csv) -> str:
             f"{_s(r['nida_settle_domain'])} / {_s(r['lqr_settle_domain'])}",
             f"{_s(r.get('nida_peak_half'), '')} / {_s(r.get('lqr_peak_half'), '')} (limit {r.get('limit') or '—'})", r["les"] or "—",
             f"{_p(r['sublevel_coverage'])} / {_p(r.get('lqr_sublevel_coverage'))}",
-            {"yes": "linear law", "no": "networks"}.get(r.get("fallback") or "", "—"), _dur(r["train_seconds"]),
+            _outside(r), _dur(r["train_seconds"]),
         ])  # fmt: skip
     head = ["robot", "actuated", "success, domain: NIDA-PBC / LQR", "success, half box: NIDA-PBC / LQR",
             "half box: NIDA-PBC − LQR, points (95 % CI)", "ROA radius: NIDA-PBC / LQR", "median settling: NIDA-PBC / LQR", "median peak abs(u), half box: NIDA-PBC / LQR",
@@ -199,7 +207,8 @@ def zoo_table_markdown(summary_csv) -> str:
         "share = share of the box inside the largest sampled sublevel set of H_d (NIDA-PBC) or of δᵀSδ (LQR) that stays "
         "in the box with a decreasing value on every sample (see docs/method.md): sampled, not proofs. NIDA-PBC outside "
         "the box = the law NIDA-PBC applies outside the training box, chosen after training (the anchor's linear law, or "
-        "the networks'; docs/method.md §6)."
+        "the networks'; docs/method.md §6), or \"recovery law\" where the torque limits bind and a recovery law replaces "
+        "the networks outside an inner box (README, \"A recovery law for weak actuators\")."
     )
     return _table(head, body) + "\n\n" + note + "\n"
 
