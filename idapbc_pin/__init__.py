@@ -9,7 +9,7 @@ Public API (see the README and docs/method.md)::
     ctrl = run.controller; ip.simulate(sys, ctrl, x0, T=20.0); ip.certify(run); ip.view(run)
     ip.export(run, "deploy/")                           # standalone controller (numpy + pin), ONNX f̃_d
     ip.recover(run)                                     # weak actuators: a recovery law beside the IDA-PBC one
-    ip.auto_recover(run)                                # ... only where the torque limits bind (`train`'s default)
+    ip.auto_recover(run)                                # ... only where saturated LQR leaves room (`train`'s default)
 
 Evaluations apply the actuators' effort limits (``sys.effort``) to every controller unless
 ``limits=False``. The subpackages follow the data flow: model → control → training → sim →

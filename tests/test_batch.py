@@ -86,7 +86,9 @@ def test_committed_pipelines_are_valid():
     assert len(smoke.jobs) == 2
     weak = load_pipeline(ROOT / "pipelines" / "weak_actuators.toml")
     assert {job.name: job.effort for job in weak.jobs} == {"pendubot_8Nm": {"shoulder": 8.0}, "acrobot_5Nm": {"elbow": 5.0}}
-    assert {job.recover for job in weak.jobs} == {"never"}  # its committed summary is the IDA-PBC law alone
+    seeds = load_pipeline(ROOT / "pipelines" / "zoo_seeds.toml")
+    for pipeline in (weak, zoo, seeds):  # their committed summaries are the IDA-PBC law alone
+        assert {job.recover for job in pipeline.jobs} == {"never"}, pipeline.path.name
 
 
 def test_smoke_flag_shrinks_every_job_and_changes_its_fingerprint():

@@ -231,7 +231,7 @@ def test_the_cli_trains_with_the_fallback_named_and_prints_the_law_outside_the_b
     from idapbc_pin.cli.main import main
 
     main(["train", "pendubot", "--fast", "--epochs", "3", "--width", "8", "--depth", "1", "--fallback", "linear",
-          "--evaluate", "0", "--out", str(tmp_path)])  # fmt: skip
+          "--evaluate", "0", "--recover", "never", "--out", str(tmp_path)])  # fmt: skip
     printed = capsys.readouterr().out
     assert "outside the training box: the anchor's linear law u* − 3·Kδ" in printed
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
@@ -244,7 +244,7 @@ def test_train_prints_how_many_states_only_one_law_brings_home(tmp_path, capsys)
     from idapbc_pin.cli.main import main
 
     main(["train", "pendubot", "--fast", "--epochs", "3", "--width", "8", "--depth", "1", "--evaluate", "0",
-          "--out", str(tmp_path)])  # fmt: skip
+          "--recover", "never", "--out", str(tmp_path)])  # fmt: skip
     printed = capsys.readouterr().out
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     gate = json.loads((run_dir / "summary.json").read_text())["fallback"]

@@ -11,9 +11,9 @@ Claims:
 * `recover` writes recovery.npz exactly when its gate keeps the law, and the run's controller then
   applies it; a later `recover` that does not keep one removes it;
 * a damaged or missing recovery.npz is refused when the run loads, with one line;
-* `train --recover auto` (the default) fits one exactly when the torque limits bind: saturated LQR
-  loses ≥ 10 % of the half box that unsaturated LQR keeps (an 8 N·m pendubot shoulder, not the
-  zoo's 20 N·m), and never tests a robot without limits.
+* `train --recover auto` (the default) fits one exactly when saturated LQR leaves room: it fails on
+  ≥ 10 % of the half box (the zoo pendubot, whose 20 N·m limit does not bind, and an 8 N·m shoulder,
+  where it binds; not the cartpole), and never tests a robot without limits.
 (The exported controller.py applies it as the library does: tests/test_export.py.)
 """
 
@@ -38,7 +38,7 @@ from idapbc_pin.sim.states import uniform_states
 from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan
 from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, recover
 from idapbc_pin.training.run import RECOVERY_FILE
-from idapbc_pin.training.weak_actuators import BIND_POINTS, BIND_STATES, auto_recover, limits_bind
+from idapbc_pin.training.weak_actuators import BIND_POINTS, BIND_STATES, ROOM_POINTS, auto_recover, limits_bind
 
 from .conftest import sample_domain
 
@@ -217,28 +217,35 @@ def test_recover_refuses_a_robot_without_limits_in_one_line(tmp_path, capsys):
 
 # ------------------------------------------------------------------ when `train` recovers on its own
 def test_the_limits_bind_on_an_8_nm_shoulder_and_not_at_the_zoo_pendubots_20():
-    """Saturated LQR loses ≥ 10 % of the half box to an 8 N·m shoulder, not to the URDF's 20 N·m."""
+    """Saturated LQR loses ≥ 10 % of the half box to an 8 N·m shoulder, not to the URDF's 20 N·m;
+    both leave a recovery law room (saturated LQR fails on ≥ 10 %), the cartpole's 50 N slider none."""
     weak = limits_bind(ip.load_system("pendubot", effort={"shoulder": 8.0}))
     zoo = limits_bind(ip.load_system("pendubot"))
     assert weak["binds"] and weak["unsaturated"] - weak["saturated"] >= BIND_POINTS * BIND_STATES / 100
     assert not zoo["binds"] and weak["unsaturated"] == zoo["unsaturated"]  # same states, same unsaturated LQR
+    assert weak["room"] and zoo["room"] and BIND_STATES - zoo["saturated"] >= ROOM_POINTS * BIND_STATES / 100
+    cartpole = limits_bind(ip.load_system("cartpole"))
+    assert not cartpole["room"] and cartpole["saturated"] > (100 - ROOM_POINTS) * BIND_STATES / 100
 
 
 def test_a_robot_without_limits_is_never_tested_and_never_binds():
     for system in (ip.load_system("pendubot", effort={"shoulder": np.inf}), ip.load_system("paper_mass_spring_damper")):
-        assert limits_bind(system) == {"states": 0, "saturated": 0, "unsaturated": 0, "binds": False}
+        assert limits_bind(system) == {"states": 0, "saturated": 0, "unsaturated": 0, "binds": False, "room": False}
 
 
-def test_auto_recovers_exactly_when_the_limits_bind(tiny_run, tmp_path, capsys):
+def test_auto_recovers_exactly_when_saturated_lqr_leaves_room(tiny_run, tmp_path, capsys):
     path = tmp_path / "run"
     shutil.copytree(tiny_run.path, path)
     config = RecoveryConfig(**TINY, margin=-4)
     assert auto_recover(ip.load_run(path), "never", config) is None
     entry = auto_recover(ip.load_run(path), "auto", config)  # tiny_run: the 8 N·m pendubot
-    assert "they bind" in capsys.readouterr().out and entry["used"] and (path / RECOVERY_FILE).is_file()
+    printed = capsys.readouterr().out
+    assert "(the limits bind)" in printed and "fitting a recovery law" in printed
+    assert entry["used"] and (path / RECOVERY_FILE).is_file()
     strong = tmp_path / "strong"
-    main(["train", "pendubot", "--fast", "--epochs", "2", "--width", "8", "--depth", "1", "--evaluate", "0", "--out", str(strong)])
-    assert "they do not bind" in capsys.readouterr().out
+    main(["train", "cartpole", "--fast", "--epochs", "2", "--width", "8", "--depth", "1", "--evaluate", "0", "--out", str(strong)])
+    printed = capsys.readouterr().out
+    assert "(the limits do not bind)" in printed and "no recovery law" in printed
     (run_dir,) = strong.iterdir()
     assert not (run_dir / RECOVERY_FILE).exists() and "recovery" not in json.loads((run_dir / "summary.json").read_text())
     with pytest.raises(IdapbcError, match="unknown recover mode"):

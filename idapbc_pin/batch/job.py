@@ -143,7 +143,7 @@ def _stages(job: Job, workdir: Path, record: dict):
             raise KeyboardInterrupt
         if run.summary.get("status") != "finished":
             raise IdapbcError(f"training ended with status {run.summary.get('status')!r}")
-    with stage("recover"):  # where the limits bind (as `train`); a reused run keeps the law it has
+    with stage("recover"):  # where saturated LQR leaves room (as `train`); a reused run keeps the law it has
         if "recovery" not in run.summary:
             auto_recover(run, job.recover)
         record["recovery"] = bool(run.uses_recovery)

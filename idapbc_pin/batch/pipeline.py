@@ -21,7 +21,7 @@ Format (``pipelines/*.toml``)::
     domain = { shoulder = [-1.0, 1.0], p_shoulder = [-2.0, 2.0] }   # optional: NAME = [lo, hi]
     effort = { elbow = 8.0 }   # optional: actuator limits (N·m or N) over the URDF's <limit effort>
                                # (inf lifts one); the limits apply to training and evaluation
-    recover = "auto"           # optional: a recovery law after training where the limits bind
+    recover = "auto"           # optional: a recovery law after training where saturated LQR leaves room
                                # ("auto", as `train`), "always" or "never"; --smoke: "never"
 
 Every job is checked before the first one starts: unknown keys, wrong types, the system itself

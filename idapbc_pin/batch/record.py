@@ -26,7 +26,7 @@ __all__ = ["SUMMARY_COLUMNS", "VOLATILE_COLUMNS", "crash_record", "new_record", 
 #: ROA radii; *_lead_low / *_lead_high the 95 % interval of NIDA-PBC's success rate minus LQR's on the
 #: box's states and *_lead_p McNemar's exact p-value (`sim.paired`); *_peak_half the median peak |u| on the half box; fallback whether NIDA-PBC switches to
 #: the anchor's linear law outside the training box (`control.fallback`); recovery whether a recovery law
-#: (`control.recovery`, fitted where the torque limits bind) replaces the networks outside its inner box;
+#: (`control.recovery`, fitted where saturated LQR leaves room) replaces the networks outside its inner box;
 #: loss_* the final epoch's loss terms.
 SUMMARY_COLUMNS = (
     "name", "system", "source", "actuated", "preset", "status",

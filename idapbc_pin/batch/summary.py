@@ -207,8 +207,8 @@ def zoo_table_markdown(summary_csv) -> str:
         "share = share of the box inside the largest sampled sublevel set of H_d (NIDA-PBC) or of δᵀSδ (LQR) that stays "
         "in the box with a decreasing value on every sample (see docs/method.md): sampled, not proofs. NIDA-PBC outside "
         "the box = the law NIDA-PBC applies outside the training box, chosen after training (the anchor's linear law, or "
-        "the networks'; docs/method.md §6), or \"recovery law\" where the torque limits bind and a recovery law replaces "
-        "the networks outside an inner box (README, \"A recovery law for weak actuators\")."
+        "the networks'; docs/method.md §6), or \"recovery law\" where a recovery law fitted to torque plans within the limits "
+        "replaces the networks outside an inner box (README, \"A recovery law for weak actuators\")."
     )
     return _table(head, body) + "\n\n" + note + "\n"
 

@@ -21,7 +21,7 @@ What it buys, measured (README, "Can one feedback law learn the plans?"): on a p
 IDA-PBC law brought about 25 %; on an acrobot with a 5 N·m elbow it tied. With the gate, `recover`
 doubled the half-box basin of two weak pendubots and added 1 to 7.5 points on the acrobot (README,
 "A recovery law for weak actuators"). Plans cost 20–50 minutes per robot on 2 shared cores
-(`workers` processes), so `train` runs `recover` only where the torque limits bind
+(`workers` processes), so `train` runs `recover` only where saturated LQR leaves room
 (`training.weak_actuators`).
 
 The result is written into the run directory: ``recovery.npz`` (the law, when the gate keeps it)
