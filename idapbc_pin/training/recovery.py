@@ -20,7 +20,7 @@ What it buys, measured (README, "Can one feedback law learn the plans?"): on a p
 8 N·m shoulder the distilled law brought 53 % of the half box to x* where saturated LQR and the
 IDA-PBC law brought about 25 %; on an acrobot with a 5 N·m elbow it tied. With the gate, `recover`
 doubled the half-box basin of two weak pendubots and added 1 to 7.5 points on the acrobot (README,
-"A recovery law for weak actuators"). Plans cost 20–50 minutes per robot on 2 shared cores
+"A recovery law for weak actuators"). Plans cost 20–50 minutes per 2-DoF robot on 2 shared cores (an hour for the 3-DoF cart_double_pendulum)
 (`workers` processes), so `train` runs `recover` only where saturated LQR leaves room
 (`training.weak_actuators`).
 

@@ -1,6 +1,6 @@
 """When `train` fits a recovery law on its own: saturated LQR leaves room on the half box.
 
-A recovery law (`training.recovery`) is worth its cost (20–50 minutes of plans on 2 cores) where a
+A recovery law (`training.recovery`) is worth its cost (20–50 minutes of plans on 2 cores for a 2-DoF robot, about an hour for the 3-DoF cart_double_pendulum) where a
 linear law under the robot's torque limits loses states that torque plans within the same limits
 bring to x* (README, "A recovery law for weak actuators"). The test runs saturated LQR from
 `BIND_STATES` uniform half-box states (a seed no evaluation uses): it leaves **room** when at least
@@ -14,7 +14,7 @@ cart_double_pendulum (22 / 18) and furuta (81 / 69) leave room although their li
 cartpole, reaction_wheel and double_pendulum (100 / 100) do not, so `train` leaves them alone. A
 heavier pendubot (outside the zoo, 55 / 62 at its 20 N·m) is why room, not binding, decides: its
 limits do not bind, yet the recovery law took its gate from 53 to 75 of 100 and its half box from
-64 % (LQR) to 87 % (a rule on binding limits alone skipped it). Where plans cannot help a
+68 % to 83 % (saturated LQR 65 %; a rule on binding limits alone skipped it). Where plans cannot help a
 feedback law the gate keeps none and only time is lost: the zoo acrobot (1463 s, gate 75 → 61–64).
 """
 
@@ -71,7 +71,7 @@ def auto_recover(run, mode: str = "auto", config: RecoveryConfig = RecoveryConfi
         test = limits_bind(run.system)
         if progress and test["states"]:
             n, sat = test["states"], test["saturated"]
-            verdict = "fitting a recovery law where it fails (20-50 min on 2 cores; --recover never skips it)" if test["room"] else \
+            verdict = "fitting a recovery law where it fails (20-60 min on 2 cores; --recover never skips it)" if test["room"] else \
                 "no recovery law (--recover always fits one anyway)"
             print(f"torque limits: saturated LQR brings {sat} of {n} half-box states to x*, unsaturated LQR {test['unsaturated']} "
                   f"(the limits {'bind' if test['binds'] else 'do not bind'}); it fails on {n - sat}: {verdict}", flush=True)
