@@ -36,7 +36,7 @@ from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
 from idapbc_pin.sim.states import uniform_states
 from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan
-from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, recover
+from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, gate_choice, recover
 from idapbc_pin.training.run import RECOVERY_FILE
 from idapbc_pin.training.weak_actuators import BIND_POINTS, BIND_STATES, ROOM_POINTS, auto_recover, limits_bind
 
@@ -140,7 +140,20 @@ def test_labels_are_torques_within_the_limits_of_trajectories_that_reach_the_tar
     assert np.all(np.abs(U) <= 8.0 + 1e-12) and np.isfinite(X).all()
 
 
-TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, inner_scales=(0.25,), workers=1,
+def test_the_gate_never_keeps_a_recovery_law_that_shrinks_the_basin_near_x_star():
+    # (half-box, training-box, near-box) successes of the run's law and of each inner box r
+    run = (40, 20, 50)
+    assert gate_choice(run, {0.1: (38, 35, 50), 0.5: (40, 24, 50)}, margin=3) == (0.5, True)  # r = 0.1 wins more but loses 2 on the half box
+    assert gate_choice(run, {0.1: (38, 35, 50), 0.5: (40, 22, 50)}, margin=3) == (0.5, False)  # the eligible one adds 2 < 3
+    assert gate_choice(run, {0.1: (38, 35, 50)}, margin=3) == (None, False)
+    assert gate_choice(run, {0.1: (38, 35, 50)}, margin=3, half_loss=2) == (0.1, True)
+    assert gate_choice(run, {0.1: (45, 35, 46)}, margin=3) == (None, False)  # far better, but loses 4 near x*
+    assert gate_choice(run, {0.1: (45, 35, 46), 0.5: (41, 23, 50)}, margin=3) == (0.5, True)
+    assert gate_choice(run, {0.1: (41, 30, 50), 0.25: (45, 25, 50)}, margin=3) == (0.1, True)  # most in all, not most on the half box
+    assert gate_choice(run, {0.1: (42, 30, 50), 0.25: (40, 32, 50)}, margin=3) == (0.25, True)  # ties: the larger inner box
+
+
+TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, inner_scales=(0.25,), workers=1,
             plan=PlanSettings(population=8, iterations=2, score_T=2.0))  # fmt: skip
 
 
@@ -148,9 +161,11 @@ TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=
 def test_recover_keeps_the_law_exactly_when_its_gate_does(tiny_run, tmp_path):
     path = tmp_path / "run"
     shutil.copytree(tiny_run.path, path)
-    kept = recover(path, RecoveryConfig(**TINY, margin=-4), progress=False)  # margin −4: kept whatever the gate sees
+    kept = recover(path, RecoveryConfig(**TINY, margin=-4, half_loss=2), progress=False)  # kept whatever the gate sees
     assert kept["used"] and (path / RECOVERY_FILE).is_file()
     assert kept["gate"]["states"] == 4 and all(0 <= s <= 4 for s in kept["gate"]["candidates"].values())
+    assert all(0 <= kept["gate"]["candidates_half"][r] <= min(2, s) for r, s in kept["gate"]["candidates"].items())
+    assert kept["gate"]["near_states"] == 2 and all(0 <= s <= 2 for s in kept["gate"]["candidates_near"].values())
     assert len(kept["dagger"]) == 1 and kept["labels"] > 0
     run = ip.load_run(path)
     assert run.uses_recovery and isinstance(run.controller.fallback, RecoveryLaw)

@@ -13,8 +13,10 @@ The steps (`RecoveryConfig` holds every number):
    labelled as in step 1, and a fresh law is fitted on all labels.
 4. **Gate.** The run's law as it is, and the law with the recovery law outside an inner box of
    each scale in `inner_scales`, run from `gate_states` states of their own (half from the half
-   box, half from the training box). The best inner box is kept only if it brings at least
-   `margin` more of those states to x*; otherwise the run is left as it was.
+   box, half from the training box). Of the inner boxes that bring no fewer of the half-box states,
+   and no fewer of `near_states` further states of the near box (scale NEAR_SCALE = 0.25), to x*
+   than the run's law, the best is kept if it brings at least `margin` more of the `gate_states`;
+   otherwise the run is left as it was (`gate_choice`).
 
 What it buys, measured (README, "Can one feedback law learn the plans?"): on a pendubot with an
 8 N·m shoulder the distilled law brought 53 % of the half box to x* where saturated LQR and the
@@ -46,16 +48,19 @@ from ..errors import IdapbcError
 from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
 from ..sim.metrics import success
+from ..sim.radius import scaled_box
 from ..sim.states import uniform_states
 from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan
 from .run import RECOVERY_FILE, resolve_run
 
-__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "choose_inner", "collect_labels", "dagger_round", "fit_recovery_law", "recover"]
+__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "choose_inner", "collect_labels", "gate_choice", "dagger_round", "fit_recovery_law", "recover"]
 
 #: A label every LABEL_EVERY ticks (10 ms) over the first LABEL_SPAN ticks (6 s) of a successful start.
 LABEL_EVERY, LABEL_SPAN = 5, 3000
 #: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
 RECOVERY_GATE_SEED = 7_368_787
+#: Scale of the gate's near box around x* (x* + NEAR_SCALE·(box − x*)), where the run's law must keep its successes.
+NEAR_SCALE = 0.25
 
 
 @dataclass(frozen=True)
@@ -73,6 +78,10 @@ class RecoveryConfig:
     gate_states : states of the gate (half from the half box, half from the training box).
     inner_scales : candidate scales r of the inner box r·s where the IDA-PBC law keeps control.
     margin : successes the best candidate must add to the run's law on the gate's states to be kept.
+    near_states : further gate states from the near box (scale NEAR_SCALE of the training box), not
+        counted in the margin: a candidate must keep the run's law's successes there (0: no near box).
+    half_loss : half-box and near-box gate states a candidate may lose against the run's law and stay
+        eligible (0: none; the recovery law must not shrink the basin the IDA-PBC law already has).
     workers : processes searching plans.
     plan : the cross-entropy search of each plan.
     """
@@ -84,14 +93,17 @@ class RecoveryConfig:
     width: int = 128
     steps: int = 4500
     gate_states: int = 100
+    near_states: int = 100
     inner_scales: tuple = (0.1, 0.25, 0.5)
     margin: int = 3
+    half_loss: int = 0
     workers: int = 2
     plan: PlanSettings = field(default_factory=PlanSettings)
 
     def __post_init__(self):
         checks = [
-            (self.starts >= 1 and self.dagger_starts >= 1 and self.gate_states >= 2, "starts, dagger_starts must be ≥ 1 and gate_states ≥ 2"),
+            (self.starts >= 1 and self.dagger_starts >= 1 and self.gate_states >= 2 and self.near_states >= 0,
+             "starts, dagger_starts must be ≥ 1, gate_states ≥ 2 and near_states ≥ 0"),
             (self.dagger >= 0 and self.width >= 1 and self.steps >= 1 and self.workers >= 1, "dagger ≥ 0, width, steps and workers ≥ 1"),
             (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
         ]
@@ -184,19 +196,50 @@ def _successes(system, law, x0: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------ gate
+def gate_choice(run: tuple[int, int, int], candidates: dict, margin: int, half_loss: int = 0) -> tuple[float | None, bool]:
+    """The gate's rule on success counts (half box, training box, near box): `run` for the run's
+    law, `candidates` {r: (half, domain, near)} for the law with the recovery law outside the inner
+    box r. A candidate is eligible when it brings no fewer of the half-box states, and no fewer of
+    the near-box states, to x* than the run's law, less `half_loss` each (the recovery law must not
+    shrink the basin the IDA-PBC law already has); the eligible one with the most half-box and
+    training-box successes wins (ties: the larger r, more IDA-PBC), and is kept when it adds at
+    least `margin` of those. Returns (r or None, kept)."""
+    eligible = [r for r, (h, _, near) in candidates.items() if h >= run[0] - half_loss and near >= run[2] - half_loss]
+    if not eligible:
+        return None, False
+    best = max(eligible, key=lambda r: (candidates[r][0] + candidates[r][1], r))
+    return best, candidates[best][0] + candidates[best][1] >= run[0] + run[1] + margin
+
+
 def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig) -> dict:
     """Simulate the run's law and the law with `law` outside each inner box of `config.inner_scales`
-    from the gate's states; returns {"states", "run": successes, "candidates": {r: successes},
-    "inner_scale": best r, "with_recovery": its successes, "used": those ≥ run + margin}."""
+    from the gate's states (`gate_states`, half from the half box and half from the training box,
+    then `near_states` from the box of scale NEAR_SCALE) and apply `gate_choice`; returns
+    {"states", "run": successes, "candidates": {r: successes} (both on the first two parts),
+    "run_half"/"candidates_half" and "run_near"/"candidates_near": the same on each guarded part,
+    "inner_scale": the chosen r (the most successes when none is eligible), "with_recovery": its
+    successes, "used"}."""
     system, seed = run.system, RECOVERY_GATE_SEED + run.config.seed
-    half = config.gate_states // 2
-    x0 = np.concatenate([uniform_states(system, half, "half", seed), uniform_states(system, config.gate_states - half, "domain", seed + 1)])
+    half, n = config.gate_states // 2, config.gate_states
+    x0 = np.concatenate([
+        uniform_states(system, half, "half", seed), uniform_states(system, n - half, "domain", seed + 1),
+        uniform_states(system, config.near_states, scaled_box(system, NEAR_SCALE), seed + 2),
+    ])  # fmt: skip
     ctrl = run.controller.with_fallback(box_fallback(system, run.config) if run.uses_fallback else None)  # not an earlier recovery law
-    base = int(_successes(system, ctrl, x0).sum())
-    candidates = {float(r): int(_successes(system, ctrl.with_fallback(law.with_inner(r)), x0).sum()) for r in config.inner_scales}
-    best = max(candidates, key=lambda r: (candidates[r], r))  # ties: the larger inner box (more IDA-PBC)
-    return {"states": int(len(x0)), "run": base, "candidates": candidates, "inner_scale": best, "with_recovery": candidates[best],
-            "used": candidates[best] >= base + config.margin}
+
+    def counts(law_):
+        ok = _successes(system, law_, x0)
+        return int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())
+
+    base = counts(ctrl)
+    candidates = {float(r): counts(ctrl.with_fallback(law.with_inner(r))) for r in config.inner_scales}
+    best, used = gate_choice(base, candidates, config.margin, config.half_loss)
+    if best is None:
+        best = max(candidates, key=lambda r: (candidates[r][0] + candidates[r][1], r))
+    return {"states": n, "run": base[0] + base[1], "candidates": {r: c[0] + c[1] for r, c in candidates.items()},
+            "run_half": base[0], "candidates_half": {r: c[0] for r, c in candidates.items()},
+            "near_states": int(config.near_states), "run_near": base[2], "candidates_near": {r: c[2] for r, c in candidates.items()},
+            "inner_scale": best, "with_recovery": candidates[best][0] + candidates[best][1], "used": used}
 
 
 # ------------------------------------------------------------------------------------ recover
@@ -265,8 +308,13 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     _save(run, law.with_inner(gate["inner_scale"]) if gate["used"] else None, entry)
     if progress:
         cands = ", ".join(f"r = {r:g}: {s}" for r, s in gate["candidates"].items())
-        verdict = f"kept, inner box r = {gate['inner_scale']:g}" if gate["used"] else f"not kept (needs {config.margin} more than the run's law)"
-        print(f"gate: {gate['states']} states, the run's law brings {gate['run']} to x*, with the recovery law {cands}: {verdict}  "
+        halves = ", ".join(f"{s}" for s in gate["candidates_half"].values())
+        nears = ", ".join(f"{s}" for s in gate["candidates_near"].values())
+        verdict = (f"kept, inner box r = {gate['inner_scale']:g}" if gate["used"]
+                   else f"not kept (needs {config.margin} more than the run's law, and no fewer in the half and near boxes)")
+        print(f"gate: {gate['states']} states, the run's law brings {gate['run']} to x* ({gate['run_half']} of the {gate['states'] // 2} "
+              f"half-box ones; {gate['run_near']} of {gate['near_states']} near x*), with the recovery law {cands} (half box {halves}; "
+              f"near x* {nears}): {verdict}  "
               f"[{time.perf_counter() - start:.0f} s]", flush=True)
     return entry
 
