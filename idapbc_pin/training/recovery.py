@@ -53,7 +53,7 @@ from ..sim.states import uniform_states
 from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan
 from .run import RECOVERY_FILE, resolve_run
 
-__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "choose_inner", "collect_labels", "gate_choice", "dagger_round", "fit_recovery_law", "recover"]
+__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "choose_inner", "collect_labels", "dagger_round", "fit_recovery_law", "gate_choice", "recover"]
 
 #: A label every LABEL_EVERY ticks (10 ms) over the first LABEL_SPAN ticks (6 s) of a successful start.
 LABEL_EVERY, LABEL_SPAN = 5, 3000
@@ -207,8 +207,18 @@ def gate_choice(run: tuple[int, int, int], candidates: dict, margin: int, half_l
     eligible = [r for r, (h, _, near) in candidates.items() if h >= run[0] - half_loss and near >= run[2] - half_loss]
     if not eligible:
         return None, False
-    best = max(eligible, key=lambda r: (candidates[r][0] + candidates[r][1], r))
-    return best, candidates[best][0] + candidates[best][1] >= run[0] + run[1] + margin
+    best = _best(candidates, eligible)
+    return best, _total(candidates[best]) >= _total(run) + margin
+
+
+def _total(counts: tuple[int, int, int]) -> int:
+    """Half-box plus training-box successes: what the margin counts (the near box only guards)."""
+    return counts[0] + counts[1]
+
+
+def _best(candidates: dict, scales) -> float:
+    """The r of `scales` with the most `_total` successes (ties: the larger r, more IDA-PBC)."""
+    return max(scales, key=lambda r: (_total(candidates[r]), r))
 
 
 def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig) -> dict:
@@ -234,12 +244,11 @@ def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig) -> dict:
     base = counts(ctrl)
     candidates = {float(r): counts(ctrl.with_fallback(law.with_inner(r))) for r in config.inner_scales}
     best, used = gate_choice(base, candidates, config.margin, config.half_loss)
-    if best is None:
-        best = max(candidates, key=lambda r: (candidates[r][0] + candidates[r][1], r))
-    return {"states": n, "run": base[0] + base[1], "candidates": {r: c[0] + c[1] for r, c in candidates.items()},
+    best = _best(candidates, candidates) if best is None else best
+    return {"states": n, "run": _total(base), "candidates": {r: _total(c) for r, c in candidates.items()},
             "run_half": base[0], "candidates_half": {r: c[0] for r, c in candidates.items()},
             "near_states": int(config.near_states), "run_near": base[2], "candidates_near": {r: c[2] for r, c in candidates.items()},
-            "inner_scale": best, "with_recovery": candidates[best][0] + candidates[best][1], "used": used}
+            "inner_scale": best, "with_recovery": _total(candidates[best]), "used": used}
 
 
 # ------------------------------------------------------------------------------------ recover
@@ -308,8 +317,7 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     _save(run, law.with_inner(gate["inner_scale"]) if gate["used"] else None, entry)
     if progress:
         cands = ", ".join(f"r = {r:g}: {s}" for r, s in gate["candidates"].items())
-        halves = ", ".join(f"{s}" for s in gate["candidates_half"].values())
-        nears = ", ".join(f"{s}" for s in gate["candidates_near"].values())
+        halves, nears = (", ".join(map(str, gate[k].values())) for k in ("candidates_half", "candidates_near"))
         verdict = (f"kept, inner box r = {gate['inner_scale']:g}" if gate["used"]
                    else f"not kept (needs {config.margin} more than the run's law, and no fewer in the half and near boxes)")
         print(f"gate: {gate['states']} states, the run's law brings {gate['run']} to x* ({gate['run_half']} of the {gate['states'] // 2} "
