@@ -8,6 +8,7 @@ Claims:
 * labels are torques within the limits of trajectories that reach x*;
 * a torque plan within the limits brings a pendubot with an 8 N·m shoulder to x* from a half-box
   state saturated LQR loses;
+* DAgger searches no plan after a first fit that loses every start of its first round;
 * `recover` writes recovery.npz exactly when its gate keeps the law, and the run's controller then
   applies it; a later `recover` that does not keep one removes it;
 * a damaged or missing recovery.npz is refused when the run loads, with one line;
@@ -151,6 +152,36 @@ def test_the_gate_never_keeps_a_recovery_law_that_shrinks_the_basin_near_x_star(
     assert gate_choice(run, {0.1: (45, 35, 46), 0.5: (41, 23, 50)}, margin=3) == (0.5, True)
     assert gate_choice(run, {0.1: (41, 30, 50), 0.25: (45, 25, 50)}, margin=3) == (0.1, True)  # most in all, not most on the half box
     assert gate_choice(run, {0.1: (42, 30, 50), 0.25: (40, 32, 50)}, margin=3) == (0.25, True)  # ties: the larger inner box
+
+
+def _idle_law(system) -> RecoveryLaw:
+    """A recovery law that applies no torque anywhere: it brings no start of the half box to x*."""
+    law = random_law(system, 0.0)
+    return RecoveryLaw(tuple(0.0 * w for w in law.weights), tuple(0.0 * b for b in law.biases), law.x_star, law.scale, law.effort, law.angle_mask, law.inner)
+
+
+@pytest.mark.parametrize("stop_when_lost", [True, False])
+def test_dagger_labels_nothing_after_a_first_fit_that_loses_every_start(weak_pendubot, monkeypatch, stop_when_lost):
+    """A first fit that loses every DAgger start ends the rounds before any plan is searched
+    (stop_when_lost); without it the round labels the states those failures visit."""
+    from idapbc_pin.training import recovery as recovery_module
+
+    labelled = []
+
+    def labels(system, x0, *args, **kwargs):
+        labelled.append(len(x0))
+        return np.zeros((1, system.n)), np.zeros((1, system.m)), 0, 0
+
+    monkeypatch.setattr(recovery_module, "collect_labels", labels)
+    config = RecoveryConfig(**(TINY | {"dagger_starts": 3, "stop_when_lost": stop_when_lost}))
+    X, U = np.zeros((4, weak_pendubot.n)), np.zeros((4, weak_pendubot.m))
+    law = _idle_law(weak_pendubot)
+    out, X2, U2, info = recovery_module.dagger_round(weak_pendubot, law, X, U, 0, config, progress=False)
+    assert info["failed"] == 3
+    if stop_when_lost:
+        assert info["stopped"] and labelled == [] and out is law and X2 is X and U2 is U
+    else:
+        assert "stopped" not in info and labelled == [9] and len(X2) == 5  # 3 failures × 3 visited times, 1 label each
 
 
 TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, inner_scales=(0.25,), workers=1,

@@ -10,7 +10,10 @@ The steps (`RecoveryConfig` holds every number):
    u/ū (Adam, minibatches of 4096).
 3. **DAgger** (Ross, Gordon, Bagnell 2011), `dagger` rounds: the fitted law runs from
    `dagger_starts` new half-box starts; the states its failures visit at 0.5, 1.5 and 3 s are
-   labelled as in step 1, and a fresh law is fitted on all labels.
+   labelled as in step 1, and a fresh law is fitted on all labels. When the first fit brings none
+   of the first round's starts to x*, the rounds end there (`stop_when_lost`): on the
+   cart_double_pendulum such a law still lost every start after a round of labels, and the rounds
+   cost most of an hour.
 4. **Gate.** The run's law as it is, and the law with the recovery law outside an inner box of
    each scale in `inner_scales`, run from `gate_states` states of their own (half from the half
    box, half from the training box). Of the inner boxes that bring no fewer of the half-box states,
@@ -84,6 +87,8 @@ class RecoveryConfig:
         eligible (0: none; the recovery law must not shrink the basin the IDA-PBC law already has).
     workers : processes searching plans.
     plan : the cross-entropy search of each plan.
+    stop_when_lost : end the DAgger rounds, before labelling, when the first fit brings none of the
+        first round's starts to x* (the gate then judges that law).
     """
 
     starts: int = 240
@@ -99,6 +104,7 @@ class RecoveryConfig:
     half_loss: int = 0
     workers: int = 2
     plan: PlanSettings = field(default_factory=PlanSettings)
+    stop_when_lost: bool = True
 
     def __post_init__(self):
         checks = [
@@ -256,11 +262,18 @@ def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int,
     """DAgger round r: run `law` alone from `config.dagger_starts` half-box starts (seed
     plan_seed + 300 + r), label the states its failures visit at 0.5, 1.5 and 3 s (`collect_labels`,
     plan streams plan_seed + 1000 (r + 1)), and fit a fresh law on all labels.
-    Returns (law, X, U, counts of the round)."""
+    Returns (law, X, U, counts of the round). In round 0, when `law` fails from every start and
+    `config.stop_when_lost`, nothing is labelled: `law`, X and U come back as they were, the counts
+    with "stopped": True."""
     start = time.perf_counter() if start is None else start
     x0 = uniform_states(system, config.dagger_starts, "half", config.plan_seed + 300 + r)
     traj = simulate(system, law.law, x0, T=20.0, dt=PLAN_STEP)
     failed = np.flatnonzero(~success(traj, system))
+    if r == 0 and failed.size == len(x0) and config.stop_when_lost:
+        if progress:
+            print(f"DAgger round 1/{config.dagger}: the law fails from all {failed.size} starts: no DAgger rounds (stop_when_lost), "
+                  f"the gate judges the first fit  [{time.perf_counter() - start:.0f} s]", flush=True)
+        return law, X, U, {"failed": int(failed.size), "visited": 0, "lqr": 0, "plans": 0, "mse": None, "stopped": True}
     visited = np.concatenate([traj.x[failed, round(t / PLAN_STEP)] for t in (0.5, 1.5, 3.0)]) if failed.size else x0[:0]
     if progress:
         print(f"DAgger round {r + 1}/{config.dagger}: the law fails from {failed.size} of {config.dagger_starts} starts; "
@@ -308,6 +321,8 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     for r in range(config.dagger):
         law, X, U, info = dagger_round(system, law, X, U, r, config, progress, start)
         rounds.append(info)
+        if info.get("stopped"):
+            break
     gate = choose_inner(run, law, config)
     entry = {
         "used": bool(gate["used"]), "inner_scale": gate["inner_scale"], "gate": gate, "labels": int(len(X)),
