@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -36,6 +37,7 @@ from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
 from idapbc_pin.sim.states import uniform_states
+from idapbc_pin.training import recovery as recovery_module
 from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan
 from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, gate_choice, recover
 from idapbc_pin.training.run import RECOVERY_FILE
@@ -154,18 +156,20 @@ def test_the_gate_never_keeps_a_recovery_law_that_shrinks_the_basin_near_x_star(
     assert gate_choice(run, {0.1: (42, 30, 50), 0.25: (40, 32, 50)}, margin=3) == (0.25, True)  # ties: the larger inner box
 
 
+TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, inner_scales=(0.25,), workers=1,
+            plan=PlanSettings(population=8, iterations=2, score_T=2.0))  # fmt: skip
+
+
 def _idle_law(system) -> RecoveryLaw:
     """A recovery law that applies no torque anywhere: it brings no start of the half box to x*."""
     law = random_law(system, 0.0)
-    return RecoveryLaw(tuple(0.0 * w for w in law.weights), tuple(0.0 * b for b in law.biases), law.x_star, law.scale, law.effort, law.angle_mask, law.inner)
+    return replace(law, weights=tuple(0.0 * w for w in law.weights), biases=tuple(0.0 * b for b in law.biases))
 
 
 @pytest.mark.parametrize("stop_when_lost", [True, False])
 def test_dagger_labels_nothing_after_a_first_fit_that_loses_every_start(weak_pendubot, monkeypatch, stop_when_lost):
     """A first fit that loses every DAgger start ends the rounds before any plan is searched
     (stop_when_lost); without it the round labels the states those failures visit."""
-    from idapbc_pin.training import recovery as recovery_module
-
     labelled = []
 
     def labels(system, x0, *args, **kwargs):
@@ -182,10 +186,6 @@ def test_dagger_labels_nothing_after_a_first_fit_that_loses_every_start(weak_pen
         assert info["stopped"] and labelled == [] and out is law and X2 is X and U2 is U
     else:
         assert "stopped" not in info and labelled == [9] and len(X2) == 5  # 3 failures × 3 visited times, 1 label each
-
-
-TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, inner_scales=(0.25,), workers=1,
-            plan=PlanSettings(population=8, iterations=2, score_T=2.0))  # fmt: skip
 
 
 @pytest.mark.slow

@@ -12,8 +12,8 @@ The steps (`RecoveryConfig` holds every number):
    `dagger_starts` new half-box starts; the states its failures visit at 0.5, 1.5 and 3 s are
    labelled as in step 1, and a fresh law is fitted on all labels. When the first fit brings none
    of the first round's starts to x*, the rounds end there (`stop_when_lost`): on the
-   cart_double_pendulum such a law still lost every start after a round of labels, and the rounds
-   cost most of an hour.
+   cart_double_pendulum such a law still lost every start after a round of labels (`recover` took
+   most of an hour there, plans included).
 4. **Gate.** The run's law as it is, and the law with the recovery law outside an inner box of
    each scale in `inner_scales`, run from `gate_states` states of their own (half from the half
    box, half from the training box). Of the inner boxes that bring no fewer of the half-box states,
