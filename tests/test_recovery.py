@@ -7,7 +7,7 @@ Claims:
 * a fit recovers a saturated linear law from its own labels, the same for the same seed;
 * labels are torques within the limits of trajectories that reach x*;
 * a torque plan within the limits brings a pendubot with an 8 N·m shoulder to x* from a half-box
-  state saturated LQR loses;
+  state saturated LQR loses; plans searched together equal plans searched one start at a time;
 * DAgger searches no plan after a first fit that loses every start of its first round;
 * `recover` writes recovery.npz exactly when its gate keeps the law, and the run's controller then
   applies it; a later `recover` that does not keep one removes it;
@@ -38,7 +38,7 @@ from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
 from idapbc_pin.sim.states import uniform_states
 from idapbc_pin.training import recovery as recovery_module
-from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan
+from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan, search_plans
 from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, gate_choice, recover
 from idapbc_pin.training.run import RECOVERY_FILE
 from idapbc_pin.training.weak_actuators import BIND_POINTS, BIND_STATES, ROOM_POINTS, auto_recover, limits_bind
@@ -132,6 +132,19 @@ def test_a_plan_within_the_limits_recovers_a_state_saturated_lqr_loses(weak_pend
     traj = simulate(system, PlanThenLaw(plan, PlanSettings().horizon, lqr), x0[lost[:1]], T=20.0, dt=PLAN_STEP)
     assert success(traj, system)[0]
     assert np.abs(traj.u).max() <= bound.max() * (1 + 1e-12)
+
+
+def test_plans_searched_together_equal_plans_searched_one_start_at_a_time(weak_pendubot):
+    system = weak_pendubot
+    lqr, bound = LQRController(system), np.asarray(system.effort)
+    settings = PlanSettings(knots=4, population=16, iterations=3, score_T=0.5)
+    x0 = uniform_states(system, 3, "half", seed=5)
+    streams = lambda: [np.random.default_rng((1, i)) for i in range(3)]  # noqa: E731
+    together = search_plans(system, lqr, x0, bound, settings, streams())
+    alone = np.concatenate([search_plan(system, lqr, x0[i], bound, settings, rng) for i, rng in enumerate(streams())])
+    assert together.shape == (3, system.m, 4) and np.abs(together).max() <= bound.max()
+    np.testing.assert_array_equal(together, alone)
+    assert not np.array_equal(together[0], together[1])  # each start keeps its own search
 
 
 def test_labels_are_torques_within_the_limits_of_trajectories_that_reach_the_target(weak_pendubot):

@@ -19,7 +19,7 @@ import numpy as np
 from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
 
-__all__ = ["PLAN_STEP", "PlanSettings", "PlanThenLaw", "search_plan"]
+__all__ = ["PLAN_STEP", "PlanSettings", "PlanThenLaw", "search_plan", "search_plans"]
 
 #: The control period of a plan and of the law after it, s: the judge's (the law held at 500 Hz).
 PLAN_STEP = 0.002
@@ -71,16 +71,33 @@ def _score(system, traj) -> np.ndarray:
 
 def search_plan(system, law, x0: np.ndarray, bound: np.ndarray, settings: PlanSettings, rng: np.random.Generator) -> np.ndarray:
     """The best (1, m, knots) plan found for the start state x0 (n,) within ±bound (m,), then `law`."""
-    mean = np.zeros((system.m, settings.knots))
+    return search_plans(system, law, x0[None], bound, settings, [rng])
+
+
+def search_plans(system, law, x0: np.ndarray, bound: np.ndarray, settings: PlanSettings, rngs) -> np.ndarray:
+    """The best plans (S, m, knots) for the start states x0 (S, n) within ±bound (m,), then `law`.
+
+    One cross-entropy search per start, all S advanced together: each iteration simulates the
+    S·population candidates in one batch (the per-tick cost of `simulate` is mostly fixed, so S
+    starts cost far less than S calls). Start s draws only from ``rngs[s]``, in the same order as a
+    search of that start alone, and its elite statistics are its own, so the plans are those of S
+    separate searches (bit for bit wherever the feedback law's arithmetic does not depend on the
+    batch: numpy's matrix product may round a row differently in a batch of another size; no
+    difference was seen on batches of whole populations, `benchmarks/bench_plans.py`).
+    """
+    S, P, n_elite = len(x0), settings.population, settings.population // 8
+    lo, hi = -bound[:, None], bound[:, None]
+    mean = np.zeros((S, system.m, settings.knots))
     std = np.broadcast_to(bound[:, None], mean.shape).copy()
-    best, best_cost = mean[None], np.inf
+    best, best_cost = mean.copy(), np.full(S, np.inf)
     for _ in range(settings.iterations):
-        plans = np.clip(mean + std * rng.standard_normal((settings.population,) + mean.shape), -bound[:, None], bound[:, None])
-        starts = np.repeat(x0[None], settings.population, 0)
-        traj = simulate(system, PlanThenLaw(plans, settings.horizon, law), starts, T=settings.score_T, dt=PLAN_STEP)
-        cost = _score(system, traj)
-        elite = plans[np.argsort(cost)[: settings.population // 8]]
-        if cost.min() < best_cost:
-            best, best_cost = plans[np.argmin(cost)][None], float(cost.min())
-        mean, std = elite.mean(0), elite.std(0) + 0.04 * bound[:, None]
+        plans = np.stack([np.clip(mean[s] + std[s] * rngs[s].standard_normal((P,) + mean.shape[1:]), lo, hi) for s in range(S)])
+        starts = np.repeat(x0, P, 0)
+        traj = simulate(system, PlanThenLaw(plans.reshape((S * P,) + mean.shape[1:]), settings.horizon, law), starts, T=settings.score_T, dt=PLAN_STEP)
+        cost = _score(system, traj).reshape(S, P)
+        for s in range(S):
+            elite = plans[s][np.argsort(cost[s])[:n_elite]]
+            if cost[s].min() < best_cost[s]:
+                best[s], best_cost[s] = plans[s][np.argmin(cost[s])], float(cost[s].min())
+            mean[s], std[s] = elite.mean(0), elite.std(0) + 0.04 * bound[:, None]
     return best

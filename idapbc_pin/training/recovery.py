@@ -4,8 +4,8 @@ The steps (`RecoveryConfig` holds every number):
 
 1. **Labels.** From `starts` uniform start states of the half box (seed `plan_seed`, never an
    evaluation seed), saturated LQR runs first; where it fails, a torque plan within the limits is
-   searched (`plans.search_plan`), then LQR. Every start that reaches x* gives labels (x(t), u(t))
-   every 10 ms over its first 6 s.
+   searched (`plans.search_plans`, PLAN_BATCH starts at a time), then LQR. Every start that
+   reaches x* gives labels (x(t), u(t)) every 10 ms over its first 6 s.
 2. **Fit.** A `control.recovery.RecoveryLaw` MLP (two tanh layers of `width`) by least squares on
    u/ū (Adam, minibatches of 4096).
 3. **DAgger** (Ross, Gordon, Bagnell 2011), `dagger` rounds: the fitted law runs from
@@ -53,7 +53,7 @@ from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.radius import scaled_box
 from ..sim.states import uniform_states
-from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan
+from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plans
 from .run import RECOVERY_FILE, resolve_run
 
 __all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "choose_inner", "collect_labels", "dagger_round", "fit_recovery_law", "gate_choice", "recover"]
@@ -64,6 +64,8 @@ LABEL_EVERY, LABEL_SPAN = 5, 3000
 RECOVERY_GATE_SEED = 7_368_787
 #: Scale of the gate's near box around x* (x* + NEAR_SCALE·(box − x*)), where the run's law must keep its successes.
 NEAR_SCALE = 0.25
+#: Lost starts whose plans are searched together (`plans.search_plans`): 16 × 48 candidates per batch.
+PLAN_BATCH = 16
 
 
 @dataclass(frozen=True)
@@ -129,13 +131,18 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
     X = [traj.x[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
     U = [system.saturate(traj.u[i, :LABEL_SPAN:LABEL_EVERY]) for i in np.flatnonzero(ok)]
     recovered = 0
-    for i in np.flatnonzero(~ok):
-        plan = search_plan(system, lqr, x0[i], np.asarray(system.effort), settings, np.random.default_rng((plan_seed, first + i)))
-        t = simulate(system, PlanThenLaw(plan, settings.horizon, lqr), x0[i : i + 1], T=20.0, dt=PLAN_STEP)
-        if success(t, system)[0]:
-            recovered += 1
-            X.append(t.x[0, :LABEL_SPAN:LABEL_EVERY])
-            U.append(system.saturate(t.u[0, :LABEL_SPAN:LABEL_EVERY]))
+    lost = np.flatnonzero(~ok)
+    for group in np.array_split(lost, -(-lost.size // PLAN_BATCH)) if lost.size else []:
+        rngs = [np.random.default_rng((plan_seed, first + int(i))) for i in group]
+        plans = search_plans(system, lqr, x0[group], np.asarray(system.effort), settings, rngs)
+        # Each plan is judged alone, as before batching: numpy's matrix product (LQR's -Kδ) rounds a
+        # batch of one differently, which would move every measured run's labels by ~1e-14.
+        for plan, i in zip(plans, group):
+            t = simulate(system, PlanThenLaw(plan[None], settings.horizon, lqr), x0[i : i + 1], T=20.0, dt=PLAN_STEP)
+            if success(t, system)[0]:
+                recovered += 1
+                X.append(t.x[0, :LABEL_SPAN:LABEL_EVERY])
+                U.append(system.saturate(t.u[0, :LABEL_SPAN:LABEL_EVERY]))
     empty = (np.empty((0, system.n)), np.empty((0, system.m)))
     return (np.concatenate(X), np.concatenate(U), int(ok.sum()), recovered) if X else (*empty, int(ok.sum()), recovered)
 
