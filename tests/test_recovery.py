@@ -9,6 +9,7 @@ Claims:
 * a torque plan within the limits brings a pendubot with an 8 N·m shoulder to x* from a half-box
   state saturated LQR loses; plans searched together equal plans searched one start at a time;
 * DAgger searches no plan after a first fit that loses every start of its first round;
+* the default gate forgives a recovery law 2 lost states of the half or near box, not 6;
 * `recover` writes recovery.npz exactly when its gate keeps the law, and the run's controller then
   applies it; a later `recover` that does not keep one removes it;
 * a damaged or missing recovery.npz is refused when the run loads, with one line;
@@ -167,6 +168,16 @@ def test_the_gate_never_keeps_a_recovery_law_that_shrinks_the_basin_near_x_star(
     assert gate_choice(run, {0.1: (45, 35, 46), 0.5: (41, 23, 50)}, margin=3) == (0.5, True)
     assert gate_choice(run, {0.1: (41, 30, 50), 0.25: (45, 25, 50)}, margin=3) == (0.1, True)  # most in all, not most on the half box
     assert gate_choice(run, {0.1: (42, 30, 50), 0.25: (40, 32, 50)}, margin=3) == (0.25, True)  # ties: the larger inner box
+
+
+def test_the_default_gate_forgives_two_lost_states_near_x_star_not_six():
+    # gate counts measured with the default path (half box, training box, near box)
+    half_loss = RecoveryConfig().half_loss
+    wheel_run, wheel = (33, 47, 98), {0.1: (49, 49, 95), 0.25: (49, 49, 96), 0.5: (47, 49, 96)}  # reaction wheel, 2 N·m
+    assert gate_choice(wheel_run, wheel, margin=3, half_loss=half_loss) == (0.25, True)
+    assert gate_choice(wheel_run, wheel, margin=3, half_loss=0) == (None, False)
+    pendubot_run, pendubot = (32, 19, 99), {0.5: (35, 32, 93)}  # zoo pendubot, 20 N·m: 6 near states lost
+    assert gate_choice(pendubot_run, pendubot, margin=3, half_loss=half_loss) == (None, False)
 
 
 TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, inner_scales=(0.25,), workers=1,
