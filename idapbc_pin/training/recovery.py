@@ -16,9 +16,10 @@ The steps (`RecoveryConfig` holds every number):
    most of an hour there, plans included).
 4. **Gate.** The run's law as it is, and the law with the recovery law outside an inner box of
    each scale in `inner_scales`, run from `gate_states` states of their own (half from the half
-   box, half from the training box). Of the inner boxes that bring no fewer of the half-box states,
-   and no fewer of `near_states` further states of the near box (scale NEAR_SCALE = 0.25), to x*
-   than the run's law, the best is kept if it brings at least `margin` more of the `gate_states`;
+   box, half from the training box). Of the inner boxes that bring at most `half_loss` fewer of the
+   half-box states, and at most `half_loss` fewer of `near_states` further states of the near box
+   (scale NEAR_SCALE = 0.25), to x* than the run's law, the best is kept if it brings at least
+   `margin` more of the `gate_states`;
    otherwise the run is left as it was (`gate_choice`).
 
 What it buys, measured (README, "Can one feedback law learn the plans?"): on a pendubot with an
