@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 import idapbc_pin as ip
-from idapbc_pin.cli._args import key_value
+from idapbc_pin.cli._args import add_system_arguments, system_kwargs
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
@@ -27,14 +27,13 @@ from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, search_plan, sear
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("source", help="zoo name or URDF path")
-    parser.add_argument("--effort", type=key_value, action="append", default=[], metavar="JOINT=LIMIT", help="effort limit override, repeatable")
+    add_system_arguments(parser)
     parser.add_argument("--starts", type=int, default=16, help="lost half-box starts to plan for (default 16, recover's batch)")
     parser.add_argument("--seed", type=int, default=101, help="seed of the start states and the plans' streams (default 101)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     try:
-        system = ip.load_system(args.source, effort=dict(args.effort) or None)
+        system = ip.load_system(args.source, **system_kwargs(args))
     except ip.IdapbcError as exc:
         parser.error(str(exc))
     if not np.all(np.isfinite(system.effort)):

@@ -134,10 +134,11 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
     X = [traj.x[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
     U = [system.saturate(traj.u[i, :LABEL_SPAN:LABEL_EVERY]) for i in np.flatnonzero(ok)]
     recovered = 0
-    lost = np.flatnonzero(~ok)
-    for group in np.array_split(lost, -(-lost.size // PLAN_BATCH)) if lost.size else []:
+    lost, bound = np.flatnonzero(~ok), np.asarray(system.effort)
+    for k in range(0, lost.size, PLAN_BATCH):
+        group = lost[k : k + PLAN_BATCH]
         rngs = [np.random.default_rng((plan_seed, first + int(i))) for i in group]
-        plans = search_plans(system, lqr, x0[group], np.asarray(system.effort), settings, rngs)
+        plans = search_plans(system, lqr, x0[group], bound, settings, rngs)
         # Each plan is judged alone, as before batching: numpy's matrix product (LQR's -Kδ) rounds a
         # batch of one differently, which would move every measured run's labels by ~1e-14.
         for plan, i in zip(plans, group):
