@@ -5,8 +5,9 @@ epoch and the extrapolated time of a full training (2000 epochs paper, 1200 fast
 The epochs are timed without the `fallback` gate (`fallback="none"`); the gate, which simulates 100
 states twice for 20 s after every training, is timed apart on the fast preset's networks ("gate s")
 and added to both full-training figures. Issue #3 target: the fast preset trains ≥ 5× faster; issue
-#13: a 2-DoF robot in ≤ 90 s, gate included. Pass --full to time complete trainings instead.
-Run: python benchmarks/bench_training.py [--epochs 40] [--full] [names ...]
+#13: a 2-DoF robot in ≤ 90 s, gate included. Pass --full to time complete trainings instead, and
+--device cuda to train on a GPU (the gate always simulates on the CPU's plant).
+Run: python benchmarks/bench_training.py [--epochs 40] [--full] [--device cpu|cuda] [names ...]
 """
 
 from __future__ import annotations
@@ -40,8 +41,10 @@ def main() -> None:
     parser.add_argument("names", nargs="*", default=["paper_double_pendulum", "paper_cartpole", "paper_mass_spring_damper"])
     parser.add_argument("--epochs", type=int, default=40)
     parser.add_argument("--full", action="store_true", help="time complete trainings (slow)")
+    parser.add_argument("--device", default="cpu", help="where the networks train: cpu, cuda or cuda:N")
     args = parser.parse_args()
-    paper, fast = TrainConfig(), TrainConfig.fast()
+    paper, fast = TrainConfig(device=args.device), TrainConfig.fast(device=args.device)
+    print(f"device: {args.device}")
     print(f"{'system':<26}{'paper s/ep':>11}{'fast s/ep':>11}{'gate s':>8}{'paper full s':>14}{'fast full s':>13}{'speed-up':>10}")
     with tempfile.TemporaryDirectory() as out:
         for name in args.names:

@@ -59,7 +59,7 @@ FIELD_HELP = {
     "(half the LQR anchor's local rate, or 0.5 1/s in the free form); 0 disables the term",
     "local_stability": "train the third-order term f_dm = ‖∂μ/∂x‖ on samples inside H_ε",
     "dtype": "'float64' or 'float32' for the networks (plant data is always computed in float64)",
-    "device": "'cpu' or 'cuda' (or 'cuda:0' …)",
+    "device": "'cpu' or 'cuda' (or 'cuda:0' …); on an H200 the GPU trained paper-size networks 1.3× faster and the fast preset 2.3× slower (README, Benchmarks); commands on a finished RUN load it on the CPU",
     "seed": "random seed (weights and samples); same seed, same machine → same weights",
     "threads": "torch CPU threads (1 is fastest on 2 cores when anything else runs)",
     "checkpoint_every": "epochs between 'last' checkpoints",

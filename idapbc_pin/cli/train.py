@@ -38,16 +38,17 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 def _cmd_train(args: argparse.Namespace) -> int:
     from ..model import load_system
-    from ..training.run import check_checkpoints, load_run_system, read_config
+    from ..training.run import check_checkpoints, load_run_system, read_config, require_device
     from ..training.summary import format_train_summary
     from ..training.train import train
 
     overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth", "rollout_epochs", "fallback", "fallback_gain") if getattr(args, k) is not None}
     if args.resume:
         saved = read_config(args.resume)
-        config = saved.replace(**{k: v for k, v in (("epochs", args.epochs), ("lr", args.lr)) if v is not None})
+        config = saved.replace(**{k: v for k, v in (("epochs", args.epochs), ("lr", args.lr), ("device", args.device)) if v is not None})
         system = load_run_system(args.resume)
-        check_checkpoints(args.resume, system, saved)  # else a damaged best.pt outlives the resume unnoticed
+        require_device(config.device)
+        check_checkpoints(args.resume, system, config)  # else a damaged best.pt outlives the resume unnoticed
         run = train(system, config, resume=args.resume)
     else:
         if args.source is None:

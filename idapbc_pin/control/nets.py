@@ -129,9 +129,11 @@ class IdaPbcNets(nn.Module):
 
 
 def build_nets(system: System, config: TrainConfig) -> IdaPbcNets:
-    """Fresh networks for `system` (weights from torch's current RNG state; seed it first)."""
+    """Fresh networks for `system` on ``config.device`` (weights from torch's current CPU RNG state;
+    seed it first). They are drawn on the CPU and then moved, so a seed gives the same initial
+    networks on a GPU as on the CPU (a GPU's own generator would draw other weights)."""
     dtype = getattr(torch, config.dtype)
-    device = torch.device(config.device)
+    device = torch.device("cpu")
     x_star = torch.as_tensor(system.x_star, dtype=dtype, device=device)
     half = half_widths(system)
     x_scale = torch.as_tensor(half, dtype=dtype, device=device)
@@ -152,4 +154,4 @@ def build_nets(system: System, config: TrainConfig) -> IdaPbcNets:
         R = DampingNet(x_star, rho=config.rho, pattern=config.damping, actuated=actuated, **metric, **kw)
         decay = config.decay_rate if config.decay_rate >= 0 else 0.5
     wrap = system.angle_mask if config.wrap_angles else None
-    return IdaPbcNets(H, J, R, system.g(system.x_star), system.g_perp(system.x_star), decay, wrap)
+    return IdaPbcNets(H, J, R, system.g(system.x_star), system.g_perp(system.x_star), decay, wrap).to(torch.device(config.device))

@@ -15,10 +15,9 @@ import torch
 from .._io import DamagedFileError, write_json
 from ..config import TrainConfig
 from ..control.nets import IdaPbcNets, build_nets
-from ..errors import IdapbcError
 from ..model import System
 from .loss import TERMS, AdaptiveWeights
-from .run import load_weights, save_checkpoint, system_record
+from .run import load_weights, require_device, save_checkpoint, system_record
 
 __all__ = ["METRICS_COLUMNS", "Trainer", "checkpoint", "metrics_row", "open_metrics", "restore", "save_snapshot", "snapshot", "start"]
 
@@ -55,8 +54,7 @@ class Trainer:
 def start(system: System, config: TrainConfig, run_dir: Path, state: dict | None) -> Trainer:
     """Seeded networks, Adam and sample generator; restored from `state`, else config.json and
     system.json written."""
-    if config.device.startswith("cuda") and not torch.cuda.is_available():
-        raise IdapbcError(f"device '{config.device}' requested but torch sees no CUDA device. Fix: use --device cpu.")
+    require_device(config.device)
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     nets = build_nets(system, config)

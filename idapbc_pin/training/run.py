@@ -46,6 +46,7 @@ __all__ = [
     "read_checkpoint",
     "read_config",
     "read_recovery",
+    "require_device",
     "resolve_run",
     "save_checkpoint",
     "system_record",
@@ -293,16 +294,36 @@ def load_run_system(path) -> System:
     return _system_from_record(read_json(path / "system.json", fix="restore system.json, or train again"), path)
 
 
-def load_run(path, checkpoint: str | None = None) -> Run:
+def require_device(device: str) -> torch.device:
+    """`device` as a torch device that exists here, else a one-line `IdapbcError` with the fix."""
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        raise IdapbcError(f"unknown device '{device}' ({str(exc).splitlines()[0][:80]}). Fix: use cpu, cuda or cuda:N.") from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise IdapbcError(f"device '{device}' requested but torch sees no CUDA device. Fix: use --device cpu.")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise IdapbcError(f"device '{device}' requested but torch sees {torch.cuda.device_count()} CUDA device(s). Fix: use cuda:0 … cuda:{torch.cuda.device_count() - 1}.")
+    elif dev.type != "cpu":
+        raise IdapbcError(f"device '{device}' is not supported. Fix: use cpu, cuda or cuda:N.")
+    return dev
+
+
+def load_run(path, checkpoint: str | None = None, *, device: str = "cpu") -> Run:
     """Load a run directory (checkpoints are read with ``torch.load(weights_only=True)``).
 
     checkpoint : 'best' or 'last'. None (default) takes `DEFAULT_CHECKPOINT`, 'last' (the final
         weights, or the best finite ones after a divergence; 'best' while no last exists) and
         refuses a run whose other checkpoint is damaged, so damage never passes unnoticed; naming one
         explicitly uses it and only warns (stderr) about the other.
+    device : where the networks are loaded, whatever device trained them ('cpu' by default: a run
+        trained on a GPU is evaluated and exported on a machine without one). ``config.device``
+        keeps recording where the run was trained.
     """
     path = Path(path)
     config = read_config(path)
+    load_on = require_device(device)
     system = load_run_system(path)
     if checkpoint is not None and checkpoint not in CHECKPOINTS:
         raise IdapbcError(f"unknown checkpoint '{checkpoint}'. Fix: use one of {', '.join(CHECKPOINTS)}.")
@@ -316,12 +337,12 @@ def load_run(path, checkpoint: str | None = None) -> Run:
             "Fix: wait until its training saves one, or train again."
         )
     name = checkpoint or (DEFAULT_CHECKPOINT if DEFAULT_CHECKPOINT in present else present[0])
-    state = read_checkpoint(path, name, map_location=config.device)
+    state = read_checkpoint(path, name, map_location=load_on)
     for other in present:
         if other != name and _checkpoint_problem(path / "checkpoints" / f"{other}.pt")[1] is not None:
             print(f"warning: {path / 'checkpoints' / (other + '.pt')} is damaged; using {name}.pt as asked.", file=sys.stderr)
     torch.manual_seed(config.seed)
-    nets = build_nets(system, config)
+    nets = build_nets(system, config.replace(device=str(load_on)))
     load_weights(nets, state, path / "checkpoints" / f"{name}.pt")
     run = Run(path, system, config, nets, _read_summary(path), checkpoint=name)
     if run.uses_recovery:

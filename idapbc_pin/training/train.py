@@ -29,7 +29,7 @@ from ._trainer import Trainer, checkpoint, metrics_row, open_metrics, restore, s
 from .loss import TERMS, loss_terms
 from . import fallback_gate as _gate
 from .rollout import rollout_cost, rollout_gate, rollout_starts
-from .run import Run, check_checkpoints, load_weights, read_checkpoint, read_config
+from .run import Run, check_checkpoints, load_weights, read_checkpoint, read_config, require_device
 
 __all__ = ["TrainingDiverged", "train"]
 
@@ -64,9 +64,9 @@ def train(
     Parameters
     ----------
     system : from `load_system`.
-    config : `TrainConfig` (paper defaults if None). With `resume`, only `epochs` (to extend a run)
-        and `lr` (to continue more gently after a divergence) are taken from it; everything else
-        comes from the run directory.
+    config : `TrainConfig` (paper defaults if None). With `resume`, only `epochs` (to extend a run),
+        `lr` (to continue more gently after a divergence) and `device` (to continue a GPU run on the
+        CPU, or the reverse) are taken from it; everything else comes from the run directory.
     out : parent of the new run directory (default ``runs/<system name>``).
     resume : an existing run directory to continue from its last checkpoint; the result equals an
         uninterrupted run with the same config (same seed, same machine).
@@ -158,8 +158,9 @@ def _resolve(system: System, config: TrainConfig | None, out, resume) -> tuple[T
     if resume is not None:
         run_dir = Path(resume)
         saved = read_config(run_dir)
-        config = saved if config is None else saved.replace(epochs=config.epochs, lr=config.lr)
-        check_checkpoints(run_dir, system, saved)  # a damaged best.pt must not pass unnoticed either
+        config = saved if config is None else saved.replace(epochs=config.epochs, lr=config.lr, device=config.device)
+        require_device(config.device)  # before the checkpoint: torch calls a GPU run's checkpoint unreadable on a CPU-only machine
+        check_checkpoints(run_dir, system, config)  # a damaged best.pt must not pass unnoticed either
         return config, run_dir, read_checkpoint(run_dir, "last", map_location=config.device)
     config = config or TrainConfig()
     scaling, anchor_q = anchor_settings(system, config)
