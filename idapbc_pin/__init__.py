@@ -10,6 +10,7 @@ Public API (see the README and docs/method.md)::
     ip.export(run, "deploy/")                           # standalone controller (numpy + pin), ONNX f̃_d
     ip.recover(run)                                     # weak actuators: a recovery law beside the IDA-PBC one
     ip.auto_recover(run)                                # ... only where saturated LQR leaves room (`train`'s default)
+    ip.regate(run, ip.RecoveryConfig(half_loss=4))      # judge the fitted law again with another gate (minutes)
 
 Evaluations apply the actuators' effort limits (``sys.effort``) to every controller unless
 ``limits=False``. The subpackages follow the data flow: model → control → training → sim →
@@ -32,7 +33,7 @@ from .sim.paired import paired_comparison
 from .sim.radius import roa_radius
 from .sim.roa import roa
 from .model import System, load_system
-from .training.recovery import RecoveryConfig, recover
+from .training.recovery import RecoveryConfig, recover, regate
 from .training.run import Run, load_run
 from .training.weak_actuators import auto_recover, limits_bind
 from .training.train import train
@@ -60,6 +61,7 @@ __all__ = [
     "paired_comparison",
     "perturbed_system",
     "recover",
+    "regate",
     "report",
     "robustness_table",
     "roa",

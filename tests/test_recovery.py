@@ -40,8 +40,8 @@ from idapbc_pin.sim.metrics import success
 from idapbc_pin.sim.states import uniform_states
 from idapbc_pin.training import recovery as recovery_module
 from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan, search_plans
-from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, gate_choice, recover
-from idapbc_pin.training.run import RECOVERY_FILE
+from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, gate_choice, recover, regate
+from idapbc_pin.training.run import RECOVERY_FILE, RECOVERY_REFUSED_FILE
 from idapbc_pin.training.weak_actuators import BIND_POINTS, BIND_STATES, ROOM_POINTS, auto_recover, limits_bind
 
 from .conftest import sample_domain
@@ -234,8 +234,62 @@ def test_recover_keeps_the_law_exactly_when_its_gate_does(tiny_run, tmp_path):
 
     dropped = recover(path, RecoveryConfig(**TINY, margin=5), progress=False)  # more than the 4 states: never kept
     assert not dropped["used"] and not (path / RECOVERY_FILE).exists()
+    assert (path / RECOVERY_REFUSED_FILE).is_file()  # kept aside for --regate, never applied
+    assert json.loads((path / "summary.json").read_text())["recovery"]["law_file"] == RECOVERY_REFUSED_FILE
     run = ip.load_run(path)
     assert not run.uses_recovery and not isinstance(run.controller.fallback, RecoveryLaw)
+
+
+def _with_refused(tiny_run, tmp_path):
+    """A copy of `tiny_run` whose last `recover` refused a (random) law, as recover leaves it."""
+    path = tmp_path / "run"
+    shutil.copytree(tiny_run.path, path)
+    law = random_law(tiny_run.system, 0.25)
+    np.savez(path / RECOVERY_REFUSED_FILE, **law.arrays())
+    entry = {"used": False, "inner_scale": 0.25, "gate": {"states": 4}, "labels": 123, "law_file": RECOVERY_REFUSED_FILE}
+    (path / "summary.json").write_text(json.dumps(json.loads((path / "summary.json").read_text()) | {"recovery": entry}))
+    return path, law
+
+
+def test_regate_judges_the_saved_law_again_without_fitting_and_keeps_it_exactly_when_its_gate_does(tiny_run, tmp_path, monkeypatch, capsys):
+    path, law = _with_refused(tiny_run, tmp_path)
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("regate must not label or fit")
+
+    monkeypatch.setattr(recovery_module, "collect_labels", no_fit)
+    monkeypatch.setattr(recovery_module, "fit_recovery_law", no_fit)
+    kept = regate(path, RecoveryConfig(**TINY, margin=-4, half_loss=2), progress=False)  # kept whatever the gate sees
+    assert kept["used"] and not kept["forced"] and kept["labels"] == 123 and kept["regated"]["from"]["used"] is False
+    assert (path / RECOVERY_FILE).is_file() and not (path / RECOVERY_REFUSED_FILE).exists()
+    fallback = ip.load_run(path).controller.fallback
+    assert isinstance(fallback, RecoveryLaw)
+    for a, b in zip(fallback.weights + fallback.biases, law.weights + law.biases):
+        np.testing.assert_array_equal(a, b)  # the very law recover fitted, now applied at the gate's inner box
+    np.testing.assert_allclose(fallback.inner, kept["inner_scale"] * fallback.scale)
+
+    dropped = regate(path, RecoveryConfig(**TINY, margin=5), progress=False)  # more than the 4 states: never kept
+    assert not dropped["used"] and not (path / RECOVERY_FILE).exists() and (path / RECOVERY_REFUSED_FILE).is_file()
+    assert not ip.load_run(path).uses_recovery
+
+    assert main(["recover", str(path), "--regate", "--margin", "5", "--keep"]) == 0
+    assert "kept anyway (--keep)" in capsys.readouterr().out
+    entry = json.loads((path / "summary.json").read_text())["recovery"]
+    assert entry["used"] and entry["forced"] and entry["gate"]["used"] is False
+    assert ip.load_run(path).uses_recovery
+
+
+def test_regate_without_a_saved_law_says_what_to_run_in_one_line(tiny_run, tmp_path, capsys):
+    path = tmp_path / "run"
+    shutil.copytree(tiny_run.path, path)
+    assert main(["recover", str(path), "--regate"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no recovery law to judge again" in err[0] and "idapbc-pin recover" in err[0]
+    older = json.loads((path / "summary.json").read_text()) | {"recovery": {"used": False, "inner_scale": 0.25, "gate": {}}}
+    (path / "summary.json").write_text(json.dumps(older))  # refused by a recover that kept no refused law
+    assert main(["recover", str(path), "--regate"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and RECOVERY_REFUSED_FILE in err[0] and "again" in err[0]
 
 
 def _with_recovery(tiny_run, tmp_path):

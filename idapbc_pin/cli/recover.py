@@ -4,16 +4,23 @@ from __future__ import annotations
 
 import argparse
 
-from ..training.recovery import RecoveryConfig, recover
+from ..training.recovery import RecoveryConfig, recover, regate
 
 __all__ = ["add_recover_command"]
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    config = RecoveryConfig(**{k: getattr(args, k) for k in ("starts", "dagger", "workers") if getattr(args, k) is not None})
-    entry = recover(args.run, config)
-    kept = "kept: `simulate`, `view` and `export` of RUN now use it" if entry["used"] else "not kept: RUN is unchanged"
-    print(f"recovery law {kept} ({entry['seconds']:.0f} s; summary.json → recovery)")
+    keys = ("starts", "dagger", "workers", "margin", "half_loss")
+    config = RecoveryConfig(**{k: getattr(args, k) for k in keys if getattr(args, k) is not None})
+    if args.regate:
+        entry = regate(args.run, config, keep=args.keep)
+        seconds = entry["regated"]["seconds"]
+    else:
+        entry = recover(args.run, config, keep=args.keep)
+        seconds = entry["seconds"]
+    kept = ("kept: `simulate`, `view` and `export` of RUN now use it" if entry["used"]
+            else "not kept: RUN runs its own law; the fitted one waits in recovery-refused.npz (--regate judges it again, --keep keeps it)")
+    print(f"recovery law {kept} ({seconds:.0f} s; summary.json → recovery)")
     return 0
 
 
@@ -26,13 +33,19 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
         description=(
             "Search torque plans within RUN's effort limits from half-box states LQR loses, fit a small feedback law to "
             "them (then DAgger rounds), and use it outside an inner box around x* if simulation on states of its own "
-            "shows it brings more states to x*. Writes RUN/recovery.npz and summary.json → recovery. Took 20-50 "
-            "minutes on 2 cores for a 2-DoF robot."
+            "shows it brings more states to x*. Writes RUN/recovery.npz (kept) or RUN/recovery-refused.npz (not kept; "
+            "--regate judges it again) and summary.json → recovery. Took 20-50 minutes on 2 cores for a 2-DoF robot."
         ),
     )
     p.add_argument("run", metavar="RUN", help="run directory written by `idapbc-pin train` (effort limits on every actuated joint)")
     p.add_argument("--starts", type=int, metavar="N", help=f"half-box start states labelled by LQR or plans (default {d.starts})")
     p.add_argument("--dagger", type=int, metavar="K", help=f"DAgger rounds after the first fit (default {d.dagger})")
     p.add_argument("--workers", type=int, metavar="W", help=f"processes searching plans (default {d.workers})")
+    p.add_argument("--margin", type=int, metavar="M", help=f"gate states the law must add to the run's law to be kept (default {d.margin})")
+    p.add_argument("--half-loss", type=int, metavar="L", dest="half_loss",
+                   help=f"half-box and near-box gate states the law may lose against the run's law (default {d.half_loss})")
+    p.add_argument("--regate", action="store_true",
+                   help="judge the law the last recover fitted again (kept or refused), with the gate's settings above; no plans, no fit: minutes")
+    p.add_argument("--keep", action="store_true", help="keep the law at the gate's best inner box whatever its verdict (summary.json says forced)")
     p.set_defaults(func=_cmd_recover)
     return p

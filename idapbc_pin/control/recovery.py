@@ -10,7 +10,7 @@ recovery law is a plain state feedback fitted to torque plans within the limits
     u(x) = ū ⊙ tanh(MLP(δ / s))         elsewhere, inside and outside the training box
 
 with δ = wrap(x − x*), s the training box's half-widths, r the inner scale chosen on validation
-states (`training.recovery.choose_inner`) and ū the effort limits: the recovery law stays within
+states (`training.recovery_gate.choose_inner`) and ū the effort limits: the recovery law stays within
 the limits by construction. The MLP has tanh hidden layers and a linear output. Like
 `fallback.BoxFallback` it acts through `apply(x, u)`, so `Controller`, `simulate`, `export` and the
 exported controller.py treat both alike; the switch is discontinuous on the inner box's faces.

@@ -30,13 +30,15 @@ doubled the half-box basin of two weak pendubots and added 1 to 7.5 points on th
 (`workers` processes), so `train` runs `recover` only where saturated LQR leaves room
 (`training.weak_actuators`).
 
-The result is written into the run directory: ``recovery.npz`` (the law, when the gate keeps it)
-and the ``"recovery"`` entry of summary.json, both atomically; `Run.controller` then applies it.
+The result is written into the run directory: ``recovery.npz`` (the law, when the gate keeps it;
+`Run.controller` then applies it) or ``recovery-refused.npz`` (when it does not; never applied), and
+the ``"recovery"`` entry of summary.json, each atomically (`recovery_gate.save_recovery`). `regate`
+judges the saved law again with another gate, or keeps it, in the gate's minutes instead of the
+plans' hour.
 """
 
 from __future__ import annotations
 
-import io
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -44,27 +46,21 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from .._io import atomic_write_bytes, write_json
 from ..control.baseline import LQRController
-from ..control.fallback import box_fallback
 from ..control.recovery import RecoveryLaw
 from ..errors import IdapbcError
 from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
 from ..sim.metrics import success
-from ..sim.radius import scaled_box
 from ..sim.states import uniform_states
 from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plans
-from .run import RECOVERY_FILE, resolve_run
+from .recovery_gate import choose_inner, format_gate, gate_choice, save_recovery
+from .run import RECOVERY_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
 
-__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "choose_inner", "collect_labels", "dagger_round", "fit_recovery_law", "gate_choice", "recover"]
+__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "choose_inner", "collect_labels", "dagger_round", "fit_recovery_law", "gate_choice", "recover", "regate"]
 
 #: A label every LABEL_EVERY ticks (10 ms) over the first LABEL_SPAN ticks (6 s) of a successful start.
 LABEL_EVERY, LABEL_SPAN = 5, 3000
-#: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
-RECOVERY_GATE_SEED = 7_368_787
-#: Scale of the gate's near box around x* (x* + NEAR_SCALE·(box − x*)), where the run's law must keep its successes.
-NEAR_SCALE = 0.25
 #: Lost starts whose plans are searched together (`plans.search_plans`): 16 × 48 candidates per batch.
 PLAN_BATCH = 16
 
@@ -117,6 +113,7 @@ class RecoveryConfig:
              "starts, dagger_starts must be ≥ 1, gate_states ≥ 2 and near_states ≥ 0"),
             (self.dagger >= 0 and self.width >= 1 and self.steps >= 1 and self.workers >= 1, "dagger ≥ 0, width, steps and workers ≥ 1"),
             (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
+            (self.half_loss >= 0, "half_loss must be ≥ 0"),
         ]
         for ok, what in checks:
             if not ok:
@@ -208,66 +205,6 @@ def fit_recovery_law(system, X: np.ndarray, U: np.ndarray, width: int, steps: in
     return RecoveryLaw(weights, biases, x_star, scale, effort, mask, np.zeros(system.n)), float(loss.detach())
 
 
-def _successes(system, law, x0: np.ndarray) -> np.ndarray:
-    return success(simulate(system, law, x0, T=20.0, dt=PLAN_STEP), system)
-
-
-# ------------------------------------------------------------------------------------ gate
-def gate_choice(run: tuple[int, int, int], candidates: dict, margin: int, half_loss: int = 0) -> tuple[float | None, bool]:
-    """The gate's rule on success counts (half box, training box, near box): `run` for the run's
-    law, `candidates` {r: (half, domain, near)} for the law with the recovery law outside the inner
-    box r. A candidate is eligible when it brings no fewer of the half-box states, and no fewer of
-    the near-box states, to x* than the run's law, less `half_loss` each (the recovery law must not
-    shrink the basin the IDA-PBC law already has); the eligible one with the most half-box and
-    training-box successes wins (ties: the larger r, more IDA-PBC), and is kept when it adds at
-    least `margin` of those. Returns (r or None, kept)."""
-    eligible = [r for r, (h, _, near) in candidates.items() if h >= run[0] - half_loss and near >= run[2] - half_loss]
-    if not eligible:
-        return None, False
-    best = _best(candidates, eligible)
-    return best, _total(candidates[best]) >= _total(run) + margin
-
-
-def _total(counts: tuple[int, int, int]) -> int:
-    """Half-box plus training-box successes: what the margin counts (the near box only guards)."""
-    return counts[0] + counts[1]
-
-
-def _best(candidates: dict, scales) -> float:
-    """The r of `scales` with the most `_total` successes (ties: the larger r, more IDA-PBC)."""
-    return max(scales, key=lambda r: (_total(candidates[r]), r))
-
-
-def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig) -> dict:
-    """Simulate the run's law and the law with `law` outside each inner box of `config.inner_scales`
-    from the gate's states (`gate_states`, half from the half box and half from the training box,
-    then `near_states` from the box of scale NEAR_SCALE) and apply `gate_choice`; returns
-    {"states", "run": successes, "candidates": {r: successes} (both on the first two parts),
-    "run_half"/"candidates_half" and "run_near"/"candidates_near": the same on each guarded part,
-    "inner_scale": the chosen r (the most successes when none is eligible), "with_recovery": its
-    successes, "used"}."""
-    system, seed = run.system, RECOVERY_GATE_SEED + run.config.seed
-    half, n = config.gate_states // 2, config.gate_states
-    x0 = np.concatenate([
-        uniform_states(system, half, "half", seed), uniform_states(system, n - half, "domain", seed + 1),
-        uniform_states(system, config.near_states, scaled_box(system, NEAR_SCALE), seed + 2),
-    ])  # fmt: skip
-    ctrl = run.controller.with_fallback(box_fallback(system, run.config) if run.uses_fallback else None)  # not an earlier recovery law
-
-    def counts(law_):
-        ok = _successes(system, law_, x0)
-        return int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())
-
-    base = counts(ctrl)
-    candidates = {float(r): counts(ctrl.with_fallback(law.with_inner(r))) for r in config.inner_scales}
-    best, used = gate_choice(base, candidates, config.margin, config.half_loss)
-    best = _best(candidates, candidates) if best is None else best
-    return {"states": n, "run": _total(base), "candidates": {r: _total(c) for r, c in candidates.items()},
-            "run_half": base[0], "candidates_half": {r: c[0] for r, c in candidates.items()},
-            "near_states": int(config.near_states), "run_near": base[2], "candidates_near": {r: c[2] for r, c in candidates.items()},
-            "inner_scale": best, "with_recovery": _total(candidates[best]), "used": used}
-
-
 # ------------------------------------------------------------------------------------ recover
 def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int, config: RecoveryConfig, progress: bool = True, start: float | None = None):
     """DAgger round r: run `law` alone from `config.dagger_starts` half-box starts (seed
@@ -309,10 +246,11 @@ def _check_limits(system) -> None:
         )
 
 
-def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True) -> dict:
+def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
     """Fit, gate and save a recovery law for a run (see the module docstring); returns the summary
-    entry written to summary.json → "recovery". The run directory gets ``recovery.npz`` only when
-    the gate keeps the law; an earlier recovery law is replaced either way."""
+    entry written to summary.json → "recovery". The run directory gets ``recovery.npz`` when the
+    gate keeps the law (or `keep` forces it), else ``recovery-refused.npz`` for `regate`; an earlier
+    recovery law is replaced either way."""
     run = resolve_run(run_or_path)
     system = run.system
     _check_limits(system)
@@ -336,35 +274,49 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
             break
     gate = choose_inner(run, law, config)
     entry = {
-        "used": bool(gate["used"]), "inner_scale": gate["inner_scale"], "gate": gate, "labels": int(len(X)),
-        "lqr_starts": int(lqr_ok), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
-        "config": asdict(config) | {"inner_scales": list(config.inner_scales)}, "seconds": round(time.perf_counter() - start, 1),
+        "used": bool(gate["used"] or keep), "forced": bool(keep and not gate["used"]), "inner_scale": gate["inner_scale"], "gate": gate,
+        "labels": int(len(X)), "lqr_starts": int(lqr_ok), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
+        "config": _config_record(config), "seconds": round(time.perf_counter() - start, 1),
     }
-    _save(run, law.with_inner(gate["inner_scale"]) if gate["used"] else None, entry)
+    save_recovery(run, law, entry)
     if progress:
-        cands = ", ".join(f"r = {r:g}: {s}" for r, s in gate["candidates"].items())
-        halves, nears = (", ".join(map(str, gate[k].values())) for k in ("candidates_half", "candidates_near"))
-        verdict = (f"kept, inner box r = {gate['inner_scale']:g}" if gate["used"]
-                   else f"not kept (needs {config.margin} more than the run's law, and at most {config.half_loss} fewer in the half and near boxes each)")
-        print(f"gate: {gate['states']} states, the run's law brings {gate['run']} to x* ({gate['run_half']} of the {gate['states'] // 2} "
-              f"half-box ones; {gate['run_near']} of {gate['near_states']} near x*), with the recovery law {cands} (half box {halves}; "
-              f"near x* {nears}): {verdict}  "
-              f"[{time.perf_counter() - start:.0f} s]", flush=True)
+        print(f"{format_gate(gate, config.margin, config.half_loss)}{_forced(entry)}  [{time.perf_counter() - start:.0f} s]", flush=True)
     return entry
 
 
-def _save(run, law: RecoveryLaw | None, entry: dict) -> None:
-    """Write recovery.npz and then summary.json → "recovery" (a new law), or summary.json and then
-    remove an earlier recovery.npz (none kept): each write atomic, and in an order that never leaves
-    summary.json naming a law that is not on disk."""
-    path = run.path / RECOVERY_FILE
-    if law is not None:
-        buf = io.BytesIO()
-        np.savez(buf, **law.arrays())
-        atomic_write_bytes(path, buf.getvalue())
-    summary = dict(run.summary) | {"recovery": entry}
-    write_json(run.path / "summary.json", summary)
-    if law is None:
-        path.unlink(missing_ok=True)
-    run.summary = summary
-    run._fallback = None
+def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
+    """Judge the law the run's last `recover` fitted again, with `config`'s gate (`inner_scales`,
+    `gate_states`, `near_states`, `margin`, `half_loss`), without searching plans or fitting: the
+    gate's simulations only (a minute or two for a 2-DoF robot, against 20-60 for `recover`).
+    `keep` keeps it at the gate's best inner box whatever the verdict (the entry says "forced").
+    Returns the new summary entry; the labels, fit and DAgger figures of the last `recover` stay."""
+    run = resolve_run(run_or_path)
+    last = run.summary.get("recovery")
+    if not isinstance(last, dict) or "gate" not in last:
+        raise IdapbcError(f"run '{run.path}' has no recovery law to judge again. Fix: run `idapbc-pin recover {run.path}` first.")
+    name = last.get("law_file", RECOVERY_FILE if last.get("used") else None)
+    if name is None:
+        raise IdapbcError(
+            f"run '{run.path}': its last recover refused its law before idapbc-pin kept refused laws ({RECOVERY_REFUSED_FILE}). "
+            f"Fix: run `idapbc-pin recover {run.path}` again."
+        )
+    law = read_recovery(run.path, name)
+    start = time.perf_counter()
+    gate = choose_inner(run, law, config)
+    entry = last | {
+        "used": bool(gate["used"] or keep), "forced": bool(keep and not gate["used"]), "inner_scale": gate["inner_scale"], "gate": gate,
+        "config": _config_record(config), "regated": {"from": {"used": last.get("used"), "inner_scale": last.get("inner_scale")},
+                                                      "seconds": round(time.perf_counter() - start, 1)},
+    }
+    save_recovery(run, law, entry)
+    if progress:
+        print(f"{format_gate(gate, config.margin, config.half_loss)}{_forced(entry)}  [{time.perf_counter() - start:.0f} s]", flush=True)
+    return entry
+
+
+def _config_record(config: RecoveryConfig) -> dict:
+    return asdict(config) | {"inner_scales": list(config.inner_scales)}
+
+
+def _forced(entry: dict) -> str:
+    return f"; kept anyway (--keep), inner box r = {entry['inner_scale']:g}" if entry["forced"] else ""

@@ -38,6 +38,7 @@ from ..model import System, load_system
 __all__ = [
     "CHECKPOINTS",
     "RECOVERY_FILE",
+    "RECOVERY_REFUSED_FILE",
     "Run",
     "check_checkpoints",
     "load_run",
@@ -63,6 +64,9 @@ CHECKPOINTS = ("best", "last")
 DEFAULT_CHECKPOINT = "last"
 #: The recovery law of a run, beside its IDA-PBC law (`training.recovery.recover`).
 RECOVERY_FILE = "recovery.npz"
+#: The law the last `recover` fitted when its gate refused it: kept aside, never applied, so that
+#: `recover --regate` can judge it again (another margin or allowance) or keep it, in minutes.
+RECOVERY_REFUSED_FILE = "recovery-refused.npz"
 
 #: Values of options that runs written before the option existed trained with (their config.json
 #: lacks the key): the box-unit anchor weight diag(1/s²), physical units, H_d's ICNN fed the box-normalised state, no `effort` term, angles
@@ -115,13 +119,14 @@ class Run:
         return self._fallback
 
 
-def read_recovery(run_dir) -> RecoveryLaw:
-    """The run's recovery law (``recovery.npz``, read without pickles); a missing or damaged file
-    raises a one-line `DamagedFileError`."""
-    path = Path(run_dir) / RECOVERY_FILE
+def read_recovery(run_dir, name: str = RECOVERY_FILE) -> RecoveryLaw:
+    """The run's recovery law (``recovery.npz``, or `RECOVERY_REFUSED_FILE` for the refused one;
+    read without pickles); a missing or damaged file raises a one-line `DamagedFileError`."""
+    path = Path(run_dir) / name
     fix = "run `idapbc-pin recover RUN` again (or delete summary.json's \"recovery\" entry to drop the law)"
     if not path.is_file():
-        raise DamagedFileError(f"'{path}' is missing, but summary.json says the run uses a recovery law. Fix: {fix}.")
+        says = "uses a recovery law" if name == RECOVERY_FILE else "the last recover refused its law"
+        raise DamagedFileError(f"'{path}' is missing, but summary.json says the run {says}. Fix: {fix}.")
     try:
         with np.load(path, allow_pickle=False) as arrays:
             return RecoveryLaw.from_arrays(arrays)

@@ -1,0 +1,119 @@
+"""The gate of `recover`: keep a recovery law only where simulation shows it helps, and the files
+that hold the law it judged.
+
+The run's law as it is, and the law with the recovery law outside an inner box of each scale in
+`RecoveryConfig.inner_scales`, run from the gate's states (half from the half box, half from the
+training box, then `near_states` from the near box of scale `NEAR_SCALE`). `gate_choice` applies the
+rule on the success counts. A kept law is written as ``recovery.npz`` and applied by every command
+on the run; a refused one as ``recovery-refused.npz``, never applied, so that `regate` (``idapbc-pin
+recover RUN --regate``) judges it again with another rule, or keeps it, without fitting it again.
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+from .._io import atomic_write_bytes, write_json
+from ..control.fallback import box_fallback
+from ..control.recovery import RecoveryLaw
+from ..sim.integrate import simulate
+from ..sim.metrics import success
+from ..sim.radius import scaled_box
+from ..sim.states import uniform_states
+from .plans import PLAN_STEP
+from .run import RECOVERY_FILE, RECOVERY_REFUSED_FILE
+
+__all__ = ["NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_inner", "format_gate", "gate_choice", "save_recovery"]
+
+#: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
+RECOVERY_GATE_SEED = 7_368_787
+#: Scale of the gate's near box around x* (x* + NEAR_SCALE·(box − x*)), where the run's law must keep its successes.
+NEAR_SCALE = 0.25
+
+
+def _successes(system, law, x0: np.ndarray) -> np.ndarray:
+    return success(simulate(system, law, x0, T=20.0, dt=PLAN_STEP), system)
+
+
+def gate_choice(run: tuple[int, int, int], candidates: dict, margin: int, half_loss: int = 0) -> tuple[float | None, bool]:
+    """The gate's rule on success counts (half box, training box, near box): `run` for the run's
+    law, `candidates` {r: (half, domain, near)} for the law with the recovery law outside the inner
+    box r. A candidate is eligible when it brings no fewer of the half-box states, and no fewer of
+    the near-box states, to x* than the run's law, less `half_loss` each (the recovery law must not
+    shrink the basin the IDA-PBC law already has); the eligible one with the most half-box and
+    training-box successes wins (ties: the larger r, more IDA-PBC), and is kept when it adds at
+    least `margin` of those. Returns (r or None, kept)."""
+    eligible = [r for r, (h, _, near) in candidates.items() if h >= run[0] - half_loss and near >= run[2] - half_loss]
+    if not eligible:
+        return None, False
+    best = _best(candidates, eligible)
+    return best, _total(candidates[best]) >= _total(run) + margin
+
+
+def _total(counts: tuple[int, int, int]) -> int:
+    """Half-box plus training-box successes: what the margin counts (the near box only guards)."""
+    return counts[0] + counts[1]
+
+
+def _best(candidates: dict, scales) -> float:
+    """The r of `scales` with the most `_total` successes (ties: the larger r, more IDA-PBC)."""
+    return max(scales, key=lambda r: (_total(candidates[r]), r))
+
+
+def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig) -> dict:
+    """Simulate the run's law and the law with `law` outside each inner box of `config.inner_scales`
+    from the gate's states (`gate_states`, half from the half box and half from the training box,
+    then `near_states` from the box of scale NEAR_SCALE) and apply `gate_choice`; returns
+    {"states", "run": successes, "candidates": {r: successes} (both on the first two parts),
+    "run_half"/"candidates_half" and "run_near"/"candidates_near": the same on each guarded part,
+    "inner_scale": the chosen r (the most successes when none is eligible), "with_recovery": its
+    successes, "used"}."""
+    system, seed = run.system, RECOVERY_GATE_SEED + run.config.seed
+    half, n = config.gate_states // 2, config.gate_states
+    x0 = np.concatenate([
+        uniform_states(system, half, "half", seed), uniform_states(system, n - half, "domain", seed + 1),
+        uniform_states(system, config.near_states, scaled_box(system, NEAR_SCALE), seed + 2),
+    ])  # fmt: skip
+    ctrl = run.controller.with_fallback(box_fallback(system, run.config) if run.uses_fallback else None)  # not an earlier recovery law
+
+    def counts(law_):
+        ok = _successes(system, law_, x0)
+        return int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())
+
+    base = counts(ctrl)
+    candidates = {float(r): counts(ctrl.with_fallback(law.with_inner(r))) for r in config.inner_scales}
+    best, used = gate_choice(base, candidates, config.margin, config.half_loss)
+    best = _best(candidates, candidates) if best is None else best
+    return {"states": n, "run": _total(base), "candidates": {r: _total(c) for r, c in candidates.items()},
+            "run_half": base[0], "candidates_half": {r: c[0] for r, c in candidates.items()},
+            "near_states": int(config.near_states), "run_near": base[2], "candidates_near": {r: c[2] for r, c in candidates.items()},
+            "inner_scale": best, "with_recovery": _total(candidates[best]), "used": used}
+
+
+def save_recovery(run, law: RecoveryLaw, entry: dict) -> None:
+    """Write the judged `law` (at ``entry["inner_scale"]``) and summary.json → "recovery" = `entry`:
+    ``recovery.npz`` when ``entry["used"]``, else ``recovery-refused.npz``; then remove the other
+    file. Each write is atomic, and the order never leaves summary.json naming a law that is not on
+    disk (a crash in between leaves at most a stale file that nothing reads)."""
+    keep, drop = (RECOVERY_FILE, RECOVERY_REFUSED_FILE) if entry["used"] else (RECOVERY_REFUSED_FILE, RECOVERY_FILE)
+    buf = io.BytesIO()
+    np.savez(buf, **law.with_inner(entry["inner_scale"]).arrays())
+    atomic_write_bytes(run.path / keep, buf.getvalue())
+    summary = dict(run.summary) | {"recovery": entry | {"law_file": keep}}
+    write_json(run.path / "summary.json", summary)
+    (run.path / drop).unlink(missing_ok=True)
+    run.summary = summary
+    run._fallback = None
+
+
+def format_gate(gate: dict, margin: int, half_loss: int) -> str:
+    """The gate's figures and verdict in one line (``gate["used"]`` the verdict of the rule)."""
+    cands = ", ".join(f"r = {r:g}: {s}" for r, s in gate["candidates"].items())
+    halves, nears = (", ".join(map(str, gate[k].values())) for k in ("candidates_half", "candidates_near"))
+    verdict = (f"kept, inner box r = {gate['inner_scale']:g}" if gate["used"]
+               else f"not kept (needs {margin} more than the run's law, and at most {half_loss} fewer in the half and near boxes each)")
+    return (f"gate: {gate['states']} states, the run's law brings {gate['run']} to x* ({gate['run_half']} of the {gate['states'] // 2} "
+            f"half-box ones; {gate['run_near']} of {gate['near_states']} near x*), with the recovery law {cands} (half box {halves}; "
+            f"near x* {nears}): {verdict}")
