@@ -38,7 +38,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 def _cmd_train(args: argparse.Namespace) -> int:
     from ..model import load_system
-    from ..training.run import check_checkpoints, load_run_system, read_config, require_device
+    from ..training.run import load_run_system, read_config
     from ..training.summary import format_train_summary
     from ..training.train import train
 
@@ -47,9 +47,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         saved = read_config(args.resume)
         config = saved.replace(**{k: v for k, v in (("epochs", args.epochs), ("lr", args.lr), ("device", args.device)) if v is not None})
         system = load_run_system(args.resume)
-        require_device(config.device)
-        check_checkpoints(args.resume, system, config)  # else a damaged best.pt outlives the resume unnoticed
-        run = train(system, config, resume=args.resume)
+        run = train(system, config, resume=args.resume)  # checks the device and both checkpoints before anything is written
     else:
         if args.source is None:
             raise IdapbcError("train needs SOURCE (or --resume RUN). Fix: see `idapbc-pin train --help`.")

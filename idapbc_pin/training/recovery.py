@@ -273,15 +273,11 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
         if info.get("stopped"):
             break
     gate = choose_inner(run, law, config)
-    entry = {
-        "used": bool(gate["used"] or keep), "forced": bool(keep and not gate["used"]), "inner_scale": gate["inner_scale"], "gate": gate,
+    entry = _verdict(gate, config, keep) | {
         "labels": int(len(X)), "lqr_starts": int(lqr_ok), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
-        "config": _config_record(config), "seconds": round(time.perf_counter() - start, 1),
+        "seconds": round(time.perf_counter() - start, 1),
     }
-    save_recovery(run, law, entry)
-    if progress:
-        print(f"{format_gate(gate, config.margin, config.half_loss)}{_forced(entry)}  [{time.perf_counter() - start:.0f} s]", flush=True)
-    return entry
+    return _save_and_tell(run, law, entry, config, progress, start)
 
 
 def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
@@ -303,20 +299,20 @@ def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: boo
     law = read_recovery(run.path, name)
     start = time.perf_counter()
     gate = choose_inner(run, law, config)
-    entry = last | {
-        "used": bool(gate["used"] or keep), "forced": bool(keep and not gate["used"]), "inner_scale": gate["inner_scale"], "gate": gate,
-        "config": _config_record(config), "regated": {"from": {"used": last.get("used"), "inner_scale": last.get("inner_scale")},
-                                                      "seconds": round(time.perf_counter() - start, 1)},
-    }
+    regated = {"from": {"used": last.get("used"), "inner_scale": last.get("inner_scale")}, "seconds": round(time.perf_counter() - start, 1)}
+    return _save_and_tell(run, law, last | _verdict(gate, config, keep) | {"regated": regated}, config, progress, start)
+
+
+def _verdict(gate: dict, config: RecoveryConfig, keep: bool) -> dict:
+    """The summary entry's verdict: the gate's (or forced by `keep`), its inner box and settings."""
+    return {"used": bool(gate["used"] or keep), "forced": bool(keep and not gate["used"]), "inner_scale": gate["inner_scale"],
+            "gate": gate, "config": asdict(config) | {"inner_scales": list(config.inner_scales)}}
+
+
+def _save_and_tell(run, law: RecoveryLaw, entry: dict, config: RecoveryConfig, progress: bool, start: float) -> dict:
+    """Save `law` and `entry` (`save_recovery`) and print the gate's line; returns `entry`."""
     save_recovery(run, law, entry)
     if progress:
-        print(f"{format_gate(gate, config.margin, config.half_loss)}{_forced(entry)}  [{time.perf_counter() - start:.0f} s]", flush=True)
+        forced = f"; kept anyway (--keep), inner box r = {entry['inner_scale']:g}" if entry["forced"] else ""
+        print(f"{format_gate(entry['gate'], config.margin, config.half_loss)}{forced}  [{time.perf_counter() - start:.0f} s]", flush=True)
     return entry
-
-
-def _config_record(config: RecoveryConfig) -> dict:
-    return asdict(config) | {"inner_scales": list(config.inner_scales)}
-
-
-def _forced(entry: dict) -> str:
-    return f"; kept anyway (--keep), inner box r = {entry['inner_scale']:g}" if entry["forced"] else ""
