@@ -100,7 +100,8 @@ def test_a_seed_draws_the_same_networks_on_the_gpu_as_on_the_cpu():
 def test_training_on_the_gpu_follows_training_on_the_cpu(tmp_path, rollout_epochs):
     system = ip.load_system("pendubot")
     runs = {d: train(system, SMALL.replace(device=d, rollout_epochs=rollout_epochs), out=tmp_path / d, progress=False) for d in ("cpu", "cuda")}
-    assert next(runs["cuda"].nets.parameters()).is_cuda
+    # trained on the GPU, handed back on the CPU: the gates, --evaluate and recover simulate there
+    assert runs["cuda"].config.device == "cuda" and not next(runs["cuda"].nets.parameters()).is_cuda
     losses = {d: [float(r["loss"]) for r in csv.DictReader(open(run.path / "metrics.csv"))] for d, run in runs.items()}
     np.testing.assert_allclose(losses["cuda"], losses["cpu"], rtol=1e-9)
     x = np.random.default_rng(1).uniform(*system.domain, size=(64, system.n))

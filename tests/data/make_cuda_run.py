@@ -18,6 +18,7 @@ import torch
 
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
+from idapbc_pin.training.run import load_run
 from idapbc_pin.training.train import train
 
 #: The fixture's training: small enough to commit (about 40 kB of checkpoints).
@@ -30,13 +31,13 @@ def main(out: Path) -> None:
     system = ip.load_system("pendubot")
     out.mkdir(parents=True, exist_ok=True)
     run = train(system, CONFIG, out=out / "tmp", progress=False)
-    assert next(run.nets.parameters()).is_cuda
+    assert run.config.device == "cuda"
     x = np.random.default_rng(0).uniform(*system.domain, size=(16, system.n)) * 0.5 + 0.5 * system.x_star
-    u = run.controller(x)
     target = out / "cuda_run"
     shutil.rmtree(target, ignore_errors=True)
     shutil.move(str(run.path), target)
     shutil.rmtree(out / "tmp")
+    u = load_run(target, device="cuda").controller(x)  # the torques the networks give on the GPU
     np.savez(out / "cuda_run_torques.npz", x=x, u=u, device=torch.cuda.get_device_name(0))
     print(f"wrote {target} and {out / 'cuda_run_torques.npz'} on {torch.cuda.get_device_name(0)}")
 
