@@ -11,6 +11,7 @@ Public API (see the README and docs/method.md)::
     ip.recover(run)                                     # weak actuators: a recovery law beside the IDA-PBC one
     ip.auto_recover(run)                                # ... only where saturated LQR leaves room (`train`'s default)
     ip.regate(run, ip.RecoveryConfig(half_loss=4))      # judge the fitted law again with another gate (minutes)
+    ip.refit(run, ip.RecoveryConfig(fit_seed=1))        # fit a law again to the saved labels, and gate it (minutes)
 
 Evaluations apply the actuators' effort limits (``sys.effort``) to every controller unless
 ``limits=False``. The subpackages follow the data flow: model → control → training → sim →
@@ -33,7 +34,7 @@ from .sim.paired import paired_comparison
 from .sim.radius import roa_radius
 from .sim.roa import roa
 from .model import System, load_system
-from .training.recovery import RecoveryConfig, recover, regate
+from .training.recovery import RecoveryConfig, recover, refit, regate
 from .training.run import Run, load_run
 from .training.weak_actuators import auto_recover, limits_bind
 from .training.train import train
@@ -61,6 +62,7 @@ __all__ = [
     "paired_comparison",
     "perturbed_system",
     "recover",
+    "refit",
     "regate",
     "report",
     "robustness_table",

@@ -12,6 +12,9 @@ Claims:
 * the default gate forgives a recovery law 2 lost states of the half or near box, not 6;
 * `recover` writes recovery.npz exactly when its gate keeps the law, and the run's controller then
   applies it; a later `recover` that does not keep one removes it;
+* `recover --regate` judges the saved law again without fitting; `recover --refit` fits a law again
+  to the saved labels (the same seed gives the same law as a fit on those labels) without plans;
+  missing or damaged labels are refused with one line;
 * a damaged or missing recovery.npz is refused when the run loads, with one line;
 * `train --recover auto` (the default) fits one exactly when saturated LQR leaves room: it fails on
   ≥ 10 % of the half box (the zoo pendubot, whose 20 N·m limit does not bind, and an 8 N·m shoulder,
@@ -41,8 +44,9 @@ from idapbc_pin.sim.states import uniform_states
 from idapbc_pin.training import recovery as recovery_module
 from idapbc_pin.training import recovery_gate
 from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan, search_plans
-from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, gate_choice, recover, regate
-from idapbc_pin.training.run import RECOVERY_FILE, RECOVERY_REFUSED_FILE
+from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, gate_choice, recover, refit, regate
+from idapbc_pin.training.recovery_gate import read_labels, save_labels
+from idapbc_pin.training.run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
 from idapbc_pin.training.weak_actuators import BIND_POINTS, BIND_STATES, ROOM_POINTS, auto_recover, limits_bind
 
 from .conftest import sample_domain
@@ -223,6 +227,8 @@ def test_recover_keeps_the_law_exactly_when_its_gate_does(tiny_run, tmp_path):
     assert all(0 <= kept["gate"]["candidates_half"][r] <= min(2, s) for r, s in kept["gate"]["candidates"].items())
     assert kept["gate"]["near_states"] == 2 and all(0 <= s <= 2 for s in kept["gate"]["candidates_near"].values())
     assert len(kept["dagger"]) == 1 and kept["labels"] > 0
+    X, U = read_labels(path, tiny_run.system.n, tiny_run.system.m)  # saved for --refit
+    assert X.shape == (kept["labels"], tiny_run.system.n) and np.all(np.abs(U) <= tiny_run.system.effort)
     run = ip.load_run(path)
     assert run.uses_recovery and isinstance(run.controller.fallback, RecoveryLaw)
     np.testing.assert_allclose(run.controller.fallback.inner, kept["inner_scale"] * run.controller.fallback.scale)
@@ -260,9 +266,7 @@ def test_regate_judges_the_saved_law_again_without_fitting_and_keeps_it_exactly_
 
     monkeypatch.setattr(recovery_module, "collect_labels", no_fit)
     monkeypatch.setattr(recovery_module, "fit_recovery_law", no_fit)
-    # The claim is what regate keeps and where; the gate's rule has tests of its own. 1 s runs
-    # instead of 20 s keep this test at seconds (the margins below decide whatever the counts).
-    monkeypatch.setattr(recovery_gate, "_successes", lambda system, law, x0: success(simulate(system, law, x0, T=1.0, dt=PLAN_STEP), system))
+    _short_gate(monkeypatch)
     kept = regate(path, RecoveryConfig(**TINY, margin=-4, half_loss=2), progress=False)  # kept whatever the gate sees
     assert kept["used"] and not kept["forced"] and kept["labels"] == 123 and kept["regated"]["from"]["used"] is False
     assert (path / RECOVERY_FILE).is_file() and not (path / RECOVERY_REFUSED_FILE).exists()
@@ -294,6 +298,59 @@ def test_regate_without_a_saved_law_says_what_to_run_in_one_line(tiny_run, tmp_p
     assert main(["recover", str(path), "--regate"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and RECOVERY_REFUSED_FILE in err[0] and "again" in err[0]
+
+
+def _short_gate(monkeypatch):
+    """The gate's runs last 1 s instead of 20 s: these tests claim what is kept and where, and their
+    margins decide whatever the counts (the gate's rule has tests of its own)."""
+    monkeypatch.setattr(recovery_gate, "_successes", lambda system, law, x0: success(simulate(system, law, x0, T=1.0, dt=PLAN_STEP), system))
+
+
+def test_refit_fits_the_saved_labels_again_without_plans_and_the_same_seed_gives_the_same_law(tiny_run, tmp_path, monkeypatch):
+    path, _ = _with_refused(tiny_run, tmp_path)
+    system = tiny_run.system
+    X = sample_domain(system, 300, seed=4)
+    U = system.saturate(-wrap_angles(X - system.x_star, system.angle_mask) @ LQRController(system).K.T)
+    save_labels(path, X, U)
+
+    def no_plans(*args, **kwargs):
+        raise AssertionError("refit must not search plans")
+
+    monkeypatch.setattr(recovery_module, "collect_labels", no_plans)
+    _short_gate(monkeypatch)
+    config = RecoveryConfig(**TINY | {"steps": 200}, margin=-4, half_loss=2, fit_seed=1)  # kept whatever the gate sees
+    entry = refit(path, config, progress=False)
+    assert entry["used"] and entry["refit"]["fit_seed"] == 1 and entry["refit"]["labels"] == 300
+    assert (path / RECOVERY_FILE).is_file() and not (path / RECOVERY_REFUSED_FILE).exists()
+    expected, mse = fit_recovery_law(system, X, U, config.width, config.steps, seed=1)
+    assert entry["refit"]["mse"] == mse
+    fallback = ip.load_run(path).controller.fallback
+    for a, b in zip(fallback.weights + fallback.biases, expected.weights + expected.biases):
+        np.testing.assert_array_equal(a, b)
+    other = refit(path, replace(config, fit_seed=2), progress=False)
+    assert other["refit"]["fit_seed"] == 2
+    assert not np.array_equal(ip.load_run(path).controller.fallback.weights[0], expected.weights[0])
+
+
+@pytest.mark.parametrize("damage", ["missing", "garbage", "shape"])
+def test_refit_without_good_labels_says_what_to_run_in_one_line(tiny_run, tmp_path, capsys, damage):
+    path, _ = _with_refused(tiny_run, tmp_path)
+    before = (path / "summary.json").read_bytes()
+    if damage == "garbage":
+        (path / RECOVERY_LABELS_FILE).write_bytes(b"not a zip file")
+    elif damage == "shape":
+        save_labels(path, np.zeros((5, tiny_run.system.n + 1)), np.zeros((5, tiny_run.system.m)))
+    assert main(["recover", str(path), "--refit"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and RECOVERY_LABELS_FILE in err[0] and "idapbc-pin recover" in err[0], err
+    assert (path / "summary.json").read_bytes() == before and (path / RECOVERY_REFUSED_FILE).is_file()
+
+
+def test_refit_and_regate_are_one_or_the_other(tiny_run, tmp_path, capsys):
+    path, _ = _with_refused(tiny_run, tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        main(["recover", str(path), "--refit", "--regate"])
+    assert exit_.value.code == 2 and "not allowed with" in capsys.readouterr().err
 
 
 def _with_recovery(tiny_run, tmp_path):

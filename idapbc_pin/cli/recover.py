@@ -4,17 +4,20 @@ from __future__ import annotations
 
 import argparse
 
-from ..training.recovery import RecoveryConfig, recover, regate
+from ..training.recovery import RecoveryConfig, recover, refit, regate
 
 __all__ = ["add_recover_command"]
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    keys = ("starts", "dagger", "workers", "margin", "half_loss")
+    keys = ("starts", "dagger", "workers", "margin", "half_loss", "fit_seed", "width", "steps")
     config = RecoveryConfig(**{k: getattr(args, k) for k in keys if getattr(args, k) is not None})
     if args.regate:
         entry = regate(args.run, config, keep=args.keep)
         seconds = entry["regated"]["seconds"]
+    elif args.refit:
+        entry = refit(args.run, config, keep=args.keep)
+        seconds = entry["refit"]["seconds"]
     else:
         entry = recover(args.run, config, keep=args.keep)
         seconds = entry["seconds"]
@@ -44,8 +47,14 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--margin", type=int, metavar="M", help=f"gate states the law must add to the run's law to be kept (default {d.margin})")
     p.add_argument("--half-loss", type=int, metavar="L", dest="half_loss",
                    help=f"half-box and near-box gate states the law may lose against the run's law (default {d.half_loss})")
-    p.add_argument("--regate", action="store_true",
-                   help="judge the law the last recover fitted again (kept or refused), with the gate's settings above; no plans, no fit: minutes")
+    p.add_argument("--fit-seed", type=int, metavar="S", dest="fit_seed", help=f"seed of each fit (default {d.fit_seed})")
+    p.add_argument("--width", type=int, metavar="W", help=f"width of the law's two tanh layers (default {d.width})")
+    p.add_argument("--steps", type=int, metavar="N", help=f"Adam steps of each fit (default {d.steps})")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--regate", action="store_true",
+                       help="judge the law the last recover fitted again (kept or refused), with the gate's settings above; no plans, no fit: minutes")
+    again.add_argument("--refit", action="store_true",
+                       help="fit a law again to the labels the last recover saved (recovery-labels.npz; --fit-seed, --width, --steps) and gate it; no plans: minutes")
     p.add_argument("--keep", action="store_true", help="keep the law at the gate's best inner box whatever its verdict (summary.json says forced)")
     p.set_defaults(func=_cmd_recover)
     return p

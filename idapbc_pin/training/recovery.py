@@ -31,10 +31,11 @@ doubled the half-box basin of two weak pendubots and added 1 to 7.5 points on th
 (`training.weak_actuators`).
 
 The result is written into the run directory: ``recovery.npz`` (the law, when the gate keeps it;
-`Run.controller` then applies it) or ``recovery-refused.npz`` (when it does not; never applied), and
-the ``"recovery"`` entry of summary.json, each atomically (`recovery_gate.save_recovery`). `regate`
-judges the saved law again with another gate, or keeps it, in the gate's minutes instead of the
-plans' hour.
+`Run.controller` then applies it) or ``recovery-refused.npz`` (when it does not; never applied),
+``recovery-labels.npz`` (the labels of the last fit) and the ``"recovery"`` entry of summary.json,
+each atomically (`recovery_gate.save_recovery`). `regate` judges the saved law again with another
+gate, or keeps it, and `refit` fits a law again to the saved labels (another `fit_seed`, `width` or
+`steps`) and gates it: minutes instead of the plans' hour.
 """
 
 from __future__ import annotations
@@ -54,10 +55,10 @@ from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import uniform_states
 from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plans
-from .recovery_gate import choose_inner, format_gate, gate_choice, save_recovery
-from .run import RECOVERY_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
+from .recovery_gate import choose_inner, format_gate, gate_choice, read_labels, save_labels, save_recovery
+from .run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
 
-__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "choose_inner", "collect_labels", "dagger_round", "fit_recovery_law", "gate_choice", "recover", "regate"]
+__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "choose_inner", "collect_labels", "dagger_round", "fit_recovery_law", "gate_choice", "recover", "refit", "regate"]
 
 #: A label every LABEL_EVERY ticks (10 ms) over the first LABEL_SPAN ticks (6 s) of a successful start.
 LABEL_EVERY, LABEL_SPAN = 5, 3000
@@ -77,6 +78,7 @@ class RecoveryConfig:
     dagger_starts : half-box starts of the fitted law per DAgger round.
     width : width of the MLP's two tanh layers.
     steps : Adam steps of each fit.
+    fit_seed : seed of each fit's initial weights and minibatches.
     gate_states : states of the gate (half from the half box, half from the training box).
     inner_scales : candidate scales r of the inner box r·s where the IDA-PBC law keeps control.
     margin : successes the best candidate must add to the run's law on the gate's states to be kept.
@@ -98,6 +100,7 @@ class RecoveryConfig:
     dagger_starts: int = 30
     width: int = 128
     steps: int = 4500
+    fit_seed: int = 0
     gate_states: int = 100
     near_states: int = 100
     inner_scales: tuple = (0.1, 0.25, 0.5)
@@ -231,7 +234,7 @@ def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int,
         X, U = np.concatenate([X, Xr]), np.concatenate([U, Ur])
     else:
         lqr_ok = recovered = 0
-    law, mse = fit_recovery_law(system, X, U, config.width, config.steps)
+    law, mse = fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed)
     if progress:
         print(f"DAgger round {r + 1}/{config.dagger}: of those states LQR brings {lqr_ok} to x*, plans {recovered}; refitted on "
               f"{len(X)} labels, mean squared error {mse:.4f}  [{time.perf_counter() - start:.0f} s]", flush=True)
@@ -263,7 +266,7 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     if progress:
         print(f"labels: saturated LQR brings {lqr_ok} of {config.starts} starts to x*, plans {recovered} of the other "
               f"{config.starts - lqr_ok}; {len(X)} labels  [{time.perf_counter() - start:.0f} s]", flush=True)
-    law, mse = fit_recovery_law(system, X, U, config.width, config.steps)
+    law, mse = fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed)
     if progress:
         print(f"fitted: mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
     rounds = []
@@ -272,9 +275,10 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
         rounds.append(info)
         if info.get("stopped"):
             break
+    save_labels(run.path, X, U)
     gate = choose_inner(run, law, config)
     entry = _verdict(gate, config, keep) | {
-        "labels": int(len(X)), "lqr_starts": int(lqr_ok), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
+        "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "lqr_starts": int(lqr_ok), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
         "seconds": round(time.perf_counter() - start, 1),
     }
     return _save_and_tell(run, law, entry, config, progress, start)
@@ -301,6 +305,30 @@ def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: boo
     gate = choose_inner(run, law, config)
     regated = {"from": {"used": last.get("used"), "inner_scale": last.get("inner_scale")}, "seconds": round(time.perf_counter() - start, 1)}
     return _save_and_tell(run, law, last | _verdict(gate, config, keep) | {"regated": regated}, config, progress, start)
+
+
+def refit(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
+    """Fit a recovery law again to the labels the run's last `recover` saved (``recovery-labels.npz``),
+    with `config`'s `width`, `steps` and `fit_seed`, and gate it as `recover` does (`keep` as there):
+    the fit's minute and the gate's, without plans or DAgger rounds. The new law replaces the saved one,
+    kept or refused. Returns the new summary entry (its "refit" part: the fit's settings, error and time)."""
+    run = resolve_run(run_or_path)
+    last = run.summary.get("recovery")
+    if not isinstance(last, dict) or "gate" not in last:
+        raise IdapbcError(f"run '{run.path}' has no recovery labels to fit again. Fix: run `idapbc-pin recover {run.path}` first.")
+    system = run.system
+    X, U = read_labels(run.path, system.n, system.m)
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    law, mse = fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed)
+    if progress:
+        print(f"fitted again on the {len(X)} saved labels (fit seed {config.fit_seed}, width {config.width}, {config.steps} steps): "
+              f"mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
+    gate = choose_inner(run, law, config)
+    refitted = {"fit_seed": config.fit_seed, "width": config.width, "steps": config.steps, "labels": int(len(X)), "mse": mse,
+                "seconds": round(time.perf_counter() - start, 1)}
+    earlier = {k: v for k, v in last.items() if k not in ("regated", "refit")}
+    return _save_and_tell(run, law, earlier | _verdict(gate, config, keep) | {"refit": refitted}, config, progress, start)
 
 
 def _verdict(gate: dict, config: RecoveryConfig, keep: bool) -> dict:

@@ -6,16 +6,20 @@ The run's law as it is, and the law with the recovery law outside an inner box o
 training box, then `near_states` from the near box of scale `NEAR_SCALE`). `gate_choice` applies the
 rule on the success counts. A kept law is written as ``recovery.npz`` and applied by every command
 on the run; a refused one as ``recovery-refused.npz``, never applied, so that `regate` (``idapbc-pin
-recover RUN --regate``) judges it again with another rule, or keeps it, without fitting it again.
+recover RUN --regate``) judges it again with another rule, or keeps it, without fitting it again. The
+labels the law was fitted to are kept as ``recovery-labels.npz`` (`save_labels`, `read_labels`), so
+that `refit` (``idapbc-pin recover RUN --refit``) fits another law to them without the plans.
 """
 
 from __future__ import annotations
 
 import io
+import zipfile
+from pathlib import Path
 
 import numpy as np
 
-from .._io import atomic_write_bytes, write_json
+from .._io import DamagedFileError, atomic_write_bytes, write_json
 from ..control.fallback import box_fallback
 from ..control.recovery import RecoveryLaw
 from ..sim.integrate import simulate
@@ -23,9 +27,9 @@ from ..sim.metrics import success
 from ..sim.radius import scaled_box
 from ..sim.states import uniform_states
 from .plans import PLAN_STEP
-from .run import RECOVERY_FILE, RECOVERY_REFUSED_FILE
+from .run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
 
-__all__ = ["NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_inner", "format_gate", "gate_choice", "save_recovery"]
+__all__ = ["NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_inner", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery"]
 
 #: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
 RECOVERY_GATE_SEED = 7_368_787
@@ -106,6 +110,33 @@ def save_recovery(run, law: RecoveryLaw, entry: dict) -> None:
     (run.path / drop).unlink(missing_ok=True)
     run.summary = summary
     run._fallback = None
+
+
+def save_labels(run_dir, X: np.ndarray, U: np.ndarray) -> Path:
+    """Write the labels X (K, n), U (K, m) (N·m or N, within the limits) as ``recovery-labels.npz``, atomically."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, X=np.asarray(X, dtype=np.float64), U=np.asarray(U, dtype=np.float64))
+    return atomic_write_bytes(Path(run_dir) / RECOVERY_LABELS_FILE, buf.getvalue())
+
+
+def read_labels(run_dir, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The labels X (K, n), U (K, m) the run's last `recover` saved; a missing or damaged file (or one
+    that does not fit the run's n states and m inputs) raises a one-line `DamagedFileError`."""
+    path = Path(run_dir) / RECOVERY_LABELS_FILE
+    fix = f"run `idapbc-pin recover {run_dir}` again (it searches the plans and saves the labels)"
+    if not path.is_file():
+        raise DamagedFileError(f"'{path}' is missing: the run has no saved labels (recover saves them since this version). Fix: {fix}.")
+    try:
+        with np.load(path, allow_pickle=False) as arrays:
+            X, U = np.asarray(arrays["X"], dtype=np.float64), np.asarray(arrays["U"], dtype=np.float64)
+    except (ValueError, KeyError, OSError, zipfile.BadZipFile, EOFError) as exc:
+        reason = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
+        raise DamagedFileError(f"{path} is damaged ({reason}). Fix: {fix}.") from None
+    if X.ndim != 2 or U.ndim != 2 or X.shape[1] != n or U.shape[1] != m or len(X) != len(U) or not len(X):
+        raise DamagedFileError(f"{path} does not fit the run (X {X.shape}, U {U.shape}; expected (K, {n}) and (K, {m})). Fix: {fix}.")
+    if not (np.isfinite(X).all() and np.isfinite(U).all()):
+        raise DamagedFileError(f"{path} holds non-finite labels. Fix: {fix}.")
+    return X, U
 
 
 def format_gate(gate: dict, margin: int, half_loss: int) -> str:

@@ -38,6 +38,7 @@ from ..model import System, load_system
 __all__ = [
     "CHECKPOINTS",
     "RECOVERY_FILE",
+    "RECOVERY_LABELS_FILE",
     "RECOVERY_REFUSED_FILE",
     "Run",
     "check_checkpoints",
@@ -67,6 +68,9 @@ RECOVERY_FILE = "recovery.npz"
 #: The law the last `recover` fitted when its gate refused it: kept aside, never applied, so that
 #: `recover --regate` can judge it again (another margin or allowance) or keep it, in minutes.
 RECOVERY_REFUSED_FILE = "recovery-refused.npz"
+#: The labels (x, u) the last `recover` fitted its law to (LQR, plans and DAgger rounds), so that
+#: `recover --refit` fits a law again (another seed, width or length) in a minute, without the plans.
+RECOVERY_LABELS_FILE = "recovery-labels.npz"
 
 #: Values of options that runs written before the option existed trained with (their config.json
 #: lacks the key): the box-unit anchor weight diag(1/s²), physical units, H_d's ICNN fed the box-normalised state, no `effort` term, angles
