@@ -332,6 +332,31 @@ def test_refit_fits_the_saved_labels_again_without_plans_and_the_same_seed_gives
     assert not np.array_equal(ip.load_run(path).controller.fallback.weights[0], expected.weights[0])
 
 
+def test_an_interrupted_recover_keeps_its_labels_and_refit_finishes_it(tiny_run, tmp_path, monkeypatch, capsys):
+    path = tmp_path / "run"
+    shutil.copytree(tiny_run.path, path)
+    system = tiny_run.system
+    X = sample_domain(system, 50, seed=6)
+    U = system.saturate(-wrap_angles(X - system.x_star, system.angle_mask) @ LQRController(system).K.T)
+    monkeypatch.setattr(recovery_module, "collect_labels", lambda *args, **kwargs: (X, U, 3, 0))  # the plans' hour, done
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(recovery_module, "dagger_round", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        recover(path, RecoveryConfig(**TINY), progress=True)
+    said = capsys.readouterr().out
+    assert "recover interrupted" in said and f"recover {path} --refit" in said
+    X2, U2 = read_labels(path, system.n, system.m)
+    np.testing.assert_array_equal(X2, X)
+    np.testing.assert_array_equal(U2, U)
+    assert "recovery" not in json.loads((path / "summary.json").read_text())
+    _short_gate(monkeypatch)
+    entry = refit(path, RecoveryConfig(**TINY, margin=-4, half_loss=2), progress=False)
+    assert entry["used"] and entry["refit"]["labels"] == 50 and ip.load_run(path).uses_recovery
+
+
 @pytest.mark.parametrize("damage", ["missing", "garbage", "shape"])
 def test_refit_without_good_labels_says_what_to_run_in_one_line(tiny_run, tmp_path, capsys, damage):
     path, _ = _with_refused(tiny_run, tmp_path)

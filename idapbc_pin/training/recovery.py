@@ -263,19 +263,26 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     X, U, lqr_ok, recovered = collect_labels(system, x0, config.plan_seed, config, progress, start)
     if not len(X):
         raise IdapbcError(f"no start state reached x*, with LQR or with a plan: nothing to fit a recovery law to ({system.name}). Fix: check the limits.")
+    save_labels(run.path, X, U)  # after every labelling step: an interrupted recover keeps its plans for --refit
     if progress:
         print(f"labels: saturated LQR brings {lqr_ok} of {config.starts} starts to x*, plans {recovered} of the other "
               f"{config.starts - lqr_ok}; {len(X)} labels  [{time.perf_counter() - start:.0f} s]", flush=True)
-    law, mse = fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed)
-    if progress:
-        print(f"fitted: mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
-    rounds = []
-    for r in range(config.dagger):
-        law, X, U, info = dagger_round(system, law, X, U, r, config, progress, start)
-        rounds.append(info)
-        if info.get("stopped"):
-            break
-    save_labels(run.path, X, U)
+    try:
+        law, mse = fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed)
+        if progress:
+            print(f"fitted: mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
+        rounds = []
+        for r in range(config.dagger):
+            law, X, U, info = dagger_round(system, law, X, U, r, config, progress, start)
+            rounds.append(info)
+            if info.get("stopped"):
+                break
+            save_labels(run.path, X, U)
+    except KeyboardInterrupt:
+        if progress:
+            print(f"recover interrupted: the labels so far are in {run.path / RECOVERY_LABELS_FILE}; "
+                  f"`idapbc-pin recover {run.path} --refit` fits and gates a law on them without the plans", flush=True)
+        raise
     gate = choose_inner(run, law, config)
     entry = _verdict(gate, config, keep) | {
         "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "lqr_starts": int(lqr_ok), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
@@ -310,13 +317,14 @@ def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: boo
 def refit(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
     """Fit a recovery law again to the labels the run's last `recover` saved (``recovery-labels.npz``),
     with `config`'s `width`, `steps` and `fit_seed`, and gate it as `recover` does (`keep` as there):
-    the fit's minute and the gate's, without plans or DAgger rounds. The new law replaces the saved one,
-    kept or refused. Returns the new summary entry (its "refit" part: the fit's settings, error and time)."""
+    the fit's minute and the gate's, without plans or DAgger rounds. `recover` writes the labels after
+    every labelling step, so this also finishes a `recover` that was interrupted. The new law replaces
+    the saved one, kept or refused. Returns the new summary entry (its "refit" part: the fit's
+    settings, error and time)."""
     run = resolve_run(run_or_path)
-    last = run.summary.get("recovery")
-    if not isinstance(last, dict) or "gate" not in last:
-        raise IdapbcError(f"run '{run.path}' has no recovery labels to fit again. Fix: run `idapbc-pin recover {run.path}` first.")
+    last = run.summary.get("recovery") if isinstance(run.summary.get("recovery"), dict) else {}  # none after an interrupted recover
     system = run.system
+    _check_limits(system)
     X, U = read_labels(run.path, system.n, system.m)
     torch.set_num_threads(1)
     start = time.perf_counter()
