@@ -189,6 +189,27 @@ TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=
             plan=PlanSettings(population=8, iterations=2, score_T=2.0))  # fmt: skip
 
 
+@pytest.mark.parametrize("near_of_the_best", [90, 80])
+def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states_to_x_star(tiny_run, monkeypatch, near_of_the_best):
+    laws = [random_law(tiny_run.system, 0.0, seed=k) for k in range(3)]
+    # (half box, training box, near box) successes of 50, 50 and 100 gate states; the run's law: (25, 25, 90)
+    counts = {id(law.weights): c for law, c in zip(laws, [(30, 30, 90), (40, 40, near_of_the_best), (35, 35, 90)])}
+
+    def fake(system, ctrl, x0):
+        fb = ctrl.fallback
+        h, d, near = counts[id(fb.weights)] if isinstance(fb, RecoveryLaw) else (25, 25, 90)
+        ok = np.zeros(len(x0), bool)
+        ok[:h], ok[50 : 50 + d], ok[100 : 100 + near] = True, True, True
+        return ok
+
+    monkeypatch.setattr(recovery_gate, "_successes", fake)
+    k, gate = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100))
+    assert gate["fits"] == [60, 80, 70] and gate["used"]
+    assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)  # 10 fewer near x* than the run's law: not eligible
+    none_kept = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, margin=50))
+    assert none_kept[0] == 0 and not none_kept[1]["used"]
+
+
 def _idle_law(system) -> RecoveryLaw:
     """A recovery law that applies no torque anywhere: it brings no start of the half box to x*."""
     law = random_law(system, 0.0)
@@ -328,8 +349,12 @@ def test_refit_fits_the_saved_labels_again_without_plans_and_the_same_seed_gives
     for a, b in zip(fallback.weights + fallback.biases, expected.weights + expected.biases):
         np.testing.assert_array_equal(a, b)
     other = refit(path, replace(config, fit_seed=2), progress=False)
-    assert other["refit"]["fit_seed"] == 2
+    assert other["refit"]["fit_seed"] == other["fit_seed"] == 2
     assert not np.array_equal(ip.load_run(path).controller.fallback.weights[0], expected.weights[0])
+    best = refit(path, replace(config, fit_seed=1, fits=2), progress=False)  # seeds 1 and 2, the gate keeps one
+    assert best["fit_seed"] in (1, 2) and best["gate"]["fits"] and best["gate"]["fit"] == best["fit_seed"] - 1
+    chosen, _ = fit_recovery_law(system, X, U, config.width, config.steps, seed=best["fit_seed"])
+    np.testing.assert_array_equal(ip.load_run(path).controller.fallback.weights[0], chosen.weights[0])
 
 
 def test_an_interrupted_recover_keeps_its_labels_and_refit_finishes_it(tiny_run, tmp_path, monkeypatch, capsys):

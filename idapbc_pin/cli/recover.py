@@ -10,7 +10,7 @@ __all__ = ["add_recover_command"]
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    keys = ("starts", "dagger", "workers", "margin", "half_loss", "fit_seed", "width", "steps")
+    keys = ("starts", "dagger", "workers", "margin", "half_loss", "fit_seed", "fits", "width", "steps")
     config = RecoveryConfig(**{k: getattr(args, k) for k in keys if getattr(args, k) is not None})
     if args.regate:
         entry = regate(args.run, config, keep=args.keep)
@@ -48,6 +48,7 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--half-loss", type=int, metavar="L", dest="half_loss",
                    help=f"half-box and near-box gate states the law may lose against the run's law (default {d.half_loss})")
     p.add_argument("--fit-seed", type=int, metavar="S", dest="fit_seed", help=f"seed of each fit (default {d.fit_seed})")
+    p.add_argument("--fits", type=int, metavar="K", help=f"laws fitted to the final labels (seeds S, S+1, …); the gate keeps the best (default {d.fits})")
     p.add_argument("--width", type=int, metavar="W", help=f"width of the law's two tanh layers (default {d.width})")
     p.add_argument("--steps", type=int, metavar="N", help=f"Adam steps of each fit (default {d.steps})")
     again = p.add_mutually_exclusive_group()

@@ -29,7 +29,7 @@ from ..sim.states import uniform_states
 from .plans import PLAN_STEP
 from .run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
 
-__all__ = ["NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_inner", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery"]
+__all__ = ["NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery"]
 
 #: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
 RECOVERY_GATE_SEED = 7_368_787
@@ -74,6 +74,14 @@ def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig) -> dict:
     "run_half"/"candidates_half" and "run_near"/"candidates_near": the same on each guarded part,
     "inner_scale": the chosen r (the most successes when none is eligible), "with_recovery": its
     successes, "used"}."""
+    return choose_fit(run, [law], config)[1]
+
+
+def choose_fit(run, laws: list, config: RecoveryConfig) -> tuple[int, dict]:
+    """`choose_inner` for each of several fitted `laws` on the same gate states (the run's law
+    simulated once): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
+    (ties: the first), or 0 when it keeps none. With more than one law the gate also holds
+    "fits": each law's successes at its own chosen r, and "fit": k."""
     system, seed = run.system, RECOVERY_GATE_SEED + run.config.seed
     half, n = config.gate_states // 2, config.gate_states
     x0 = np.concatenate([
@@ -87,13 +95,20 @@ def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig) -> dict:
         return int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())
 
     base = counts(ctrl)
-    candidates = {float(r): counts(ctrl.with_fallback(law.with_inner(r))) for r in config.inner_scales}
-    best, used = gate_choice(base, candidates, config.margin, config.half_loss)
-    best = _best(candidates, candidates) if best is None else best
-    return {"states": n, "run": _total(base), "candidates": {r: _total(c) for r, c in candidates.items()},
-            "run_half": base[0], "candidates_half": {r: c[0] for r, c in candidates.items()},
-            "near_states": int(config.near_states), "run_near": base[2], "candidates_near": {r: c[2] for r, c in candidates.items()},
-            "inner_scale": best, "with_recovery": _total(candidates[best]), "used": used}
+    gates = []
+    for law in laws:
+        candidates = {float(r): counts(ctrl.with_fallback(law.with_inner(r))) for r in config.inner_scales}
+        best, used = gate_choice(base, candidates, config.margin, config.half_loss)
+        best = _best(candidates, candidates) if best is None else best
+        gates.append({"states": n, "run": _total(base), "candidates": {r: _total(c) for r, c in candidates.items()},
+                      "run_half": base[0], "candidates_half": {r: c[0] for r, c in candidates.items()},
+                      "near_states": int(config.near_states), "run_near": base[2], "candidates_near": {r: c[2] for r, c in candidates.items()},
+                      "inner_scale": best, "with_recovery": _total(candidates[best]), "used": used})  # fmt: skip
+    kept = [k for k, g in enumerate(gates) if g["used"]]
+    k = max(kept, key=lambda i: (gates[i]["with_recovery"], -i)) if kept else 0
+    if len(laws) > 1:
+        gates[k] |= {"fits": [g["with_recovery"] for g in gates], "fit": k}
+    return k, gates[k]
 
 
 def save_recovery(run, law: RecoveryLaw, entry: dict) -> None:
@@ -145,6 +160,7 @@ def format_gate(gate: dict, margin: int, half_loss: int) -> str:
     halves, nears = (", ".join(map(str, gate[k].values())) for k in ("candidates_half", "candidates_near"))
     verdict = (f"kept, inner box r = {gate['inner_scale']:g}" if gate["used"]
                else f"not kept (needs {margin} more than the run's law, and at most {half_loss} fewer in the half and near boxes each)")
+    fits = f"; the {len(gate['fits'])} fits brought {', '.join(map(str, gate['fits']))}: fit {gate['fit'] + 1}" if "fits" in gate else ""
     return (f"gate: {gate['states']} states, the run's law brings {gate['run']} to x* ({gate['run_half']} of the {gate['states'] // 2} "
             f"half-box ones; {gate['run_near']} of {gate['near_states']} near x*), with the recovery law {cands} (half box {halves}; "
-            f"near x* {nears}): {verdict}")
+            f"near x* {nears}){fits}: {verdict}")
