@@ -339,7 +339,7 @@ def test_refit_fits_the_saved_labels_again_without_plans_and_the_same_seed_gives
 
     monkeypatch.setattr(recovery_module, "collect_labels", no_plans)
     _short_gate(monkeypatch)
-    config = RecoveryConfig(**TINY | {"steps": 200}, margin=-4, half_loss=2, fit_seed=1)  # kept whatever the gate sees
+    config = RecoveryConfig(**TINY | {"steps": 200}, margin=-4, half_loss=2, fit_seed=1, fits=1)  # kept whatever the gate sees
     entry = refit(path, config, progress=False)
     assert entry["used"] and entry["refit"]["fit_seed"] == 1 and entry["refit"]["labels"] == 300
     assert (path / RECOVERY_FILE).is_file() and not (path / RECOVERY_REFUSED_FILE).exists()
