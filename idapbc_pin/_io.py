@@ -2,8 +2,8 @@
 
 Writes go to a temp file in the same folder, are fsynced, then `os.replace`d: a reader never sees a
 half-written file, and a crash leaves the previous version. Reads of JSON files that a run or batch
-directory holds go through `read_json`, which turns a missing, truncated or garbled file into one
-`IdapbcError` line naming the file and the fix.
+directory holds go through `read_json`, and of .npz files through `read_npz`, which turn a missing,
+truncated or garbled file into one `IdapbcError` line naming the file and the fix.
 """
 
 from __future__ import annotations
@@ -12,13 +12,14 @@ import json
 import math
 import os
 import tempfile
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from .errors import IdapbcError
 
-__all__ = ["DamagedFileError", "atomic_write_bytes", "finite_or_none", "read_json", "to_json", "write_json"]
+__all__ = ["DamagedFileError", "atomic_write_bytes", "finite_or_none", "read_json", "read_npz", "to_json", "write_json"]
 
 
 class DamagedFileError(IdapbcError):
@@ -94,4 +95,18 @@ def read_json(path, *, fix: str = "restore it from a backup, or delete the run d
         return json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DamagedFileError(f"{path} is damaged ({reason}). Fix: {fix}.") from None
+
+
+def read_npz(path, build, *, fix: str):
+    """`build(arrays)` on the arrays of the existing .npz file `path`, read without pickles; a
+    truncated or garbled file, or one `build` refuses (ValueError, KeyError), raises one
+    `DamagedFileError` line ending with `fix`. Callers check that the file exists first, since what a
+    missing file means is theirs to say."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as arrays:
+            return build(arrays)
+    except (ValueError, KeyError, OSError, zipfile.BadZipFile, EOFError) as exc:
+        reason = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
         raise DamagedFileError(f"{path} is damaged ({reason}). Fix: {fix}.") from None

@@ -14,12 +14,11 @@ that `refit` (``idapbc-pin recover RUN --refit``) fits another law to them witho
 from __future__ import annotations
 
 import io
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from .._io import DamagedFileError, atomic_write_bytes, write_json
+from .._io import DamagedFileError, atomic_write_bytes, read_npz, write_json
 from ..control.fallback import box_fallback
 from ..control.recovery import RecoveryLaw
 from ..sim.integrate import simulate
@@ -141,12 +140,7 @@ def read_labels(run_dir, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
     fix = f"run `idapbc-pin recover {run_dir}` again (it searches the plans and saves the labels)"
     if not path.is_file():
         raise DamagedFileError(f"'{path}' is missing: the run has no saved labels (recover saves them since this version). Fix: {fix}.")
-    try:
-        with np.load(path, allow_pickle=False) as arrays:
-            X, U = np.asarray(arrays["X"], dtype=np.float64), np.asarray(arrays["U"], dtype=np.float64)
-    except (ValueError, KeyError, OSError, zipfile.BadZipFile, EOFError) as exc:
-        reason = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
-        raise DamagedFileError(f"{path} is damaged ({reason}). Fix: {fix}.") from None
+    X, U = read_npz(path, lambda arrays: (np.asarray(arrays["X"], dtype=np.float64), np.asarray(arrays["U"], dtype=np.float64)), fix=fix)
     if X.ndim != 2 or U.ndim != 2 or X.shape[1] != n or U.shape[1] != m or len(X) != len(U) or not len(X):
         raise DamagedFileError(f"{path} does not fit the run (X {X.shape}, U {U.shape}; expected (K, {n}) and (K, {m})). Fix: {fix}.")
     if not (np.isfinite(X).all() and np.isfinite(U).all()):

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._io import DamagedFileError, atomic_write_bytes, read_json
+from .._io import DamagedFileError, atomic_write_bytes, read_json, read_npz
 from ..config import TrainConfig
 from ..control.controller import Controller
 from ..control.fallback import BoxFallback, box_fallback
@@ -131,12 +131,7 @@ def read_recovery(run_dir, name: str = RECOVERY_FILE) -> RecoveryLaw:
     if not path.is_file():
         says = "uses a recovery law" if name == RECOVERY_FILE else "the last recover refused its law"
         raise DamagedFileError(f"'{path}' is missing, but summary.json says the run {says}. Fix: {fix}.")
-    try:
-        with np.load(path, allow_pickle=False) as arrays:
-            return RecoveryLaw.from_arrays(arrays)
-    except (ValueError, KeyError, OSError, zipfile.BadZipFile, EOFError) as exc:
-        reason = str(exc).splitlines()[0][:100] if str(exc) else type(exc).__name__
-        raise DamagedFileError(f"{path} is damaged ({reason}). Fix: {fix}.") from None
+    return read_npz(path, RecoveryLaw.from_arrays, fix=fix)
 
 
 # ------------------------------------------------------------------------------------ checkpoints
