@@ -26,6 +26,7 @@ import pytest
 import idapbc_pin as ip
 from idapbc_pin.cli.main import main
 from idapbc_pin.control.controller import RUNTIME_MAX_BATCH, Controller
+from idapbc_pin.control.desired_flow import load_flow
 from idapbc_pin.deploy.export import EXPORTED_FILES
 from idapbc_pin.model.zoo import zoo_urdf_path
 
@@ -328,3 +329,25 @@ def test_non_empty_folder_needs_force(runs, tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
     assert (out / "notes.txt").read_text() == "keep me" and (out / "controller.py").is_file()
     assert not (out / "desired_flow.onnx").exists()
+
+
+@pytest.mark.parametrize("damage", ["missing", "truncated", "garbage", "other arrays"])
+def test_damaged_exported_weights_are_named_in_one_line(runs, tmp_path, damage):
+    """The exported controller reads weights.npz through `load_flow`: damage gets one ValueError line
+    that names the file and says to export again, never numpy's or zipfile's own error."""
+    out = tmp_path / "out"
+    ip.export(runs["cartpole"].path, out, onnx=False)
+    path = out / "weights.npz"
+    load_flow(path)  # intact
+    if damage == "missing":
+        path.unlink()
+    elif damage == "truncated":
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    elif damage == "garbage":
+        path.write_bytes(b"not an npz file" * 10)
+    else:
+        np.savez(path, x=np.zeros(3))
+    with pytest.raises(ValueError) as info:
+        load_flow(path)
+    message = str(info.value)
+    assert str(path) in message and "export the run again" in message and "\n" not in message

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -162,6 +163,48 @@ def test_labels_are_torques_within_the_limits_of_trajectories_that_reach_the_tar
     assert np.all(np.abs(U) <= 8.0 + 1e-12) and np.isfinite(X).all()
 
 
+def test_worker_processes_change_the_time_of_recover_never_its_plans_fits_or_gate(tiny_run, monkeypatch):
+    _short_gate(monkeypatch)  # the workers get the 1 s gate too: `process_map` sends the function itself
+    system = tiny_run.system
+    small = dict(TINY, steps=60, fits=2, inner_scales=(0.1, 0.5))
+    x0 = uniform_states(system, 3, "half", 101)
+    results = []
+    for workers in (1, 2):
+        config = RecoveryConfig(**(small | {"workers": workers}))
+        X, U, lqr_ok, recovered = collect_labels(system, x0, 101, config, progress=False)
+        first, _ = fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed)
+        law, gate = recovery_module._gate_fits(tiny_run, first, X, U, config, False, 0.0)
+        results.append((X, U, lqr_ok, recovered, law, gate))
+    (X1, U1, *counts1, law1, gate1), (X2, U2, *counts2, law2, gate2) = results
+    assert recovered + lqr_ok >= 1 and counts1 == counts2
+    np.testing.assert_array_equal(X1, X2)
+    np.testing.assert_array_equal(U1, U2)
+    for w1, w2 in zip(law1.weights + law1.biases, law2.weights + law2.biases):
+        np.testing.assert_array_equal(w1, w2)
+    assert gate1 == gate2 and len(gate1["fits"]) == 2
+    assert RecoveryConfig().workers == 0 and recovery_module.resolve_workers(0) >= 1  # 0: one per core
+
+
+def _torques(job):
+    ctrl, x = job
+    return ctrl(x)
+
+
+def test_a_controller_sent_to_a_worker_process_gives_the_same_torques_there_and_here(tiny_run):
+    # concurrent.futures pickles torch tensors with torch.multiprocessing's reductions, which move the
+    # sender's tensors to shared memory: numpy views of them (the law's (gᵀg)⁻¹gᵀ, the wrap's x*) dangled
+    ctrl = ip.load_run(tiny_run.path).controller
+    x = uniform_states(tiny_run.system, 8, "half", 3)
+    u = ctrl(x)
+    with ProcessPoolExecutor(1) as pool:
+        there = pool.submit(_torques, (ctrl, x)).result()
+    np.testing.assert_array_equal(ctrl(x), u)
+    np.testing.assert_array_equal(there, u)
+    fresh = ip.load_run(tiny_run.path).controller
+    assert list(recovery_module.process_map(_torques, [(fresh, x), (fresh, x)], 2)) == [pytest.approx(u, abs=0)] * 2
+    assert not any(p.is_shared() for p in fresh.nets.parameters())  # process_map sends plain pickles
+
+
 def test_the_gate_never_keeps_a_recovery_law_that_shrinks_the_basin_near_x_star():
     # (half-box, training-box, near-box) successes of the run's law and of each inner box r
     run = (40, 20, 50)
@@ -185,8 +228,8 @@ def test_the_default_gate_forgives_two_lost_states_near_x_star_not_six():
     assert gate_choice(pendubot_run, pendubot, margin=3, half_loss=half_loss) == (None, False)
 
 
-TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, inner_scales=(0.25,), workers=1,
-            plan=PlanSettings(population=8, iterations=2, score_T=2.0))  # fmt: skip
+TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, inner_scales=(0.25,), workers=1, fits=1,
+            plan=PlanSettings(population=8, iterations=2, score_T=2.0))  # fmt: skip (one fit: the tests of --fits set their own)
 
 
 @pytest.mark.parametrize("near_of_the_best", [90, 80])
@@ -195,7 +238,8 @@ def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states
     # (half box, training box, near box) successes of 50, 50 and 100 gate states; the run's law: (25, 25, 90)
     counts = {id(law.weights): c for law, c in zip(laws, [(30, 30, 90), (40, 40, near_of_the_best), (35, 35, 90)])}
 
-    def fake(system, ctrl, x0):
+    def fake(job):
+        system, ctrl, x0 = job
         fb = ctrl.fallback
         h, d, near = counts[id(fb.weights)] if isinstance(fb, RecoveryLaw) else (25, 25, 90)
         ok = np.zeros(len(x0), bool)
@@ -203,10 +247,10 @@ def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states
         return ok
 
     monkeypatch.setattr(recovery_gate, "_successes", fake)
-    k, gate = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100))
+    k, gate = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, workers=1))
     assert gate["fits"] == [60, 80, 70] and gate["used"]
     assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)  # 10 fewer near x* than the run's law: not eligible
-    none_kept = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, margin=50))
+    none_kept = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, margin=50, workers=1))
     assert none_kept[0] == 0 and not none_kept[1]["used"]
 
 
@@ -239,7 +283,8 @@ def test_dagger_labels_nothing_after_a_first_fit_that_loses_every_start(weak_pen
 
 
 @pytest.mark.slow
-def test_recover_keeps_the_law_exactly_when_its_gate_does(tiny_run, tmp_path):
+def test_recover_keeps_the_law_exactly_when_its_gate_does(tiny_run, tmp_path, monkeypatch):
+    _short_gate(monkeypatch)
     path = tmp_path / "run"
     shutil.copytree(tiny_run.path, path)
     kept = recover(path, RecoveryConfig(**TINY, margin=-4, half_loss=2), progress=False)  # kept whatever the gate sees
@@ -324,7 +369,13 @@ def test_regate_without_a_saved_law_says_what_to_run_in_one_line(tiny_run, tmp_p
 def _short_gate(monkeypatch):
     """The gate's runs last 1 s instead of 20 s: these tests claim what is kept and where, and their
     margins decide whatever the counts (the gate's rule has tests of its own)."""
-    monkeypatch.setattr(recovery_gate, "_successes", lambda system, law, x0: success(simulate(system, law, x0, T=1.0, dt=PLAN_STEP), system))
+    monkeypatch.setattr(recovery_gate, "_successes", _one_second_successes)
+
+
+def _one_second_successes(job) -> np.ndarray:
+    """`recovery_gate._successes` over 1 s (a module-level function: the gate's worker processes get it)."""
+    system, law, x0 = job
+    return success(simulate(system, law, x0, T=1.0, dt=PLAN_STEP), system)
 
 
 def test_refit_fits_the_saved_labels_again_without_plans_and_the_same_seed_gives_the_same_law(tiny_run, tmp_path, monkeypatch):
@@ -339,7 +390,7 @@ def test_refit_fits_the_saved_labels_again_without_plans_and_the_same_seed_gives
 
     monkeypatch.setattr(recovery_module, "collect_labels", no_plans)
     _short_gate(monkeypatch)
-    config = RecoveryConfig(**TINY | {"steps": 200}, margin=-4, half_loss=2, fit_seed=1, fits=1)  # kept whatever the gate sees
+    config = RecoveryConfig(**TINY | {"steps": 200}, margin=-4, half_loss=2, fit_seed=1)  # kept whatever the gate sees
     entry = refit(path, config, progress=False)
     assert entry["used"] and entry["refit"]["fit_seed"] == 1 and entry["refit"]["labels"] == 300
     assert (path / RECOVERY_FILE).is_file() and not (path / RECOVERY_REFUSED_FILE).exists()
@@ -468,7 +519,8 @@ def test_a_robot_without_limits_is_never_tested_and_never_binds():
         assert limits_bind(system) == {"states": 0, "saturated": 0, "unsaturated": 0, "binds": False, "room": False}
 
 
-def test_auto_recovers_exactly_when_saturated_lqr_leaves_room(tiny_run, tmp_path, capsys):
+def test_auto_recovers_exactly_when_saturated_lqr_leaves_room(tiny_run, tmp_path, capsys, monkeypatch):
+    _short_gate(monkeypatch)
     path = tmp_path / "run"
     shutil.copytree(tiny_run.path, path)
     config = RecoveryConfig(**TINY, margin=-4)

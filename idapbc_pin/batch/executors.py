@@ -9,7 +9,6 @@ ships its job directory back as an archive (`idapbc_pin.batch._shipping`).
 
 from __future__ import annotations
 
-import contextlib
 import multiprocessing
 import os
 import shutil
@@ -17,6 +16,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 from .._io import write_json
+from .._parallel import THREAD_ENV, available_cores, thread_env
 from ..errors import IdapbcError
 from ._shipping import unpack_dir
 from .job import run_job
@@ -26,20 +26,9 @@ from .record import crash_record
 
 __all__ = ["THREAD_ENV", "describe_executor", "import_ray", "run_jobs"]
 
-#: Environment of worker processes: one OpenMP / MKL / BLAS thread each (set before torch loads).
-THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-
-
-def _cpu_count() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover (not Linux)
-        return os.cpu_count() or 1
-
-
 def _local_workers(workers: int | None, n_jobs: int) -> int:
     """Jobs at a time on this machine: `workers`, else one per core and at most one per job."""
-    return workers or max(1, min(_cpu_count(), n_jobs))
+    return workers or max(1, min(available_cores(), n_jobs))
 
 
 def describe_executor(workers: int | None, ray: str | None, n_jobs: int) -> str:
@@ -75,25 +64,11 @@ def _record_crash(job: Job, batch_dir: Path, message: str) -> dict:
     return record
 
 
-@contextlib.contextmanager
-def _environ(values: dict):
-    old = {k: os.environ.get(k) for k in values}
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
 def _run_pool(jobs: list[Job], batch_dir: Path, tracker: Tracker, workers: int) -> None:
     """Spawned worker processes, at most `workers` jobs in flight; a dead worker fails its jobs only."""
     queue = list(jobs)
     ctx = multiprocessing.get_context("spawn")
-    with _environ(THREAD_ENV):  # inherited by the spawned workers before they import torch
+    with thread_env():  # inherited by the spawned workers before they import torch
         while queue:
             pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
             inflight = {}
@@ -134,7 +109,7 @@ def _init_ray(ray, address: str, workers: int | None) -> None:
     """Start a local Ray instance (``"auto"`` without ``$RAY_ADDRESS``) or join a cluster."""
     try:
         if address == "auto" and not os.environ.get("RAY_ADDRESS"):
-            ray.init(address="local", num_cpus=workers or _cpu_count(), include_dashboard=False, log_to_driver=False)
+            ray.init(address="local", num_cpus=workers or available_cores(), include_dashboard=False, log_to_driver=False)
         else:  # a cluster: the given address, or $RAY_ADDRESS (set by `ray job submit`) for "auto"
             ray.init(address=None if address == "auto" else address, log_to_driver=False)
     except (ConnectionError, RuntimeError, ValueError) as exc:

@@ -25,6 +25,7 @@ from ..model import load_system
 from ..reporting.report import figure
 from ..training.run import load_run, read_checkpoint, read_config
 from ..training.train import train
+from ..training.recovery import RecoveryConfig
 from ..training.weak_actuators import auto_recover
 from ..viewer import view
 from ._files import read_json_or_none, timestamp
@@ -145,7 +146,7 @@ def _stages(job: Job, workdir: Path, record: dict):
             raise IdapbcError(f"training ended with status {run.summary.get('status')!r}")
     with stage("recover"):  # where saturated LQR leaves room (as `train`); a reused run keeps the law it has
         if "recovery" not in run.summary:
-            auto_recover(run, job.recover)
+            auto_recover(run, job.recover, RecoveryConfig(workers=1))  # one core per job, as training
         record["recovery"] = bool(run.uses_recovery)
     ev = job.evaluate
     with stage("evaluate"):

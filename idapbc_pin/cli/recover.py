@@ -43,7 +43,8 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("run", metavar="RUN", help="run directory written by `idapbc-pin train` (effort limits on every actuated joint)")
     p.add_argument("--starts", type=int, metavar="N", help=f"half-box start states labelled by LQR or plans (default {d.starts})")
     p.add_argument("--dagger", type=int, metavar="K", help=f"DAgger rounds after the first fit (default {d.dagger})")
-    p.add_argument("--workers", type=int, metavar="W", help=f"processes searching plans (default {d.workers})")
+    p.add_argument("--workers", type=int, metavar="W", help="processes searching plans, fitting and running the gate's simulations (default: one per core, at most 16; "
+                        "the count changes the time, not the result)")
     p.add_argument("--margin", type=int, metavar="M", help=f"gate states the law must add to the run's law to be kept (default {d.margin})")
     p.add_argument("--half-loss", type=int, metavar="L", dest="half_loss",
                    help=f"half-box and near-box gate states the law may lose against the run's law (default {d.half_loss})")

@@ -64,7 +64,9 @@ class Controller:
 
     @staticmethod
     def _np(t: Tensor) -> np.ndarray:
-        return t.detach().to("cpu", torch.float64).numpy()
+        """A float64 numpy copy of `t`, never a view of its storage: a tensor sent to a worker process
+        moves to shared memory (torch.multiprocessing), and a view kept here (`_g_pinv`) would dangle."""
+        return t.detach().to("cpu", torch.float64).numpy().copy()
 
     def _batch(self, x):
         x = np.asarray(x, dtype=np.float64)

@@ -1,6 +1,6 @@
 """f̃_d = (J_d − R_d)∇H_d in numpy from frozen weights: the controller's run-time path and the exported one.
 
-This module imports numpy only. `idapbc_pin.control._runtime.snapshot` fills a `DesiredFlow` from the
+This module imports numpy (and the standard library) only. `idapbc_pin.control._runtime.snapshot` fills a `DesiredFlow` from the
 torch networks; `idapbc_pin.deploy.export` copies this very file as ``desired_flow.py`` next to the exported
 ``controller.py`` and ``weights.npz`` (`DesiredFlow.arrays` / `load_flow`), where it runs with neither
 torch nor idapbc_pin installed.
@@ -21,6 +21,7 @@ constant bases) keeps that count low (`benchmarks/bench_controller.py`).
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -266,6 +267,15 @@ class DesiredFlow:
 
 
 def load_flow(path) -> DesiredFlow:
-    """The `DesiredFlow` saved in an .npz file by ``np.savez(path, **flow.arrays())``."""
-    with np.load(path, allow_pickle=False) as data:
-        return DesiredFlow.from_arrays(data)
+    """The `DesiredFlow` saved in an .npz file by ``np.savez(path, **flow.arrays())``. A missing,
+    truncated or garbled file, or one that is not such weights, raises one `ValueError` line naming
+    the file and the fix (this runs in an exported controller, without idapbc_pin's error types)."""
+    fix = "Fix: export the run again (`idapbc-pin export RUN --out DIR`)."
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return DesiredFlow.from_arrays(data)
+    except FileNotFoundError:
+        raise ValueError(f"{path} is missing. {fix}") from None
+    except (OSError, EOFError, KeyError, TypeError, zipfile.BadZipFile, ValueError) as exc:
+        what = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ValueError(f"{path} is damaged or holds no exported weights ({what}). {fix}") from None

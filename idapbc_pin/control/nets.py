@@ -71,8 +71,9 @@ class IdaPbcNets(nn.Module):
         x = np.asarray(x, dtype=np.float64)
         if self.angle_mask is None:
             return x
-        if "_wrap_np" not in self.__dict__:  # once: this runs every control period
-            self._wrap_np = (self.x_star.detach().to("cpu", torch.float64).numpy(), self.angle_mask.cpu().numpy())
+        if "_wrap_np" not in self.__dict__:  # once: this runs every control period. Copies, not views of
+            # the buffers: sending the nets to a worker process moves their storage (torch.multiprocessing)
+            self._wrap_np = (self.x_star.detach().to("cpu", torch.float64).numpy().copy(), self.angle_mask.cpu().numpy().copy())
         x_star, mask = self._wrap_np
         return x_star + wrap_angles(x - x_star, mask)
 

@@ -42,12 +42,12 @@ gate, or keeps it, and `refit` fits a law again to the saved labels (another `fi
 from __future__ import annotations
 
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
 
+from .._parallel import process_map, resolve_workers
 from ..control.baseline import LQRController
 from ..control.recovery import RecoveryLaw
 from ..errors import IdapbcError
@@ -93,7 +93,9 @@ class RecoveryConfig:
         eligible: the recovery law must not shrink the basin the IDA-PBC law already has, beyond a
         loss of 2 states in either part (the 2 N·m reaction wheel's law lost 2 of 100 near x* and
         added 18 of 100; the zoo pendubot's lost 6 to 11 near x*). 0: no loss at all.
-    workers : processes searching plans.
+    workers : processes that search the plans, fit the laws and run the gate's simulations (0: one
+        per available core, at most 16). Each process does what a loop would, so this changes the
+        time only, never a plan, label, law or verdict.
     plan : the cross-entropy search of each plan.
     stop_when_lost : end the DAgger rounds, before labelling, when the first fit brings none of the
         first round's starts to x* (the gate then judges that law).
@@ -112,7 +114,7 @@ class RecoveryConfig:
     inner_scales: tuple = (0.1, 0.25, 0.5)
     margin: int = 3
     half_loss: int = 2
-    workers: int = 2
+    workers: int = 0
     plan: PlanSettings = field(default_factory=PlanSettings)
     stop_when_lost: bool = True
 
@@ -120,7 +122,7 @@ class RecoveryConfig:
         checks = [
             (self.starts >= 1 and self.dagger_starts >= 1 and self.gate_states >= 2 and self.near_states >= 0,
              "starts, dagger_starts must be ≥ 1, gate_states ≥ 2 and near_states ≥ 0"),
-            (self.dagger >= 0 and min(self.width, self.steps, self.workers, self.fits) >= 1, "dagger ≥ 0, width, steps, workers and fits ≥ 1"),
+            (self.dagger >= 0 and self.workers >= 0 and min(self.width, self.steps, self.fits) >= 1, "dagger, workers ≥ 0, width, steps and fits ≥ 1"),
             (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
             (self.half_loss >= 0, "half_loss must be ≥ 0"),
         ]
@@ -162,24 +164,14 @@ def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfi
     starts saturated LQR and the plans brought to x*: (X, U, lqr_ok, recovered). The plan of start i
     draws from the stream (plan_seed, i); `config.workers` processes (the system is pickled to them)."""
     start = time.perf_counter() if start is None else start
-    chunks = [c for c in np.array_split(np.arange(len(x0)), max(1, 4 * config.workers)) if c.size]
+    workers = resolve_workers(config.workers)
+    chunks = [c for c in np.array_split(np.arange(len(x0)), max(1, 4 * workers)) if c.size]
     jobs = [(system, x0[c], int(c[0]), plan_seed, config.plan) for c in chunks]
     parts = []
-    if config.workers == 1:
-        results = map(_label_chunk, jobs)
-        pool = None
-    else:
-        pool = ProcessPoolExecutor(config.workers)
-        results = pool.map(_label_chunk, jobs)
-    try:
-        for k, part in enumerate(results):
-            parts.append(part)
-            if progress:
-                elapsed = time.perf_counter() - start
-                print(f"  plans: chunk {k + 1}/{len(jobs)}  [{elapsed:.0f} s]", flush=True)
-    finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
+    for k, part in enumerate(process_map(_label_chunk, jobs, workers)):
+        parts.append(part)
+        if progress:
+            print(f"  plans: chunk {k + 1}/{len(jobs)}  [{time.perf_counter() - start:.0f} s]", flush=True)
     X, U = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
     return X, U, sum(p[2] for p in parts), sum(p[3] for p in parts)
 
@@ -212,6 +204,12 @@ def fit_recovery_law(system, X: np.ndarray, U: np.ndarray, width: int, steps: in
     weights = tuple(m.weight.detach().numpy().copy() for m in layers)
     biases = tuple(m.bias.detach().numpy().copy() for m in layers)
     return RecoveryLaw(weights, biases, x_star, scale, effort, mask, np.zeros(system.n)), float(loss.detach())
+
+
+def _fit_job(job) -> tuple[RecoveryLaw, float]:
+    """Worker: `fit_recovery_law` (system, X, U, width, steps, seed) with one torch thread."""
+    torch.set_num_threads(1)
+    return fit_recovery_law(*job)
 
 
 # ------------------------------------------------------------------------------------ recover
@@ -315,7 +313,7 @@ def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: boo
         )
     law = read_recovery(run.path, name)
     start = time.perf_counter()
-    gate = choose_inner(run, law, config)
+    gate = choose_inner(run, law, config, progress)
     regated = {"from": {"used": last.get("used"), "inner_scale": last.get("inner_scale")}, "seconds": round(time.perf_counter() - start, 1)}
     entry = last | _verdict(gate, config, keep) | {"fit_seed": last.get("fit_seed", 0), "regated": regated}  # the saved law's seed
     return _save_and_tell(run, law, entry, config, progress, start)
@@ -350,12 +348,12 @@ def _gate_fits(run, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, config: Reco
     """Fit `config.fits` − 1 more laws to the labels (seeds after `config.fit_seed`, whose fit `law`
     is) and let the gate choose among all (`choose_fit`); returns (the chosen law, its gate)."""
     laws = [law]
-    for k in range(1, config.fits):
-        more, mse = fit_recovery_law(run.system, X, U, config.width, config.steps, config.fit_seed + k)
+    jobs = [(run.system, X, U, config.width, config.steps, config.fit_seed + k) for k in range(1, config.fits)]
+    for k, (more, mse) in enumerate(process_map(_fit_job, jobs, resolve_workers(config.workers)), start=1):
         laws.append(more)
         if progress:
             print(f"fit {k + 1}/{config.fits} (seed {config.fit_seed + k}): mean squared error {mse:.4f}  [{time.perf_counter() - start:.0f} s]", flush=True)
-    k, gate = choose_fit(run, laws, config)
+    k, gate = choose_fit(run, laws, config, progress)
     return laws[k], gate
 
 

@@ -14,11 +14,14 @@ that `refit` (``idapbc-pin recover RUN --refit``) fits another law to them witho
 from __future__ import annotations
 
 import io
+import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from .._io import DamagedFileError, atomic_write_bytes, read_npz, write_json
+from .._parallel import process_map, resolve_workers
 from ..control.fallback import box_fallback
 from ..control.recovery import RecoveryLaw
 from ..sim.integrate import simulate
@@ -36,7 +39,10 @@ RECOVERY_GATE_SEED = 7_368_787
 NEAR_SCALE = 0.25
 
 
-def _successes(system, law, x0: np.ndarray) -> np.ndarray:
+def _successes(job) -> np.ndarray:
+    """Worker: (N,) bool, the 20 s success of `law` from x0 (N, n) on `system`, for job = (system, law, x0)."""
+    system, law, x0 = job
+    torch.set_num_threads(1)
     return success(simulate(system, law, x0, T=20.0, dt=PLAN_STEP), system)
 
 
@@ -65,7 +71,7 @@ def _best(candidates: dict, scales) -> float:
     return max(scales, key=lambda r: (_total(candidates[r]), r))
 
 
-def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig) -> dict:
+def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig, progress: bool = False) -> dict:
     """Simulate the run's law and the law with `law` outside each inner box of `config.inner_scales`
     from the gate's states (`gate_states`, half from the half box and half from the training box,
     then `near_states` from the box of scale NEAR_SCALE) and apply `gate_choice`; returns
@@ -73,12 +79,12 @@ def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig) -> dict:
     "run_half"/"candidates_half" and "run_near"/"candidates_near": the same on each guarded part,
     "inner_scale": the chosen r (the most successes when none is eligible), "with_recovery": its
     successes, "used"}."""
-    return choose_fit(run, [law], config)[1]
+    return choose_fit(run, [law], config, progress)[1]
 
 
-def choose_fit(run, laws: list, config: RecoveryConfig) -> tuple[int, dict]:
+def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) -> tuple[int, dict]:
     """`choose_inner` for each of several fitted `laws` on the same gate states (the run's law
-    simulated once): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
+    simulated once, every law in `config.workers` processes; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
     (ties: the first), or 0 when it keeps none. With more than one law the gate also holds
     "fits": each law's successes at its own chosen r, and "fit": k."""
     system, seed = run.system, RECOVERY_GATE_SEED + run.config.seed
@@ -89,14 +95,17 @@ def choose_fit(run, laws: list, config: RecoveryConfig) -> tuple[int, dict]:
     ])  # fmt: skip
     ctrl = run.controller.with_fallback(box_fallback(system, run.config) if run.uses_fallback else None)  # not an earlier recovery law
 
-    def counts(law_):
-        ok = _successes(system, law_, x0)
-        return int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())
-
-    base = counts(ctrl)
+    scales = [float(r) for r in config.inner_scales]
+    ctrls = [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales]
+    counts, start = [], time.perf_counter()
+    for ok in process_map(_successes, [(system, c, x0) for c in ctrls], resolve_workers(config.workers)):
+        counts.append((int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())))
+        if progress:
+            print(f"  gate: {len(counts)}/{len(ctrls)} laws simulated from its {len(x0)} states  [{time.perf_counter() - start:.0f} s]", flush=True)
+    base, *rest = counts
     gates = []
-    for law in laws:
-        candidates = {float(r): counts(ctrl.with_fallback(law.with_inner(r))) for r in config.inner_scales}
+    for i in range(len(laws)):
+        candidates = dict(zip(scales, rest[i * len(scales) : (i + 1) * len(scales)]))
         best, used = gate_choice(base, candidates, config.margin, config.half_loss)
         best = _best(candidates, candidates) if best is None else best
         gates.append({"states": n, "run": _total(base), "candidates": {r: _total(c) for r, c in candidates.items()},
