@@ -41,10 +41,11 @@ def resolve_workers(workers: int) -> int:
 
 
 @contextlib.contextmanager
-def thread_env(values: dict = THREAD_ENV):
-    """Set the environment variables `values` for processes started inside the block; restore after."""
-    old = {k: os.environ.get(k) for k in values}
-    os.environ.update(values)
+def thread_env():
+    """Set `THREAD_ENV` for the processes started inside the block (they read it as they load their
+    thread pools); restore the environment after."""
+    old = {k: os.environ.get(k) for k in THREAD_ENV}
+    os.environ.update(THREAD_ENV)
     try:
         yield
     finally:

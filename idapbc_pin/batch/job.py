@@ -24,8 +24,8 @@ from ..evaluation.evaluate import evaluate_run
 from ..model import load_system
 from ..reporting.report import figure
 from ..training.run import load_run, read_checkpoint, read_config
-from ..training.train import train
 from ..training.recovery import RecoveryConfig
+from ..training.train import train
 from ..training.weak_actuators import auto_recover
 from ..viewer import view
 from ._files import read_json_or_none, timestamp
