@@ -146,15 +146,22 @@ def test_standalone_torque_equals_the_saturated_law(limited_pendubot, tmp_path):
     assert np.abs(out["batched"]).max() <= system.effort[0] * (1 + 1e-12)
 
 
-def test_standalone_switches_to_the_linear_law_outside_the_box_as_the_library_does(limited_pendubot, tmp_path):
-    """A run that uses the fallback (`control.fallback`): controller.json carries K, u*, the box, and
-    the standalone τ equals the library's on states mostly outside the training box, to 1e-9."""
+@pytest.mark.parametrize("inside_gain", [1.0, 3.0])
+def test_standalone_switches_to_the_linear_law_outside_the_box_as_the_library_does(limited_pendubot, tmp_path, inside_gain):
+    """A run that uses the fallback (`control.fallback`), with the learned law as trained inside the
+    box or scaled by 3 about u* there (the gate's `inside_gain`): controller.json carries K, u*, the
+    box and the inside gain, and the standalone τ equals the library's on states mostly outside the
+    training box, to 1e-9."""
     run = limited_pendubot[0]
-    run = dataclasses.replace(run, config=run.config.replace(fallback="linear"))
+    run = dataclasses.replace(run, config=run.config.replace(fallback="auto"),
+                              summary={**run.summary, "fallback": {"used": True, "inside_gain": inside_gain}})
+    assert run.controller.fallback.inside_gain == inside_gain
     folder = ip.export(run, tmp_path / "export", onnx=False)
     record = json.loads((folder / "controller.json").read_text())
     np.testing.assert_array_equal(record["fallback"]["K"], run.controller.fallback.K)
-    assert "Outside the training box" in (folder / "README.md").read_text()
+    assert record["fallback"]["inside_gain"] == inside_gain
+    readme = (folder / "README.md").read_text()
+    assert "Outside the training box" in readme and (("Inside the training box" in readme) == (inside_gain != 1.0))
     q, v = _states(run.system)
     outside = run.controller.fallback.outside(run.system.state_from(q, v))
     assert 0.5 < outside.mean() < 1.0

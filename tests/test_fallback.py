@@ -141,12 +141,73 @@ def test_the_gate_keeps_the_learned_law_when_the_fallback_does_worse(real_gate):
 
 def _assert_discordant_pairs_explain_the_rates(gate: dict) -> None:
     """The states only one law brings to x* account for the whole difference of the two rates, and
-    the law the gate picks is the one with more of them."""
+    the law the gate picks is the one with the most successes (a tie to the simpler law)."""
     n = gate["states"]
     only_nn, only_fb = gate["only_networks"], gate["only_fallback"]
     assert 0 <= only_nn <= gate["left_box"] and 0 <= only_fb <= gate["left_box"]
     assert round(n * gate["with_fallback"]) - round(n * gate["networks"]) == only_fb - only_nn
-    assert gate["used"] == (only_fb > only_nn)
+    counts = [round(n * gate[k]) for k in ("networks", "with_fallback", "scaled") if gate[k] is not None]
+    best = counts.index(max(counts))
+    assert gate["used"] == (best > 0) and (gate["inside_gain"] != 1.0) == (best == 2)
+
+
+def _weak(system, c):
+    """u* + c (u_LQR − u*): LQR's law with its gain scaled by c."""
+    lqr = LQRController(system)
+    return lambda x: lqr.u_star + c * (lqr(x) - lqr.u_star)
+
+
+def test_the_gate_scales_the_learned_law_inside_the_box_when_it_is_too_weak_to_hold_the_target(real_gate):
+    """A "learned" law with a quarter of LQR's gain leaves x* unstable (A − ¼BK has an eigenvalue at
+    +2.4 1/s on the pendubot); scaled by k = 3 about u* it is ¾ of LQR's gain, inside LQR's gain
+    margin. With the linear law outside the box (gain 3, no effort limits, so that the inside law
+    decides) the scaled law brings the most states to x*, and the gate picks it."""
+    system = dataclasses.replace(ip.load_system("pendubot"), effort=np.full(1, np.inf))
+    A, B = system.linearization()
+    K = LQRController(system).K
+    assert np.linalg.eigvals(A - 0.25 * B @ K).real.max() > 1.0 > 0 > np.linalg.eigvals(A - 0.75 * B @ K).real.max()
+    fb = box_fallback(system, _tiny(fallback_gain=3.0))
+    law = _Law(system, _weak(system, 0.25))
+    law.lqr = _weak(system, 0.25)  # weak inside the box as well
+    gate = fallback_gate(system, law, fb, seed=0)
+    assert gate["scaled"] > gate["with_fallback"] > gate["networks"]
+    assert gate["used"] and gate["inside_gain"] == fb.gain == 3.0
+    _assert_discordant_pairs_explain_the_rates(gate)
+
+
+def test_without_effort_limits_the_gate_does_not_try_a_scaled_law():
+    free = dataclasses.replace(ip.load_system("pendubot"), effort=np.full(1, np.inf))
+    fb = box_fallback(free, _tiny())
+    assert fb.gain == 1.0
+    gate = fallback_gate(free, _Law(free, LQRController(free)), fb, seed=0)  # the suite's short gate
+    assert gate["scaled"] is None and gate["inside_gain"] == 1.0
+
+
+def test_an_inside_gain_scales_the_learned_law_about_u_star_inside_the_box_only(pendubot_run):
+    run = pendubot_run
+    plain = run.controller
+    scaled = plain.with_fallback(plain.fallback.with_inside_gain(3.0))
+    x = _wide_states(run.system)
+    inside = ~plain.fallback.outside(x)
+    assert 0 < inside.sum() < len(x)
+    u_nets, u_plain, u_scaled = plain.with_fallback(None)(x), plain(x), scaled(x)
+    u_star = plain.fallback.u_star
+    np.testing.assert_allclose(u_scaled[inside], u_star + 3.0 * (u_nets[inside] - u_star), rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(u_scaled[~inside], u_plain[~inside])  # outside: the same linear law
+    with pytest.raises(ValueError, match="gain margin"):
+        plain.fallback.with_inside_gain(0.4)
+
+
+def test_with_an_inside_gain_k_the_loop_at_the_target_is_the_anchors_with_k_times_its_gain(pendubot_run):
+    """The anchored networks close the anchor's LQR loop A − BK at x*; scaled by k they close
+    A − kBK, which LQR's gain margin keeps stable for every k ≥ ½."""
+    run = pendubot_run
+    fb = run.controller.fallback
+    A, Bx = run.system.linearization()
+    for k in (0.5, 3.0, 10.0):
+        eig = np.sort_complex(run.controller.with_fallback(fb.with_inside_gain(k)).eigenvalues_at_target())
+        np.testing.assert_allclose(eig, np.sort_complex(np.linalg.eigvals(A - k * Bx @ fb.anchor_K)), rtol=1e-6, atol=1e-8)
+        assert eig.real.max() < 0
 
 
 def test_the_gate_simulates_a_stiff_loop_with_a_step_rk4_can_take():
@@ -249,3 +310,21 @@ def test_train_prints_how_many_states_only_one_law_brings_home(tmp_path, capsys)
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     gate = json.loads((run_dir / "summary.json").read_text())["fallback"]
     assert f"{gate['only_fallback']} states reach x* only with it, {gate['only_networks']} only without" in printed
+
+
+@pytest.mark.parametrize("bad", [0.1, "three", None, float("nan")])
+def test_a_damaged_inside_gain_in_summary_json_is_refused_at_load_in_one_line(pendubot_run, tmp_path, bad):
+    import shutil
+
+    from idapbc_pin._io import DamagedFileError
+
+    path = tmp_path / "run"
+    shutil.copytree(pendubot_run.path, path)
+    summary = json.loads((path / "summary.json").read_text())
+    summary["fallback"] = {"used": True, "inside_gain": bad}
+    (path / "summary.json").write_text(json.dumps(summary))
+    config = json.loads((path / "config.json").read_text())
+    (path / "config.json").write_text(json.dumps({**config, "fallback": "auto"}))
+    with pytest.raises(DamagedFileError, match="inside_gain") as err:
+        ip.load_run(path)
+    assert "\n" not in str(err.value) and "Fix:" in str(err.value)

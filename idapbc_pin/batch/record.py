@@ -25,7 +25,8 @@ __all__ = ["SUMMARY_COLUMNS", "VOLATILE_COLUMNS", "crash_record", "new_record", 
 #: actuators' effort limits applied in the evaluation ("none" when unlimited or lifted); *_radius the
 #: ROA radii; *_lead_low / *_lead_high the 95 % interval of NIDA-PBC's success rate minus LQR's on the
 #: box's states and *_lead_p McNemar's exact p-value (`sim.paired`); *_peak_half the median peak |u| on the half box; fallback whether NIDA-PBC switches to
-#: the anchor's linear law outside the training box (`control.fallback`); recovery whether a recovery law
+#: the anchor's linear law outside the training box (`control.fallback`); inside_gain the factor on the
+#: learned law's deviation from u* inside the box (1: as trained; the fallback gate's choice); recovery whether a recovery law
 #: (`control.recovery`, fitted where saturated LQR leaves room) replaces the networks outside its inner box;
 #: loss_* the final epoch's loss terms.
 SUMMARY_COLUMNS = (
@@ -35,7 +36,7 @@ SUMMARY_COLUMNS = (
     "domain_lead_low", "domain_lead_high", "domain_lead_p", "half_lead_low", "half_lead_high", "half_lead_p",
     "roa_n", "roa_T", "roa_judge", "limit", "nida_radius", "lqr_radius", "nida_peak_half", "lqr_peak_half",
     "dissipation_fraction", "les", "sublevel_coverage", "lqr_sublevel_coverage", "certified",
-    "fallback", "recovery", "epochs", "train_seconds", *(f"loss_{t}" for t in TERMS),
+    "fallback", "inside_gain", "recovery", "epochs", "train_seconds", *(f"loss_{t}" for t in TERMS),
     "job_seconds", "run_dir", "error",
 )  # fmt: skip
 #: Columns that depend on the machine (time, paths), not on the seeds.
@@ -148,6 +149,7 @@ def summary_row(job: Job, record: dict, run=None, evaluation: dict | None = None
         row["train_seconds"] = finite_or_none(s.get("train_seconds"))
         row["les"] = s.get("locally_exponentially_stable")
         row["fallback"] = bool(run.uses_fallback)
+        row["inside_gain"] = run.inside_gain
         row["recovery"] = bool(run.uses_recovery)
         for t in TERMS:
             row[f"loss_{t}"] = finite_or_none(s.get("final_terms", {}).get(t))

@@ -113,9 +113,13 @@ def _g(v: str) -> str:
 
 def _outside(r: dict) -> str:
     """What NIDA-PBC runs away from where its networks act: "recovery law" (outside its inner box),
-    "linear law" (outside the training box) or "networks"; "—" for rows written before either."""
+    "linear law" (outside the training box; with "inside, the learned law × k" where the gate also
+    scaled the learned law about u* inside it) or "networks"; "—" for rows written before either."""
     if r.get("recovery") == "yes":
         return "recovery law"
+    k = float(r.get("inside_gain") or 1.0)
+    if r.get("fallback") == "yes" and k != 1.0:
+        return f"linear law; inside, the learned law × {k:g}"
     return {"yes": "linear law", "no": "networks"}.get(r.get("fallback") or "", "—")
 
 
@@ -207,7 +211,8 @@ def zoo_table_markdown(summary_csv) -> str:
         "share = share of the box inside the largest sampled sublevel set of H_d (NIDA-PBC) or of δᵀSδ (LQR) that stays "
         "in the box with a decreasing value on every sample (see docs/method.md): sampled, not proofs. NIDA-PBC outside "
         "the box = the law NIDA-PBC applies outside the training box, chosen after training (the anchor's linear law, or "
-        "the networks'; docs/method.md §6), or \"recovery law\" where a recovery law fitted to torque plans within the limits "
+        "the networks'; docs/method.md §6; \"inside, the learned law × k\": the gate also scaled the learned law by k about u* "
+        "inside the box), or \"recovery law\" where a recovery law fitted to torque plans within the limits "
         "replaces the networks outside an inner box (README, \"A recovery law for weak actuators\")."
     )
     return _table(head, body) + "\n\n" + note + "\n"

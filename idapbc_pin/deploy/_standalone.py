@@ -11,6 +11,8 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
     q ← q* + wrap(q − q*) on the angles listed in controller.json's "wrap" (to within π of the target)
     x = (q, p), p = M(q) v;   f(x) = (v, C(q, v)ᵀv − ∇U(q) − D v)   (Pinocchio on robot.urdf)
     u = (BᵀB)⁻¹Bᵀ (f̃_d(x) − f(x))_p
+    u ← u* + k_in (u − u*)                                 (only if controller.json has a "fallback"
+                  with an "inside_gain" k_in ≠ 1: the learned law scaled inside the training box)
     u ← u* − K δ  where some |δ_i| > s_i, δ = wrap(x − x*)   (only if controller.json has a "fallback":
                   the linear law the run uses outside its training box, half-widths s; its K is
                   the anchor's LQR gain times the fallback's "gain")
@@ -123,10 +125,13 @@ class ExportedController:
 
     def outside_box(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """On the rows of x (N, n) outside the fallback's box, u* − Kδ (linear) or the recovery law;
-        u (N, m) elsewhere."""
+        u (N, m) elsewhere, scaled about u* by the linear fallback's inside gain."""
         fb = self.fallback
         d = x - fb["x_star"]
         d[:, fb["angle_mask"]] = np.pi - np.mod(np.pi - d[:, fb["angle_mask"]], 2 * np.pi)  # wrap to (−π, π]
+        k_in = float(fb.get("inside_gain", 1.0))  # exports before it had none: 1
+        if not self.recovery and k_in != 1.0:
+            u = fb["u_star"] + k_in * (u - fb["u_star"])
         out = (np.abs(d) > fb["inner" if self.recovery else "half"]).any(axis=1)
         if out.any():
             u = u.copy()

@@ -149,6 +149,14 @@ def deploy_readme(record: dict) -> str:
             "the ONNX graph is f̃_d alone). The networks were trained on the box only; training chose this law there "
             "because it brought more simulated states to x*.\n"
         )
+        k_in = float(fallback.get("inside_gain", 1.0))
+        if k_in != 1.0:
+            line = f"    u    ← u* + {k_in:g}·(u − u*)                                          (inside the training box)\n" + line
+            text += (
+                f"\nInside the training box the learned law is scaled by {k_in:g} about u* (controller.json's \"fallback\" → "
+                "\"inside_gain\"), so under the effort limits it switches on its sign as the linear law does outside; "
+                "training chose it because it brought more simulated states to x* than the learned law as trained.\n"
+            )
     body = _BODY.format(dtype=record["dtype"], n=2 * nv, nv=nv, x_star=x_star, joints=_joint_table(record), onnx_row=onnx_row,
                         fallback_line=line, fallback_text=text)
     return title + body

@@ -1,9 +1,12 @@
-"""Whether a run uses the linear law outside its training box (`control.fallback`): decided by simulation.
+"""Whether a run uses the linear law outside its training box (`control.fallback`), and whether it
+scales the learned law inside it: decided by simulation.
 
 After training, the learned law is simulated on the true plant, with the actuators' limits, from
-`GATE_STATES` states of its own, once as trained and once with the anchor's linear law outside the
-training box. The fallback is used when it brings strictly more of those states to x* (DESIGN §4
-success: T = 20 s, within 0.05 over the last 2 s). Half the states are drawn from the half box and
+`GATE_STATES` states of its own: as trained, with the anchor's linear law outside the training box,
+and (robots with effort limits, whose fallback gain k is 3) with that linear law outside and the
+learned law scaled by k about u* inside (`BoxFallback.inside_gain`). The law that brings the most of
+those states to x* is used (DESIGN §4 success: T = 20 s, within 0.05 over the last 2 s); a tie keeps
+the simpler one. Half the states are drawn from the half box and
 half from the training box, with seeds ``GATE_SEED + seed`` and ``GATE_SEED + seed + 1``: neither
 the training samples nor the evaluation's seed-0 states.
 
@@ -52,17 +55,22 @@ def gate_step(system: System, fallback: BoxFallback) -> float:
 
 
 def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int) -> dict:
-    """Success of `ctrl` (the learned law everywhere) and of ``ctrl.with_fallback(fallback)`` from the
-    same `GATE_STATES` states, simulated on `system` with its effort limits.
+    """Success of `ctrl` (the learned law everywhere), of ``ctrl.with_fallback(fallback)`` and, for a
+    fallback whose gain k exceeds 1 (a robot with effort limits), of the same with the learned law
+    scaled by k about u* inside the box (`BoxFallback.with_inside_gain`), from the same `GATE_STATES`
+    states, simulated on `system` with its effort limits.
 
     Only the trajectories that leave the box at one of their samples (every `gate_step`: 2 ms unless
     the loop is stiffer) are simulated again with the fallback; the others are the same under both
-    laws (up to an RK4 stage grazing a face).
+    laws (up to an RK4 stage grazing a face). The scaled law changes the law everywhere, so it is
+    simulated from every state.
 
-    Returns {"states", "networks", "with_fallback" (success rates in [0, 1]), "left_box" (how many
-    trajectories of the learned law left the box), "only_networks" and "only_fallback" (how many
-    states only that law brought to x*: the discordant pairs, the whole evidence behind the
-    decision), "used" (bool: strictly more successes with the fallback), "step" (s)}.
+    Returns {"states", "networks", "with_fallback", "scaled" (success rates in [0, 1]; "scaled" None
+    where k = 1), "left_box" (how many trajectories of the learned law left the box),
+    "only_networks" and "only_fallback" (how many states only that law brought to x*: the discordant
+    pairs between the first two), "used" (bool: the run uses the fallback), "inside_gain" (k where
+    the scaled law is used, else 1), "step" (s)}. The law with the most successes is used; a tie
+    goes to the simpler one (the learned law everywhere, then the fallback outside only).
     """
     from ..sim.integrate import simulate  # training sits upstream of the judge; imported only here
     from ..sim.metrics import success
@@ -81,7 +89,15 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     left = fallback.outside(traj.x).any(axis=1)  # (N, T_k) -> (N,)
     if left.any():  # a trajectory that never leaves the box is the same under both laws
         ok_fb[left] = success(simulate(system, ctrl.with_fallback(fallback), x0[left], T=T, dt=dt, limits=True), system)
-    rates = {"networks": float(ok.mean()), "with_fallback": float(ok_fb.mean())}
-    only_nn, only_fb = int((ok & ~ok_fb).sum()), int((ok_fb & ~ok).sum())  # the pairs that decide
+    counts = [int(ok.sum()), int(ok_fb.sum())]
+    scaled = None
+    if fallback.gain > 1.0:
+        ok_sc = success(simulate(system, ctrl.with_fallback(fallback.with_inside_gain(fallback.gain)), x0, T=T, dt=dt,
+                                 limits=True), system)
+        counts.append(int(ok_sc.sum()))
+        scaled = float(ok_sc.mean())
+    best = int(np.argmax(counts))  # the first of the largest: ties go to the simpler law
+    rates = {"networks": float(ok.mean()), "with_fallback": float(ok_fb.mean()), "scaled": scaled}
+    only_nn, only_fb = int((ok & ~ok_fb).sum()), int((ok_fb & ~ok).sum())  # the pairs between the first two
     return {"states": int(len(x0)), **rates, "left_box": int(left.sum()), "only_networks": only_nn, "only_fallback": only_fb,
-            "used": only_fb > only_nn, "step": dt}
+            "used": best > 0, "inside_gain": float(fallback.gain) if best == 2 else 1.0, "step": dt}

@@ -106,6 +106,18 @@ class Run:
         return self.config.fallback == "linear"
 
     @property
+    def inside_gain(self) -> float:
+        """The factor on the learned law's deviation from u* inside the training box: the gate's
+        choice (summary.json → fallback → inside_gain) where the run uses the fallback, else 1."""
+        if not self.uses_fallback:
+            return 1.0
+        k = (self.summary.get("fallback") or {}).get("inside_gain", 1.0)
+        if isinstance(k, bool) or not isinstance(k, (int, float)) or not (k >= 0.5 and np.isfinite(k)):
+            raise DamagedFileError(f"'{self.path / 'summary.json'}' has fallback → inside_gain = {k!r}, not a number ≥ 0.5. "
+                                   "Fix: set it to 1 (the learned law as trained inside the box).")
+        return float(k)
+
+    @property
     def uses_recovery(self) -> bool:
         """True when `idapbc-pin recover` kept a recovery law (summary.json → recovery → used)."""
         return bool((self.summary.get("recovery") or {}).get("used", False))
@@ -119,7 +131,7 @@ class Run:
             if self.uses_recovery:
                 self._fallback = read_recovery(self.path)
             elif self.uses_fallback:
-                self._fallback = box_fallback(self.system, self.config)
+                self._fallback = box_fallback(self.system, self.config, self.inside_gain)
         return self._fallback
 
 
@@ -351,6 +363,7 @@ def load_run(path, checkpoint: str | None = None, *, device: str = "cpu") -> Run
     run = Run(path, system, config, nets, _read_summary(path), checkpoint=name)
     if run.uses_recovery:
         run.fallback  # noqa: B018 -- reads recovery.npz now: a damaged one is refused at load, like a checkpoint
+    run.inside_gain  # noqa: B018 -- a damaged summary.json entry is refused at load too
     return run
 
 

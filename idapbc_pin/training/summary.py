@@ -43,6 +43,10 @@ def format_train_summary(run) -> str:
         k = fallback_gain(run.system, run.config)
         law = "u* − Kδ" if k == 1 else f"u* − {k:g}·Kδ"
         lines.append(f"outside the training box: the anchor's linear law {law}{why}")
+        k_in = getattr(run, "inside_gain", 1.0)
+        if k_in != 1.0:
+            sc = f" (gate: {100 * gate['scaled']:.0f} %)" if gate.get("scaled") is not None else ""
+            lines.append(f"inside the training box: the learned law scaled by {k_in:g} about u*, u* + {k_in:g}·(u − u*){sc}")
     elif (s.get("fallback") or {}).get("interrupted"):
         lines.append(f"outside the training box: the learned law, unchecked (the check was interrupted; "
                      f"`idapbc-pin train --resume {run.path}` runs it)")

@@ -101,13 +101,17 @@ def train(
     if status == "finished" and config.fallback == "auto":
         summary["fallback"] = _gate_fallback(system, config, run.nets, progress, run_dir)
     run.summary = summary
+    if run.inside_gain != 1.0:  # the law at x* is the scaled one: its loop, not the networks' alone
+        eig = run.controller.eigenvalues_at_target()
+        summary["eigenvalues_at_target"] = [[float(z.real), float(z.imag)] for z in eig]
+        summary["locally_exponentially_stable"] = bool(np.all(eig.real < 0))
     write_json(run_dir / "summary.json", run.summary)
     return run
 
 
 def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool, run_dir: Path) -> dict:
     """``fallback="auto"``: simulate the learned law with and without the anchor's linear law outside
-    the training box (`fallback_gate`) and record which one the run uses. Ctrl-C skips the check:
+    the training box, and scaled inside it (`fallback_gate`), and record which one the run uses. Ctrl-C skips the check:
     the run then keeps the learned law everywhere, records ``"interrupted": true``, and
     ``train --resume`` runs the check again."""
     t0 = time.perf_counter()
@@ -124,9 +128,12 @@ def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool, ru
     gate["seconds"] = round(time.perf_counter() - t0, 3)
     if progress:
         verdict = "used" if gate["used"] else "not used"
+        scaled = ("" if gate["scaled"] is None else
+                  f"; {100 * gate['scaled']:.0f} % with it there and the learned law scaled by "
+                  f"{fallback_gain(system, config):g} inside ({'used' if gate['inside_gain'] != 1.0 else 'not used'})")
         print(f"outside the training box: success from {gate['states']} fresh states {100 * gate['networks']:.0f} % with the "
               f"learned law, {100 * gate['with_fallback']:.0f} % with the anchor's linear law there (linear law {verdict}; "
-              f"{gate['only_fallback']} states reach x* only with it, {gate['only_networks']} only without)", flush=True)
+              f"{gate['only_fallback']} states reach x* only with it, {gate['only_networks']} only without){scaled}", flush=True)
     return gate
 
 
