@@ -328,3 +328,20 @@ def test_a_damaged_inside_gain_in_summary_json_is_refused_at_load_in_one_line(pe
     with pytest.raises(DamagedFileError, match="inside_gain") as err:
         ip.load_run(path)
     assert "\n" not in str(err.value) and "Fix:" in str(err.value)
+
+
+def test_with_an_inside_gain_the_certificate_takes_h_d_along_the_scaled_law_and_proposition_1_along_the_ida_pbc_law(pendubot_run):
+    from idapbc_pin.certificate.terms import closed_loop_terms
+
+    run = pendubot_run
+    ctrl = run.controller.with_fallback(run.controller.fallback.with_inside_gain(3.0))
+    system = run.system
+    lo, hi = system.domain
+    x = lo + (hi - lo) * np.random.default_rng(4).random((200, system.n))  # inside the box: the scaled law acts
+    terms = closed_loop_terms(ctrl, x)
+    x_dot = system.f(x) + np.einsum("nim,nm->ni", system.g(x), ctrl(x))
+    h = 1e-6
+    fd = (ctrl.H_d(x + h * x_dot) - ctrl.H_d(x - h * x_dot)) / (2 * h)
+    np.testing.assert_allclose(terms.H_dot, fd, rtol=1e-5, atol=1e-8)
+    np.testing.assert_allclose(terms.H_dot_law, -terms.margin, rtol=1e-9, atol=1e-9)
+    assert not np.allclose(terms.H_dot, terms.H_dot_law)  # the two laws differ

@@ -38,9 +38,12 @@ class ClosedLoopTerms:
     xi : (N, n) ξ = G⁻¹(0; −μ), the perturbation of the true closed loop ẋ = f̃_d + ξ (module doc).
     dissipation : (N,) ∇H_dᵀR_d∇H_d (left side of eq. damping_assign_relax_tilde).
     drive : (N,) ∇H_dᵀξ (right side).
-    u : (N, m) the applied input sat(u_law), clipped to the input bound (u_law where there is none).
+    u : (N, m) the applied input sat(u_law), clipped to the input bound (u_law where there is none);
+        u_law = ctrl(x), the law the controller applies (with its fallback, if it has one).
     H_dot : (N,) ∇H_dᵀ(f + g u), the true-loop Ḣ_d with the applied input.
-    H_dot_law : (N,) ∇H_dᵀ(f + g u_law), the unsaturated law's Ḣ_d (= −margin, Proposition 1).
+    H_dot_law : (N,) ∇H_dᵀ(f + g u_IDA), the unsaturated IDA-PBC law's Ḣ_d (= −margin, Proposition 1);
+        u_IDA = ``ctrl.with_fallback(None)(x)`` for a controller with a fallback (a box fallback's
+        inside gain, or a recovery law, changes the law inside the box), else u_law.
     saturated : (N,) bool, the law's input exceeds the bound (u ≠ u_law).
     """
 
@@ -101,13 +104,18 @@ def closed_loop_terms(ctrl, x, system=None, bound=None) -> ClosedLoopTerms:
     u_law = _f64(ctrl(x)).reshape(x.shape[0], system.m)
     u = u_law if bound is None else np.clip(u_law, -_f64(bound), _f64(bound))
     g = _f64(system.g(x))
-    H_dot_law = np.einsum("ni,ni->n", dH, f + np.einsum("nim,nm->ni", g, u_law))
+    # Proposition 1 holds for the IDA-PBC law itself, not for a law the run applies beside it (a
+    # fallback's inside gain, a recovery law): Ḣ_d of the IDA-PBC law for the identity, Ḣ_d of the
+    # applied law for the certificate.
+    u_ida = _f64(ctrl.with_fallback(None)(x)).reshape(u_law.shape) if getattr(ctrl, "fallback", None) is not None else u_law
+    H_dot_law = np.einsum("ni,ni->n", dH, f + np.einsum("nim,nm->ni", g, u_ida))
+    H_dot_applied = H_dot_law if u_ida is u_law else np.einsum("ni,ni->n", dH, f + np.einsum("nim,nm->ni", g, u_law))
     return ClosedLoopTerms(
         x=x, H=H, dH=dH, J=J, R=R, f=f, f_d=f_d, mu=mu, xi=xi,
         dissipation=np.einsum("ni,nij,nj->n", dH, R, dH),
         drive=np.einsum("ni,ni->n", dH, xi),
         u=u,
-        H_dot=H_dot_law if bound is None else np.einsum("ni,ni->n", dH, f + np.einsum("nim,nm->ni", g, u)),
+        H_dot=H_dot_applied if bound is None else np.einsum("ni,ni->n", dH, f + np.einsum("nim,nm->ni", g, u)),
         H_dot_law=H_dot_law,
         saturated=np.any(u != u_law, axis=1),
     )
