@@ -95,16 +95,14 @@ def train(
     # From here the law is only simulated: on the CPU, where the plant is. On an H200 the fallback
     # gate took 73 s with the networks on the GPU against 38 s on the CPU (README, "On a GPU").
     run = Run(run_dir, system, config, trainer.nets.to("cpu"))
+    if status == "finished" and config.fallback == "auto":
+        # first, so that the summary's eigenvalues at x* are those of the law the run applies (a
+        # scaled learned law closes A − kBK there, not the networks' loop alone)
+        run.summary = {"fallback": _gate_fallback(system, config, run.nets, progress, run_dir)}
     summary = _summarise(run, status, trainer.epoch, trainer.eps_ema, trainer.elapsed)
     if gate is not None:
         summary["rollout_gate"] = gate
-    if status == "finished" and config.fallback == "auto":
-        summary["fallback"] = _gate_fallback(system, config, run.nets, progress, run_dir)
-    run.summary = summary
-    if run.inside_gain != 1.0:  # the law at x* is the scaled one: its loop, not the networks' alone
-        eig = run.controller.eigenvalues_at_target()
-        summary["eigenvalues_at_target"] = [[float(z.real), float(z.imag)] for z in eig]
-        summary["locally_exponentially_stable"] = bool(np.all(eig.real < 0))
+    run.summary = {**summary, **run.summary}
     write_json(run_dir / "summary.json", run.summary)
     return run
 
