@@ -3,11 +3,12 @@
 Trains each system for `--epochs` epochs (default 40) with both configurations, prints the time per
 epoch and the extrapolated time of a full training (2000 epochs paper, 1200 fast) and the speed-up.
 The epochs are timed without the `fallback` gate (`fallback="none"`); the gate, which simulates 100
-states twice for 20 s after every training, is timed apart on the fast preset's networks ("gate s")
+states for 20 s under two or three laws after every training, is timed apart on the fast preset's
+networks ("gate s", in `--workers` processes as `idapbc-pin train` runs it: one per core by default)
 and added to both full-training figures. Issue #3 target: the fast preset trains ≥ 5× faster; issue
 #13: a 2-DoF robot in ≤ 90 s, gate included. Pass --full to time complete trainings instead, and
 --device cuda to train on a GPU (the gate always simulates on the CPU's plant).
-Run: python benchmarks/bench_training.py [--epochs 40] [--full] [--device cpu|cuda] [names ...]
+Run: python benchmarks/bench_training.py [--epochs 40] [--full] [--device cpu|cuda] [--workers W] [names ...]
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import tempfile
 import time
 
 import idapbc_pin as ip
+from idapbc_pin._parallel import resolve_workers
 from idapbc_pin.config import TrainConfig
 from idapbc_pin.control.fallback import box_fallback
 from idapbc_pin.training.fallback_gate import fallback_gate
@@ -29,10 +31,10 @@ def seconds_per_epoch(system, config: TrainConfig, out: str) -> tuple[float, ip.
     return (time.perf_counter() - t0) / config.epochs, run
 
 
-def gate_seconds(run: ip.Run) -> float:
-    """Wall time of the `fallback` gate on a run's networks."""
+def gate_seconds(run: ip.Run, workers: int) -> float:
+    """Wall time of the `fallback` gate on a run's networks, in `workers` processes (0: one per core)."""
     t0 = time.perf_counter()
-    fallback_gate(run.system, run.controller, box_fallback(run.system, run.config), run.config.seed)
+    fallback_gate(run.system, run.controller, box_fallback(run.system, run.config), run.config.seed, resolve_workers(workers))
     return time.perf_counter() - t0
 
 
@@ -42,6 +44,7 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=40)
     parser.add_argument("--full", action="store_true", help="time complete trainings (slow)")
     parser.add_argument("--device", default="cpu", help="where the networks train: cpu, cuda or cuda:N")
+    parser.add_argument("--workers", type=int, default=0, help="processes for the gate's simulations (0: one per core, as `train`)")
     args = parser.parse_args()
     paper, fast = TrainConfig(device=args.device), TrainConfig.fast(device=args.device)
     print(f"device: {args.device}")
@@ -53,7 +56,7 @@ def main() -> None:
                 (p, _), (f, run) = (seconds_per_epoch(system, c, out) for c in (paper, fast))
             else:
                 (p, _), (f, run) = (seconds_per_epoch(system, c.replace(epochs=args.epochs), out) for c in (paper, fast))
-            gate = gate_seconds(run)
+            gate = gate_seconds(run, args.workers)
             tp, tf = p * paper.epochs + gate, f * fast.epochs + gate
             print(f"{name:<26}{p:>11.3f}{f:>11.3f}{gate:>8.1f}{tp:>14.0f}{tf:>13.0f}{tp / tf:>9.1f}x")
 

@@ -141,3 +141,11 @@ def test_cli_inspect_lists_actuated_candidates_for_a_bare_urdf(write):
     result = _cli("inspect", write(_pendulum()))
     assert result.returncode == 0, result.stderr
     assert "--actuated j1" in result.stdout and "--actuated j2" in result.stdout
+
+
+def test_a_negative_worker_count_is_refused_before_training():
+    result = _cli("train", "pendubot", "--fast", "--workers", "-1")
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.startswith("error: --workers must be ≥ 0") and result.stderr.count("\n") == 1
+    with pytest.raises(ip.IdapbcError, match="workers must be an integer ≥ 0"):
+        ip.train(ip.load_system("pendubot"), ip.TrainConfig.fast(), workers=-2)

@@ -209,7 +209,7 @@ def test_standalone_torque_float32_networks(runs, tmp_path):
     system = run.system
     folder = ip.export(run, tmp_path / "export", onnx=False)
     assert not (folder / "desired_flow.onnx").exists()
-    q, v = _states(system, n=200)
+    q, v = _states(system, n=RUNTIME_MAX_BATCH + 100)
     x = system.state_from(q, v)
     controller = run.controller
     one_by_one = np.array([system.saturate(controller(xk)) @ system.B.T for xk in x])

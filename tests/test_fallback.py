@@ -139,6 +139,18 @@ def test_the_gate_keeps_the_learned_law_when_the_fallback_does_worse(real_gate):
     _assert_discordant_pairs_explain_the_rates(gate)
 
 
+def test_the_gate_decides_the_same_in_two_worker_processes(real_gate):
+    """The learned law and the scaled law simulated side by side in processes: the same gate, figure
+    for figure, as in this process."""
+    system = ip.load_system("pendubot")
+    fb = box_fallback(system, _tiny())
+    assert fb.gain > 1.0  # a limited robot: three laws
+    law = _Law(system, LQRController(system))
+    one, two = fallback_gate(system, law, fb, seed=0), fallback_gate(system, law, fb, seed=0, workers=2)
+    assert one == two
+    assert one["left_box"] > 0 and one["scaled"] is not None
+
+
 def _assert_discordant_pairs_explain_the_rates(gate: dict) -> None:
     """The states only one law brings to x* account for the whole difference of the two rates, and
     the law the gate picks is the one with the most successes (a tie to the simpler law)."""

@@ -535,3 +535,24 @@ def test_radius_states_are_the_roa_states_and_known_results_are_reused(systems):
     fresh = roa_radius(system, {"LQR": counting}, n=20, T=10.0, dt=0.02)
     assert fresh.radius == result.radius and fresh.bracket == result.bracket and fresh.probes == result.probes
     assert 0 < reused_calls < len(calls)  # s = 1 was not simulated again
+
+
+def test_two_worker_processes_give_the_scores_and_radii_of_one():
+    """Simulating the controllers side by side in processes changes the time, never a result."""
+    system = SaturatedUnstable()
+    ctrls = {"sat": strip_law, "half": half_strip_law}
+    one = roa(system, ctrls, n=60, box="domain", T=8.0, dt=0.05)
+    two = roa(system, ctrls, n=60, box="domain", T=8.0, dt=0.05, workers=2)
+    assert list(two.scores) == list(ctrls)
+    for name in ctrls:
+        for field_name in ("success", "settling_time", "offset", "peak_input", "diverged"):
+            np.testing.assert_array_equal(getattr(one[name], field_name), getattr(two[name], field_name))
+    assert one["sat"].success_rate != one["half"].success_rate  # two different laws, kept apart
+    r1 = roa_radius(system, ctrls, n=60, T=8.0, dt=0.05)
+    r2 = roa_radius(system, ctrls, n=60, T=8.0, dt=0.05, workers=2)
+    assert r1.radius == r2.radius and r1.bracket == r2.bracket and r1.probes == r2.probes
+    assert r1.radius["sat"] != r1.radius["half"]
+
+
+def half_strip_law(x):
+    return -1.5 * (x[:, :1] + x[:, 1:])

@@ -78,6 +78,7 @@ def evaluate_run(
     *,
     limits: bool = True,
     radius: bool = True,
+    workers: int = 1,
 ) -> Evaluation:
     """ROA of the run's controller (optionally with extra damping ρ) and LQR on `n` states per box,
     and their ROA radii on `n` states per scale (the boxes' rollouts reused at s = 1 and 0.5).
@@ -85,15 +86,17 @@ def evaluate_run(
     dt : RK4 step and control period (s); None: 2 ms, or shorter where either loop is stiffer at x* (`judge_step`).
     limits : apply the system's effort limits to both controllers (False lifts them).
     radius : find the ROA radii (False skips them; they cost a few more ROA evaluations).
+    workers : processes simulating the two controllers side by side (1: in this process); the count
+        changes the time, never a result.
     """
     ctrl = run.controller if rho is None else run.controller.with_damping(rho)
     controllers = {"NIDA-PBC": ctrl, "LQR": LQRController(run.system)}
     dt = judge_step(run.system, controllers, T, dt)
-    results = {box: roa(run.system, controllers, n=n, box=box, seed=seed, T=T, dt=dt, limits=limits) for box in boxes}
+    results = {box: roa(run.system, controllers, n=n, box=box, seed=seed, T=T, dt=dt, limits=limits, workers=workers) for box in boxes}
     found = None
     if radius:
         known = {scale: results[box] for scale, box in ((1.0, "domain"), (0.5, "half")) if box in results}
-        found = roa_radius(run.system, controllers, n=n, seed=seed, T=T, dt=dt, known=known, limits=limits)
+        found = roa_radius(run.system, controllers, n=n, seed=seed, T=T, dt=dt, known=known, limits=limits, workers=workers)
     evaluation = Evaluation(run, results, found, bool(limits))
     record = evaluation.record()
     record["rho"] = ctrl.rho

@@ -26,6 +26,7 @@ from typing import Mapping
 
 import numpy as np
 
+from .._parallel import process_map
 from .integrate import Controller
 from .limits import InputLimits, input_limits
 from .roa import RoaResult, score
@@ -180,6 +181,14 @@ def _search(probe: _Prober, s_lo: float, s_hi: float, resolution: float) -> tupl
     return a, (a, b), False, False
 
 
+def _search_job(job) -> tuple[float, tuple, bool, bool, dict]:
+    """Worker: one controller's search, for job = (system, name, ctrl, n, seed, need, known, sim_kw,
+    (s_lo, s_hi), resolution); returns `_search`'s result and the probes."""
+    system, name, ctrl, n, seed, need, known, sim_kw, (s_lo, s_hi), resolution = job
+    probe = _Prober(system, name, ctrl, n, seed, need, known, sim_kw)
+    return (*_search(probe, s_lo, s_hi, resolution), probe.probes)
+
+
 def roa_radius(
     system,
     controllers: Mapping[str, Controller],
@@ -196,6 +205,7 @@ def roa_radius(
     saturation=None,
     limits: bool = True,
     threads: int | None = None,
+    workers: int = 1,
 ) -> RadiusResult:
     """The ROA radius of every controller (see the module docstring).
 
@@ -210,6 +220,8 @@ def roa_radius(
         reused where its states are exactly the states of that scale.
     s_range, resolution, threshold : the search range, the bracket width at which it stops, the
         share of states that must succeed.
+    workers : processes searching the controllers side by side (1: in this process); the count
+        changes the time, never a radius.
 
     Returns
     -------
@@ -224,10 +236,9 @@ def roa_radius(
     sim_kw = dict(T=T, dt=dt, method=method, saturation=saturation, limits=limits, threads=threads)
     known = {float(s): r for s, r in (known or {}).items()}
     radius, bracket, below, above, probes = {}, {}, {}, {}, {}
-    for name, ctrl in controllers.items():
-        probe = _Prober(system, name, ctrl, n, seed, need, known, sim_kw)
-        radius[name], bracket[name], below[name], above[name] = _search(probe, s_lo, s_hi, float(resolution))
-        probes[name] = probe.probes
+    jobs = [(system, name, ctrl, n, seed, need, known, sim_kw, (s_lo, s_hi), float(resolution)) for name, ctrl in controllers.items()]
+    for name, found in zip(controllers, process_map(_search_job, jobs, workers)):
+        radius[name], bracket[name], below[name], above[name], probes[name] = found
     return RadiusResult(
         system=str(getattr(system, "name", type(system).__name__)), radius=radius, bracket=bracket, below=below, above=above,
         probes=probes, n=n, seed=int(seed), T=float(T), dt=float(dt), threshold=float(threshold), resolution=float(resolution),

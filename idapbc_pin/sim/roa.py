@@ -10,6 +10,7 @@ from typing import Mapping
 
 import numpy as np
 
+from .._parallel import process_map
 from .integrate import Controller, simulate
 from .limits import InputLimits, input_limits
 from .metrics import equilibrium_offset, peak_input, settled, settling_time, success
@@ -172,6 +173,12 @@ def score(
     return result, traj
 
 
+def _score_job(job) -> ControllerScore:
+    """Worker: the `score` of one controller, for job = (system, name, ctrl, x0, T, dt, keywords)."""
+    system, name, ctrl, x0, T, dt, kw = job
+    return score(system, name, ctrl, x0, T, dt, **kw)[0]
+
+
 def roa(
     system,
     controllers: Mapping[str, Controller],
@@ -186,6 +193,7 @@ def roa(
     limits: bool = True,
     hold: bool = True,
     threads: int | None = None,
+    workers: int = 1,
 ) -> RoaResult:
     """Region-of-attraction estimate: every controller from the very same `n` uniform states.
 
@@ -199,6 +207,9 @@ def roa(
     T, dt, method, saturation, limits, hold, threads : passed to `simulate` (the system's effort
         limits apply to every controller alike unless ``limits=False``); dt None: one step for all of them,
         `judge_step` of the stiffest loop.
+    workers : processes simulating the controllers side by side (1: in this process;
+        `idapbc_pin._parallel.process_map`); the count changes the time, never a score (a score's
+        ``wall_time`` is its own simulation's).
 
     Returns
     -------
@@ -207,10 +218,9 @@ def roa(
     lo, hi = evaluation_box(system, box)
     x0 = uniform_states(system, n, (lo, hi), seed)
     dt = judge_step(system, controllers, T, dt)
-    scores = {
-        name: score(system, name, ctrl, x0, T, dt, method=method, saturation=saturation, limits=limits, hold=hold, threads=threads)[0]
-        for name, ctrl in controllers.items()
-    }
+    kw = dict(method=method, saturation=saturation, limits=limits, hold=hold, threads=threads)
+    jobs = [(system, name, ctrl, x0, T, dt, kw) for name, ctrl in controllers.items()]
+    scores = {s.name: s for s in process_map(_score_job, jobs, workers)}
     box_name = box if isinstance(box, str) else "custom"
     return RoaResult(
         system=getattr(system, "name", type(system).__name__),

@@ -54,7 +54,19 @@ def gate_step(system: System, fallback: BoxFallback) -> float:
     return step_for_pole(fastest_pole(A - B @ fallback.anchor_K), GATE_HORIZON, GATE_STEP, GATE_POLE_STEP)
 
 
-def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int) -> dict:
+def _gate_job(job) -> tuple[np.ndarray, np.ndarray | None]:
+    """Worker: (N,) bool, the success of `law` from x0 (N, n) on `system` with its effort limits, and
+    (N,) bool, whether each trajectory left `box`'s training box at one of its samples (None without
+    a box), for job = (system, law, x0, dt, box)."""
+    from ..sim.integrate import simulate  # training sits upstream of the judge; imported only here
+    from ..sim.metrics import success
+
+    system, law, x0, dt, box = job
+    traj = simulate(system, law, x0, T=GATE_HORIZON, dt=dt, limits=True)
+    return success(traj, system), (None if box is None else box.outside(traj.x).any(axis=1))  # (N, T_k) -> (N,)
+
+
+def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int, workers: int = 1) -> dict:
     """Success of `ctrl` (the learned law everywhere), of ``ctrl.with_fallback(fallback)`` and, for a
     fallback whose gain k exceeds 1 (a robot with effort limits), of the same with the learned law
     scaled by k about u* inside the box (`BoxFallback.with_inside_gain`), from the same `GATE_STATES`
@@ -63,7 +75,8 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     Only the trajectories that leave the box at one of their samples (every `gate_step`: 2 ms unless
     the loop is stiffer) are simulated again with the fallback; the others are the same under both
     laws (up to an RK4 stage grazing a face). The scaled law changes the law everywhere, so it is
-    simulated from every state.
+    simulated from every state, beside the learned law when `workers` > 1 (processes,
+    `idapbc_pin._parallel.process_map`: the count changes the time, never a verdict).
 
     Returns {"states", "networks", "with_fallback", "scaled" (success rates in [0, 1]; "scaled" None
     where k = 1), "left_box" (how many trajectories of the learned law left the box),
@@ -72,8 +85,7 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     the scaled law is used, else 1), "step" (s)}. The law with the most successes is used; a tie
     goes to the simpler one (the learned law everywhere, then the fallback outside only).
     """
-    from ..sim.integrate import simulate  # training sits upstream of the judge; imported only here
-    from ..sim.metrics import success
+    from .._parallel import process_map
     from ..sim.states import uniform_states
 
     k = GATE_STATES // 2
@@ -81,21 +93,16 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
         uniform_states(system, k, "half", GATE_SEED + seed),
         uniform_states(system, GATE_STATES - k, "domain", GATE_SEED + seed + 1),
     ])
-    plain = ctrl.with_fallback(None)
-    T, dt = GATE_HORIZON, gate_step(system, fallback)
-    traj = simulate(system, plain, x0, T=T, dt=dt, limits=True)
-    ok = success(traj, system)
-    ok_fb = ok.copy()
-    left = fallback.outside(traj.x).any(axis=1)  # (N, T_k) -> (N,)
-    if left.any():  # a trajectory that never leaves the box is the same under both laws
-        ok_fb[left] = success(simulate(system, ctrl.with_fallback(fallback), x0[left], T=T, dt=dt, limits=True), system)
-    counts = [int(ok.sum()), int(ok_fb.sum())]
-    scaled = None
+    dt = gate_step(system, fallback)
+    jobs = [(system, ctrl.with_fallback(None), x0, dt, fallback)]
     if fallback.gain > 1.0:
-        ok_sc = success(simulate(system, ctrl.with_fallback(fallback.with_inside_gain(fallback.gain)), x0, T=T, dt=dt,
-                                 limits=True), system)
-        counts.append(int(ok_sc.sum()))
-        scaled = float(ok_sc.mean())
+        jobs.append((system, ctrl.with_fallback(fallback.with_inside_gain(fallback.gain)), x0, dt, None))
+    (ok, left), *rest = process_map(_gate_job, jobs, workers)
+    ok_fb = ok.copy()
+    if left.any():  # a trajectory that never leaves the box is the same under both laws
+        ok_fb[left] = _gate_job((system, ctrl.with_fallback(fallback), x0[left], dt, None))[0]
+    counts = [int(ok.sum()), int(ok_fb.sum())] + [int(r[0].sum()) for r in rest]
+    scaled = float(rest[0][0].mean()) if rest else None
     best = int(np.argmax(counts))  # the first of the largest: ties go to the simpler law
     rates = {"networks": float(ok.mean()), "with_fallback": float(ok_fb.mean()), "scaled": scaled}
     only_nn, only_fb = int((ok & ~ok_fb).sum()), int((ok_fb & ~ok).sum())  # the pairs between the first two

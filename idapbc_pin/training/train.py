@@ -18,6 +18,7 @@ import torch
 from tqdm.auto import tqdm
 
 from .._io import write_json
+from .._parallel import resolve_workers
 from ..config import TrainConfig
 from ..control.anchor import anchor_settings
 from ..control.linear import fastest_pole
@@ -59,6 +60,7 @@ def train(
     *,
     resume: str | Path | None = None,
     progress: bool = True,
+    workers: int = 1,
 ) -> Run:
     """Train Neural IDA-PBC networks for `system` and return the `Run`.
 
@@ -72,7 +74,12 @@ def train(
     resume : an existing run directory to continue from its last checkpoint; the result equals an
         uninterrupted run with the same config (same seed, same machine).
     progress : show a tqdm progress bar with the named loss terms and ETA.
+    workers : processes for the simulations of the gate after training (``fallback="auto"``): 1 runs
+        them here, 0 one per core (`idapbc_pin._parallel.resolve_workers`); the count changes the
+        time, never the result.
     """
+    if not (isinstance(workers, int) and workers >= 0):
+        raise IdapbcError(f"workers must be an integer ≥ 0, got {workers!r}. Fix: 0 (one process per core) or a count such as 2.")
     config, run_dir, state = _resolve(system, config, out, resume)
     if progress:
         print(f"run directory: {run_dir}", flush=True)
@@ -98,7 +105,7 @@ def train(
     if status == "finished" and config.fallback == "auto":
         # first, so that the summary's eigenvalues at x* are those of the law the run applies (a
         # scaled learned law closes A − kBK there, not the networks' loop alone)
-        run.summary = {"fallback": _gate_fallback(system, config, run.nets, progress, run_dir)}
+        run.summary = {"fallback": _gate_fallback(system, config, run.nets, progress, run_dir, workers)}
     summary = _summarise(run, status, trainer.epoch, trainer.eps_ema, trainer.elapsed)
     if gate is not None:
         summary["rollout_gate"] = gate
@@ -107,7 +114,7 @@ def train(
     return run
 
 
-def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool, run_dir: Path) -> dict:
+def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool, run_dir: Path, workers: int) -> dict:
     """``fallback="auto"``: simulate the learned law with and without the anchor's linear law outside
     the training box, and scaled inside it (`fallback_gate`), and record which one the run uses. Ctrl-C skips the check:
     the run then keeps the learned law everywhere, records ``"interrupted": true``, and
@@ -117,7 +124,8 @@ def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool, ru
         print(f"checking the law outside the training box: {_gate.GATE_STATES} fresh states, {_gate.GATE_HORIZON:g} s each, "
               "with and without the anchor's linear law there (Ctrl-C skips the check) ...", flush=True)
     try:
-        gate = _gate.fallback_gate(system, Controller(system, nets), box_fallback(system, config), config.seed)
+        gate = _gate.fallback_gate(system, Controller(system, nets), box_fallback(system, config), config.seed,
+                                   resolve_workers(workers))
     except KeyboardInterrupt:
         if progress:
             print(f"check interrupted: the run keeps the learned law everywhere; `idapbc-pin train --resume {run_dir}` "
