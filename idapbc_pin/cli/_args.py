@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["add_effort_argument", "add_system_arguments", "key_range", "key_value", "positive_int", "system_kwargs"]
+__all__ = ["add_effort_argument", "add_system_arguments", "add_workers_argument", "key_range", "key_value", "positive_int", "system_kwargs",
+           "workers_of"]
 
 
 def key_value(text: str) -> tuple[str, float]:
@@ -39,6 +40,23 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be ≥ 1, got {value}")
     return value
+
+
+def add_workers_argument(parser: argparse.ArgumentParser) -> None:
+    """--workers W: processes for a sub-command's closed-loop simulations (0, the default: one per core)."""
+    parser.add_argument("--workers", type=int, default=0, metavar="W",
+                        help="processes for the simulations (the two controllers side by side, and train's gate); default 0: "
+                             "one per core, at most 16; 1: this process. The count changes the time, never a result")
+
+
+def workers_of(args: argparse.Namespace) -> int:
+    """The process count of ``args.workers`` (0: one per core); a negative count is refused in one line."""
+    from .._parallel import resolve_workers
+    from ..errors import IdapbcError
+
+    if args.workers < 0:
+        raise IdapbcError(f"--workers must be ≥ 0, got {args.workers}. Fix: 0 (one process per core) or a count such as 2.")
+    return resolve_workers(args.workers)
 
 
 def add_system_arguments(parser: argparse.ArgumentParser) -> None:

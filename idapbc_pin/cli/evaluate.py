@@ -12,7 +12,7 @@ from ..evaluation.closed_loop import JUDGES, simulate_run
 from ..evaluation.robustness import default_conditions, robustness_table
 from ..reporting.report import report
 from ..training.run import CHECKPOINTS, DEFAULT_CHECKPOINT, load_run
-from ._args import positive_int
+from ._args import add_workers_argument, positive_int, workers_of
 
 __all__ = ["add_eval_commands"]
 
@@ -44,7 +44,7 @@ def _cmd_certify(args: argparse.Namespace) -> int:
 
 def _cmd_report(args: argparse.Namespace) -> int:
     print(report(_run(args), n_roa=args.n, T=args.T, rho_extra=args.rho, n_figure=args.n_figure, html=not args.no_html, seed=args.seed,
-                 limits=not args.no_limits, radius=not args.no_radius))
+                 limits=not args.no_limits, radius=not args.no_radius, workers=workers_of(args)))
     return 0
 
 
@@ -105,6 +105,7 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     p.add_argument("--no-html", action="store_true", help="skip the meshcat replay")
     p.add_argument("--no-radius", action="store_true", help="skip the ROA radii (a few more ROA evaluations of --n states)")
+    add_workers_argument(p)
     _add_run_options(p)
     p.set_defaults(func=_cmd_report)
 

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from .._parallel import resolve_workers
 from ..config import FIELD_HELP, TrainConfig
 from ..errors import IdapbcError
-from ._args import add_effort_argument, add_system_arguments, key_range, key_value, system_kwargs
+from ._args import add_effort_argument, add_system_arguments, add_workers_argument, key_range, key_value, system_kwargs, workers_of
 
 __all__ = ["add_model_commands", "add_train_command"]
 
@@ -43,21 +42,20 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from ..training.summary import format_train_summary
     from ..training.train import train
 
-    if args.workers < 0:
-        raise IdapbcError(f"--workers must be ≥ 0, got {args.workers}. Fix: 0 (one process per core) or a count such as 2.")
+    workers = workers_of(args)
     overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth", "rollout_epochs", "fallback", "fallback_gain") if getattr(args, k) is not None}
     if args.resume:
         saved = read_config(args.resume)
         config = saved.replace(**{k: v for k, v in (("epochs", args.epochs), ("lr", args.lr), ("device", args.device)) if v is not None})
         system = load_run_system(args.resume)
-        run = train(system, config, resume=args.resume, workers=args.workers)  # checks the device and both checkpoints before anything is written
+        run = train(system, config, resume=args.resume, workers=workers)  # checks the device and both checkpoints before anything is written
     else:
         if args.source is None:
             raise IdapbcError("train needs SOURCE (or --resume RUN). Fix: see `idapbc-pin train --help`.")
         given = TrainConfig.file_values(args.config) if args.config else {}  # only the keys the file sets
         config = (TrainConfig.fast(**given) if args.fast else TrainConfig(**given)).replace(**overrides)
         system = load_system(args.source, **system_kwargs(args))
-        run = train(system, config, out=args.out, workers=args.workers)
+        run = train(system, config, out=args.out, workers=workers)
     print(format_train_summary(run))
     if run.summary.get("status") == "interrupted":
         print(f"interrupted: resume with  idapbc-pin train --resume {run.path}")
@@ -69,7 +67,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     if args.evaluate > 0:
         from ..evaluation.evaluate import evaluate_run, format_evaluation
 
-        print(format_evaluation(evaluate_run(run, n=args.evaluate, limits=not args.no_limits, workers=resolve_workers(args.workers))))
+        print(format_evaluation(evaluate_run(run, n=args.evaluate, limits=not args.no_limits, workers=workers)))
     print(
         f"next: idapbc-pin report {run.path}   (ROA vs LQR, certificate.json, figure.png, replay.html)\n"
         f"      idapbc-pin view {run.path}     (3-D replay in the browser)"
@@ -104,9 +102,7 @@ def add_train_command(sub) -> None:
     p.add_argument("--resume", metavar="RUN", help="continue RUN from its last checkpoint (same result as uninterrupted)")
     p.add_argument("--evaluate", type=int, default=100, metavar="N", help="closed-loop check vs LQR from N random states after training (0: skip)")
     p.add_argument("--no-limits", action="store_true", help="evaluate without the actuators' effort limits (they apply to both controllers by default)")
-    p.add_argument("--workers", type=int, default=0, metavar="W",
-                   help="processes for the simulations after training (the gate and the evaluation; default 0: one per core, "
-                        "at most 16; 1: this process); the count changes the time, never a result")
+    add_workers_argument(p)
     for name, kind in (("epochs", int), ("seed", int), ("lr", float), ("width", int), ("depth", int), ("rho", float), ("kappa", float)):
         p.add_argument(f"--{name}", type=kind, help=FIELD_HELP[name])
     p.add_argument("--rollout-epochs", dest="rollout_epochs", type=int, metavar="K", help=FIELD_HELP["rollout_epochs"])

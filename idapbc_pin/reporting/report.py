@@ -114,6 +114,7 @@ def report(
     html: bool = True,
     limits: bool = True,
     radius: bool = True,
+    workers: int = 1,
 ) -> str:
     """Everything about a run, in its directory; returns a short text summary.
 
@@ -123,10 +124,11 @@ def report(
     ``pick="success"``); the summary is also
     written to ``report.txt``. The ROA radii (`n_roa` states per scale) are part of the evaluation
     unless ``radius=False``; ``limits=False`` lifts the effort limits in the evaluation, the
-    certificate and the figure (the replay keeps `view`'s default).
+    certificate and the figure (the replay keeps `view`'s default). `workers`: processes simulating
+    the two controllers of the evaluation side by side (1: in this process).
     """
     run = resolve_run(run)
-    evaluation = evaluate_run(run, n=n_roa, T=T, seed=seed, limits=limits, radius=radius)
+    evaluation = evaluate_run(run, n=n_roa, T=T, seed=seed, limits=limits, radius=radius, workers=workers)
     cert = certify(run, n=n_certify, seed=seed, settle_T=T, limits=limits)
     ctrl, _, eps, _ = resolve_controller(run)
     rows = _figure_rows(ctrl, eps, None, n_figure, T, None, seed, rho_extra, True, limits)
