@@ -18,7 +18,6 @@ import tempfile
 import time
 
 import idapbc_pin as ip
-from idapbc_pin._parallel import resolve_workers
 from idapbc_pin.config import TrainConfig
 from idapbc_pin.control.fallback import box_fallback
 from idapbc_pin.training.fallback_gate import fallback_gate
@@ -34,7 +33,7 @@ def seconds_per_epoch(system, config: TrainConfig, out: str) -> tuple[float, ip.
 def gate_seconds(run: ip.Run, workers: int) -> float:
     """Wall time of the `fallback` gate on a run's networks, in `workers` processes (0: one per core)."""
     t0 = time.perf_counter()
-    fallback_gate(run.system, run.controller, box_fallback(run.system, run.config), run.config.seed, resolve_workers(workers))
+    fallback_gate(run.system, run.controller, box_fallback(run.system, run.config), run.config.seed, workers)
     return time.perf_counter() - t0
 
 

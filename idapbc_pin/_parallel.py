@@ -74,7 +74,9 @@ def process_map(fn: Callable, jobs: Sequence, workers: int) -> Iterator:
     """``fn(job)`` for each of `jobs`, yielded in the jobs' order as each becomes available; with
     `workers` == 1 (or a single job) in this process, else in at most `workers` processes of the
     platform's default start method (`fn` must be a module-level function and the jobs must
-    pickle). Closing the iterator early cancels the jobs not yet started."""
+    pickle); `workers` 0 means one per core (`resolve_workers`). Closing the iterator early cancels
+    the jobs not yet started."""
+    workers = resolve_workers(workers)
     if workers <= 1 or len(jobs) <= 1:
         yield from map(fn, jobs)
         return

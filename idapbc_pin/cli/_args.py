@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from ..errors import IdapbcError
+
 __all__ = ["add_effort_argument", "add_system_arguments", "add_workers_argument", "key_range", "key_value", "positive_int", "system_kwargs",
            "workers_of"]
 
@@ -50,13 +52,11 @@ def add_workers_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def workers_of(args: argparse.Namespace) -> int:
-    """The process count of ``args.workers`` (0: one per core); a negative count is refused in one line."""
-    from .._parallel import resolve_workers
-    from ..errors import IdapbcError
-
+    """``args.workers`` (0: one per core, resolved where the processes start); a negative count is
+    refused in one line."""
     if args.workers < 0:
         raise IdapbcError(f"--workers must be ≥ 0, got {args.workers}. Fix: 0 (one process per core) or a count such as 2.")
-    return resolve_workers(args.workers)
+    return args.workers
 
 
 def add_system_arguments(parser: argparse.ArgumentParser) -> None:

@@ -86,7 +86,7 @@ def evaluate_run(
     dt : RK4 step and control period (s); None: 2 ms, or shorter where either loop is stiffer at x* (`judge_step`).
     limits : apply the system's effort limits to both controllers (False lifts them).
     radius : find the ROA radii (False skips them; they cost a few more ROA evaluations).
-    workers : processes simulating the two controllers side by side (1: in this process); the count
+    workers : processes simulating the two controllers side by side (1: in this process, 0: one per core); the count
         changes the time, never a result.
     """
     ctrl = run.controller if rho is None else run.controller.with_damping(rho)

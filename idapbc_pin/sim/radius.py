@@ -220,7 +220,7 @@ def roa_radius(
         reused where its states are exactly the states of that scale.
     s_range, resolution, threshold : the search range, the bracket width at which it stops, the
         share of states that must succeed.
-    workers : processes searching the controllers side by side (1: in this process); the count
+    workers : processes searching the controllers side by side (1: in this process, 0: one per core); the count
         changes the time, never a radius.
 
     Returns

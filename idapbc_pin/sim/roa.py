@@ -207,8 +207,8 @@ def roa(
     T, dt, method, saturation, limits, hold, threads : passed to `simulate` (the system's effort
         limits apply to every controller alike unless ``limits=False``); dt None: one step for all of them,
         `judge_step` of the stiffest loop.
-    workers : processes simulating the controllers side by side (1: in this process;
-        `idapbc_pin._parallel.process_map`); the count changes the time, never a score (a score's
+    workers : processes simulating the controllers side by side (1: in this process, 0: one per
+        core; `idapbc_pin._parallel.process_map`); the count changes the time, never a score (a score's
         ``wall_time`` is its own simulation's).
 
     Returns
