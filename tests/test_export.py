@@ -146,25 +146,29 @@ def test_standalone_torque_equals_the_saturated_law(limited_pendubot, tmp_path):
     assert np.abs(out["batched"]).max() <= system.effort[0] * (1 + 1e-12)
 
 
-@pytest.mark.parametrize("inside_gain", [1.0, 3.0])
-def test_standalone_switches_to_the_linear_law_outside_the_box_as_the_library_does(limited_pendubot, tmp_path, inside_gain):
+@pytest.mark.parametrize("inside_gain, inside_ramp", [(1.0, [0.0, 0.0]), (3.0, [0.0, 0.0]), (3.0, [0.2, 0.5])])
+def test_standalone_switches_to_the_linear_law_outside_the_box_as_the_library_does(limited_pendubot, tmp_path, inside_gain, inside_ramp):
     """A run that uses the fallback (`control.fallback`), with the learned law as trained inside the
-    box or scaled by 3 about u* there (the gate's `inside_gain`): controller.json carries K, u*, the
-    box and the inside gain, and the standalone τ equals the library's on states mostly outside the
-    training box, to 1e-9."""
+    box or scaled by 3 about u* there (the gate's `inside_gain`), constant or ramped in from x*
+    (`inside_ramp`): controller.json carries K, u*, the box, the inside gain and its ramp, and the
+    standalone τ equals the library's on states mostly outside the training box, to 1e-9."""
     run = limited_pendubot[0]
-    run = dataclasses.replace(run, config=run.config.replace(fallback="auto"),
-                              summary={**run.summary, "fallback": {"used": True, "inside_gain": inside_gain}})
-    assert run.controller.fallback.inside_gain == inside_gain
+    entry = {"used": True, "inside_gain": inside_gain, "inside_ramp": inside_ramp}
+    run = dataclasses.replace(run, config=run.config.replace(fallback="auto"), summary={**run.summary, "fallback": entry})
+    assert run.controller.fallback.inside_gain == inside_gain and list(run.controller.fallback.inside_ramp) == inside_ramp
     folder = ip.export(run, tmp_path / "export", onnx=False)
     record = json.loads((folder / "controller.json").read_text())
     np.testing.assert_array_equal(record["fallback"]["K"], run.controller.fallback.K)
-    assert record["fallback"]["inside_gain"] == inside_gain
+    assert record["fallback"]["inside_gain"] == inside_gain and record["fallback"]["inside_ramp"] == inside_ramp
     readme = (folder / "README.md").read_text()
     assert "Outside the training box" in readme and (("Inside the training box" in readme) == (inside_gain != 1.0))
+    assert ("ramped in" in readme) == (inside_ramp[1] > 0)
     q, v = _states(run.system)
-    outside = run.controller.fallback.outside(run.system.state_from(q, v))
+    x = run.system.state_from(q, v)
+    outside = run.controller.fallback.outside(x)
     assert 0.5 < outside.mean() < 1.0
+    r = (np.abs(run.controller.fallback.delta(x)) / run.controller.fallback.half).max(axis=1)
+    assert ((r > 0.2) & (r < 0.5)).any() if inside_ramp[1] > 0 else True  # some states on the ramp itself
     out = _run_standalone(folder, q, v, tmp_path)
     expected = run.controller.torque(q, v)
     assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))

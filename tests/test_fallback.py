@@ -171,11 +171,13 @@ def _weak(system, c):
     return lambda x: lqr.u_star + c * (lqr(x) - lqr.u_star)
 
 
-def test_the_gate_scales_the_learned_law_inside_the_box_when_it_is_too_weak_to_hold_the_target(real_gate):
+def test_the_gate_scales_the_learned_law_inside_the_box_when_it_is_too_weak_to_hold_the_target(real_gate, monkeypatch):
     """A "learned" law with a quarter of LQR's gain leaves x* unstable (A − ¼BK has an eigenvalue at
     +2.4 1/s on the pendubot); scaled by k = 3 about u* it is ¾ of LQR's gain, inside LQR's gain
     margin. With the linear law outside the box (gain 3, no effort limits, so that the inside law
-    decides) the scaled law brings the most states to x*, and the gate picks it."""
+    decides) the scaled law brings the most states to x*, and the gate picks it. The gain is constant
+    here (ramp (0, 0)): a ramped one is 1 at x*, where this law is unstable by design."""
+    monkeypatch.setattr(gate_module, "INSIDE_RAMP", (0.0, 0.0))
     system = dataclasses.replace(ip.load_system("pendubot"), effort=np.full(1, np.inf))
     A, B = system.linearization()
     K = LQRController(system).K
@@ -185,7 +187,7 @@ def test_the_gate_scales_the_learned_law_inside_the_box_when_it_is_too_weak_to_h
     law.lqr = _weak(system, 0.25)  # weak inside the box as well
     gate = fallback_gate(system, law, fb, seed=0)
     assert gate["scaled"] > gate["with_fallback"] > gate["networks"]
-    assert gate["used"] and gate["inside_gain"] == fb.gain == 3.0
+    assert gate["used"] and gate["inside_gain"] == fb.gain == 3.0 and gate["inside_ramp"] == [0.0, 0.0]
     _assert_discordant_pairs_explain_the_rates(gate)
 
 
@@ -222,6 +224,40 @@ def test_with_an_inside_gain_k_the_loop_at_the_target_is_the_anchors_with_k_time
         eig = np.sort_complex(run.controller.with_fallback(fb.with_inside_gain(k)).eigenvalues_at_target())
         np.testing.assert_allclose(eig, np.sort_complex(np.linalg.eigvals(A - k * Bx @ fb.anchor_K)), rtol=1e-6, atol=1e-8)
         assert eig.real.max() < 0
+
+
+def test_a_ramped_inside_gain_is_1_near_the_target_k_far_from_it_and_linear_in_between(pendubot_run):
+    """k(x) = 1 + (k_in − 1)·clip((r − r₀)/(r₁ − r₀), 0, 1), r = max_i |δ_i| / s_i: the learned law as
+    trained within r₀ of x*, scaled by k_in beyond r₁, interpolated in between; outside the box the
+    linear law as before."""
+    run = pendubot_run
+    plain = run.controller
+    fb = plain.fallback.with_inside_gain(3.0, (0.2, 0.5))
+    ramped = plain.with_fallback(fb)
+    rng = np.random.default_rng(3)  # states at every scale up to 1.5 times the box around x*
+    x = fb.x_star + rng.uniform(0.0, 1.5, (600, 1)) * rng.uniform(-1.0, 1.0, (600, run.system.n)) * fb.half
+    r = (np.abs(fb.delta(x)) / fb.half).max(axis=1)
+    near, far, mid = r <= 0.2, (r >= 0.5) & (r <= 1.0), (r > 0.2) & (r < 0.5)
+    assert near.sum() > 0 and far.sum() > 0 and mid.sum() > 0
+    u_nets, u_ramped, u_star = plain.with_fallback(None)(x), ramped(x), fb.u_star
+    np.testing.assert_allclose(u_ramped[near], u_nets[near], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(u_ramped[far], u_star + 3.0 * (u_nets[far] - u_star), rtol=1e-12, atol=1e-12)
+    k_mid = 1.0 + 2.0 * (r[mid] - 0.2) / 0.3
+    np.testing.assert_allclose(u_ramped[mid], u_star + k_mid[:, None] * (u_nets[mid] - u_star), rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(u_ramped[r > 1.0], plain(x)[r > 1.0])  # outside: the same linear law
+    with pytest.raises(ValueError, match="inside_ramp"):
+        plain.fallback.with_inside_gain(3.0, (0.5, 0.2))
+
+
+def test_with_a_ramped_inside_gain_the_loop_at_the_target_is_the_anchors_own(pendubot_run):
+    """The ramp leaves k = 1 around x*, so the linearisation there is A − BK (the anchor's LQR loop),
+    not the slower A − 3BK of a constant gain."""
+    run = pendubot_run
+    fb = run.controller.fallback
+    A, Bx = run.system.linearization()
+    for ramp in ((0.2, 0.5), (0.0, 0.5)):
+        eig = np.sort_complex(run.controller.with_fallback(fb.with_inside_gain(3.0, ramp)).eigenvalues_at_target())
+        np.testing.assert_allclose(eig, np.sort_complex(np.linalg.eigvals(A - Bx @ fb.anchor_K)), rtol=1e-6, atol=1e-8)
 
 
 def test_the_gate_simulates_a_stiff_loop_with_a_step_rk4_can_take():
@@ -342,6 +378,39 @@ def test_a_damaged_inside_gain_in_summary_json_is_refused_at_load_in_one_line(pe
     with pytest.raises(DamagedFileError, match="inside_gain") as err:
         ip.load_run(path)
     assert "\n" not in str(err.value) and "Fix:" in str(err.value)
+
+
+@pytest.mark.parametrize("bad", [[0.5, 0.2], [-0.1, 0.5], "0.2-0.5", [0.2], [0.2, float("inf")], [True, 0.5]])
+def test_a_damaged_inside_ramp_in_summary_json_is_refused_at_load_in_one_line(pendubot_run, tmp_path, bad):
+    import shutil
+
+    from idapbc_pin._io import DamagedFileError
+
+    path = tmp_path / "run"
+    shutil.copytree(pendubot_run.path, path)
+    summary = json.loads((path / "summary.json").read_text())
+    summary["fallback"] = {"used": True, "inside_gain": 3.0, "inside_ramp": bad}
+    (path / "summary.json").write_text(json.dumps(summary))
+    config = json.loads((path / "config.json").read_text())
+    (path / "config.json").write_text(json.dumps({**config, "fallback": "auto"}))
+    with pytest.raises(DamagedFileError, match="inside_ramp") as err:
+        ip.load_run(path)
+    assert "\n" not in str(err.value) and "Fix:" in str(err.value)
+
+
+def test_a_run_gated_before_the_ramp_loads_with_a_constant_inside_gain_and_a_new_one_with_its_ramp(pendubot_run, tmp_path):
+    import shutil
+
+    path = tmp_path / "run"
+    shutil.copytree(pendubot_run.path, path)
+    config = json.loads((path / "config.json").read_text())
+    (path / "config.json").write_text(json.dumps({**config, "fallback": "auto"}))
+    summary = json.loads((path / "summary.json").read_text())
+    for entry, ramp in (({"used": True, "inside_gain": 3.0}, (0.0, 0.0)),
+                        ({"used": True, "inside_gain": 3.0, "inside_ramp": [0.2, 0.5]}, (0.2, 0.5))):
+        (path / "summary.json").write_text(json.dumps({**summary, "fallback": entry}))
+        fb = ip.load_run(path).controller.fallback
+        assert fb.inside_gain == 3.0 and fb.inside_ramp == ramp
 
 
 def test_with_an_inside_gain_the_certificate_takes_h_d_along_the_scaled_law_and_proposition_1_along_the_ida_pbc_law(pendubot_run):

@@ -173,7 +173,7 @@ class Controller:
 
         With u = gᵀ(f̃_d − f) and gᵀg = I: ẋ = (I − ggᵀ)f + ggᵀf̃_d. A box fallback with an inside
         gain k_in (`BoxFallback.inside_gain`) scales u − u* by k_in inside the training box, where x*
-        lies: ∂ẋ/∂x = A + k_in ggᵀ(∂f̃_d/∂x − A).
+        lies: ∂ẋ/∂x = A + k_in ggᵀ(∂f̃_d/∂x − A); a ramped one is 1 at x* (`BoxFallback.gain_at_target`).
         """
         x = self.system.x_star if x is None else np.asarray(x, dtype=np.float64)
         A = self.system.df_dx(x)
@@ -181,7 +181,7 @@ class Controller:
         Jfd = torch.autograd.functional.jacobian(lambda z: self.nets.desired(z[None], create_graph=True)[4][0], xt)
         g = self.system.g(x)
         Pg = g @ np.linalg.solve(g.T @ g, g.T)
-        k_in = getattr(self.fallback, "inside_gain", 1.0)  # a recovery law has none: the networks act at x*
+        k_in = getattr(self.fallback, "gain_at_target", 1.0)  # a recovery law has none: the networks act at x*
         return A + k_in * Pg @ (self._np(Jfd) - A)
 
     def eigenvalues_at_target(self) -> np.ndarray:

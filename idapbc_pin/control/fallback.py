@@ -33,6 +33,18 @@ On the zoo acrobot (elbow 20 N·m, 600 half-box states of seed 11) it brought 92
 49 % against 77 % for the learned law everywhere (docs/results-history.md), which is why the gate
 decides it per run.
 
+The constant k_in leaves the loop at x* as A − k_in BK, whose slowest pole can be far slower than
+the anchor's (a pendubot with 1.5× heavier links: −0.39 1/s against −1.72 1/s, settling 2.6× slower
+than LQR). So the gain ramps up with the distance from x* in the box's ∞-norm, r = max_i |δ_i| / s_i:
+
+    k(x) = 1 + (k_in − 1) · clip((r − r₀) / (r₁ − r₀), 0, 1),     (r₀, r₁) = ``inside_ramp``
+
+which is 1 within r₀ of x* (the learned law as trained: its linearisation is the anchor's LQR loop
+again) and k_in beyond r₁; (0, 0) is the constant k_in. The gate uses `INSIDE_RAMP` = (0.2, 0.5):
+on 200 half-box states of seed 11 (neither a gate's nor an evaluation's) it kept the constant gain's
+success (heavier pendubot 74.5 %, zoo acrobot 89.0 % against 88.5 %) and settled in 4.24 s instead of
+6.44 s and 5.84 s instead of 6.15 s (docs/results-history.md).
+
 Whether a run uses the fallback, and which inside gain, is decided after training on states of its
 own (`training.fallback_gate`): each helped some robots and cost others (docs/results-history.md).
 """
@@ -48,10 +60,13 @@ from ..model.angles import wrap_angles
 from .anchor import half_widths, system_anchor
 from .baseline import equilibrium_input
 
-__all__ = ["LIMITED_GAIN", "BoxFallback", "box_fallback", "fallback_gain"]
+__all__ = ["INSIDE_RAMP", "LIMITED_GAIN", "BoxFallback", "box_fallback", "fallback_gain"]
 
 #: The automatic gain factor k of the fallback for a robot with effort limits (see the module docstring).
 LIMITED_GAIN = 3.0
+#: Where the inside gain ramps from 1 to k_in, in the box's ∞-norm around x* (fractions of its
+#: half-widths; see the module docstring).
+INSIDE_RAMP = (0.2, 0.5)
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,6 +83,8 @@ class BoxFallback:
     gain : k, the factor `K` carries over the anchor's gain.
     inside_gain : k_in ≥ ½, the factor on the learned law's deviation from u* inside the box
         (1: the learned law unchanged there).
+    inside_ramp : (r₀, r₁), 0 ≤ r₀ ≤ r₁: the factor is 1 where max_i |δ_i| / s_i ≤ r₀, k_in beyond
+        r₁, linear in between; (0, 0): k_in everywhere inside (runs gated before the ramp).
     """
 
     K: np.ndarray
@@ -77,6 +94,7 @@ class BoxFallback:
     angle_mask: np.ndarray
     gain: float = 1.0
     inside_gain: float = 1.0
+    inside_ramp: tuple[float, float] = (0.0, 0.0)
 
     @property
     def anchor_K(self) -> np.ndarray:
@@ -92,26 +110,44 @@ class BoxFallback:
         return (np.abs(self.delta(x)) > self.half).any(axis=-1)
 
     def apply(self, x, u) -> np.ndarray:
-        """u* + k_in (u − u*) where x is inside the box, u* − Kδ outside: (N, n), (N, m) -> (N, m)
-        (a new array; u itself inside when k_in = 1)."""
+        """u* + k(x) (u − u*) where x is inside the box (k = `gain_at`), u* − Kδ outside:
+        (N, n), (N, m) -> (N, m) (a new array; u itself inside when k_in = 1)."""
         d = self.delta(np.atleast_2d(x))
         u = np.array(u, dtype=np.float64, copy=True).reshape(len(d), -1)
         if self.inside_gain != 1.0:
-            u = self.u_star + self.inside_gain * (u - self.u_star)
+            u = self.u_star + self.gain_at(d)[:, None] * (u - self.u_star)
         out = (np.abs(d) > self.half).any(axis=-1)
         if out.any():
             u[out] = self.u_star - d[out] @ self.K.T
         return u
 
-    def with_inside_gain(self, inside_gain: float) -> "BoxFallback":
-        """The same fallback with the learned law scaled by `inside_gain` about u* inside the box."""
+    def gain_at(self, delta) -> np.ndarray:
+        """The factor k(x) on u − u* inside the box, for δ = `delta` (N, n) -> (N,): 1 within r₀ of x*
+        in the box's ∞-norm, `inside_gain` beyond r₁, linear in between (`inside_ramp`)."""
+        r0, r1 = self.inside_ramp
+        r = (np.abs(delta) / self.half).max(axis=-1)
+        w = np.clip((r - r0) / (r1 - r0), 0.0, 1.0) if r1 > r0 else (r >= r0).astype(np.float64)
+        return 1.0 + (self.inside_gain - 1.0) * w
+
+    @property
+    def gain_at_target(self) -> float:
+        """The factor that sets the loop's linearisation at x*: `inside_gain` for a constant gain
+        (r₀ = r₁ = 0), else 1 (k − 1 and u − u* both vanish at x*, so the ramp adds no term there)."""
+        return self.inside_gain if self.inside_ramp[1] == 0.0 else 1.0
+
+    def with_inside_gain(self, inside_gain: float, inside_ramp=(0.0, 0.0)) -> "BoxFallback":
+        """The same fallback with the learned law scaled by `inside_gain` about u* inside the box,
+        ramped in over `inside_ramp` (r₀, r₁) = fractions of the box (default: constant)."""
         if not (math.isfinite(inside_gain) and inside_gain >= 0.5):
             raise ValueError(f"inside_gain must be ≥ 0.5 (LQR's gain margin), got {inside_gain}")
-        return replace(self, inside_gain=float(inside_gain))
+        r0, r1 = (float(r) for r in inside_ramp)
+        if not (math.isfinite(r1) and 0.0 <= r0 <= r1):
+            raise ValueError(f"inside_ramp must be two fractions of the box 0 ≤ r0 ≤ r1, got {tuple(inside_ramp)}")
+        return replace(self, inside_gain=float(inside_gain), inside_ramp=(r0, r1))
 
     def to_json(self) -> dict:
         """The arrays as lists (controller.json of an export)."""
-        return {k: np.asarray(getattr(self, k)).tolist() for k in ("K", "u_star", "x_star", "half", "angle_mask", "gain", "inside_gain")}
+        return {k: np.asarray(getattr(self, k)).tolist() for k in ("K", "u_star", "x_star", "half", "angle_mask", "gain", "inside_gain", "inside_ramp")}
 
 
 def fallback_gain(system, config) -> float:
@@ -122,10 +158,11 @@ def fallback_gain(system, config) -> float:
     return LIMITED_GAIN if system.limited else 1.0
 
 
-def box_fallback(system, config, inside_gain: float = 1.0) -> BoxFallback:
+def box_fallback(system, config, inside_gain: float = 1.0, inside_ramp=(0.0, 0.0)) -> BoxFallback:
     """The fallback of `system` trained with `config` (its resolved scaling, anchor_q and fallback_gain):
     k times the anchor's LQR gain K (physical units), u* = −(gᵀg)⁻¹gᵀf(x*), the training box's
-    half-widths, and `inside_gain` on the learned law inside the box (1: unchanged)."""
+    half-widths, and `inside_gain` on the learned law inside the box (1: unchanged), ramped in over
+    `inside_ramp` (`BoxFallback.gain_at`)."""
     anchor = system_anchor(system, config)
     gain = fallback_gain(system, config)
     return BoxFallback(
@@ -135,4 +172,4 @@ def box_fallback(system, config, inside_gain: float = 1.0) -> BoxFallback:
         x_star=np.array(system.x_star, dtype=np.float64),
         half=np.array(half_widths(system), dtype=np.float64),
         angle_mask=np.array(system.angle_mask, dtype=bool),
-    ).with_inside_gain(inside_gain)
+    ).with_inside_gain(inside_gain, inside_ramp)

@@ -11,8 +11,10 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
     q ← q* + wrap(q − q*) on the angles listed in controller.json's "wrap" (to within π of the target)
     x = (q, p), p = M(q) v;   f(x) = (v, C(q, v)ᵀv − ∇U(q) − D v)   (Pinocchio on robot.urdf)
     u = (BᵀB)⁻¹Bᵀ (f̃_d(x) − f(x))_p
-    u ← u* + k_in (u − u*)                                 (only if controller.json has a "fallback"
-                  with an "inside_gain" k_in ≠ 1: the learned law scaled inside the training box)
+    u ← u* + k(x) (u − u*)                                 (only if controller.json has a "fallback"
+                  with an "inside_gain" k_in ≠ 1: the learned law scaled inside the training box;
+                  k(x) = 1 + (k_in − 1) clip((r − r0) / (r1 − r0), 0, 1), r = max_i |δ_i| / s_i,
+                  (r0, r1) its "inside_ramp"; k = k_in everywhere inside when r0 = r1 = 0)
     u ← u* − K δ  where some |δ_i| > s_i, δ = wrap(x − x*)   (only if controller.json has a "fallback":
                   the linear law the run uses outside its training box, half-widths s; its K is
                   the anchor's LQR gain times the fallback's "gain")
@@ -131,7 +133,10 @@ class ExportedController:
         d[:, fb["angle_mask"]] = np.pi - np.mod(np.pi - d[:, fb["angle_mask"]], 2 * np.pi)  # wrap to (−π, π]
         k_in = float(fb.get("inside_gain", 1.0))  # exports before it had none: 1
         if not self.recovery and k_in != 1.0:
-            u = fb["u_star"] + k_in * (u - fb["u_star"])
+            r0, r1 = fb.get("inside_ramp", (0.0, 0.0))  # exports before it had none: a constant gain
+            r = (np.abs(d) / fb["half"]).max(axis=1)
+            w = np.clip((r - r0) / (r1 - r0), 0.0, 1.0) if r1 > r0 else (r >= r0).astype(np.float64)
+            u = fb["u_star"] + (1.0 + (k_in - 1.0) * w)[:, None] * (u - fb["u_star"])
         out = (np.abs(d) > fb["inner" if self.recovery else "half"]).any(axis=1)
         if out.any():
             u = u.copy()

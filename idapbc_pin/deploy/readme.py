@@ -150,12 +150,18 @@ def deploy_readme(record: dict) -> str:
             "because it brought more simulated states to x*.\n"
         )
         k_in = float(fallback.get("inside_gain", 1.0))
+        r0, r1 = (float(r) for r in fallback.get("inside_ramp", (0.0, 0.0)))
         if k_in != 1.0:
-            line = f"    u    ← u* + {k_in:g}·(u − u*)                                          (inside the training box)\n" + line
+            k = f"{k_in:g}" if r1 == 0 else "k(x)"
+            line = f"    u    ← u* + {k}·(u − u*)                                          (inside the training box)\n" + line
+            ramp = ("" if r1 == 0 else
+                    f" The factor is ramped in: k(x) = 1 + ({k_in:g} − 1)·clip((r − {r0:g}) / ({r1:g} − {r0:g}), 0, 1) with "
+                    "r = max_i |δ_i| / s_i (\"inside_ramp\"), so near x* the learned law acts as trained and keeps its "
+                    "LQR-like linearisation.")
             text += (
                 f"\nInside the training box the learned law is scaled by {k_in:g} about u* (controller.json's \"fallback\" → "
                 "\"inside_gain\"), so under the effort limits it switches on its sign as the linear law does outside; "
-                "training chose it because it brought more simulated states to x* than the learned law as trained.\n"
+                f"training chose it because it brought more simulated states to x* than the learned law as trained.{ramp}\n"
             )
     body = _BODY.format(dtype=record["dtype"], n=2 * nv, nv=nv, x_star=x_star, joints=_joint_table(record), onnx_row=onnx_row,
                         fallback_line=line, fallback_text=text)

@@ -104,6 +104,7 @@ def evaluate_run(
     record["recovery"] = isinstance(law, RecoveryLaw)  # NIDA-PBC used a recovery law outside an inner box (`idapbc-pin recover`)
     record["fallback"] = law is not None and not record["recovery"]  # NIDA-PBC used the anchor's linear law outside the training box
     record["inside_gain"] = float(getattr(law, "inside_gain", 1.0)) if record["fallback"] else 1.0  # and scaled its law inside it
+    record["inside_ramp"] = list(getattr(law, "inside_ramp", (0.0, 0.0))) if record["fallback"] else [0.0, 0.0]  # from 1 near x*
     write_json(run.path / "evaluation.json", record)
     return evaluation
 

@@ -4,7 +4,8 @@ scales the learned law inside it: decided by simulation.
 After training, the learned law is simulated on the true plant, with the actuators' limits, from
 `GATE_STATES` states of its own: as trained, with the anchor's linear law outside the training box,
 and (robots with effort limits, whose fallback gain k is 3) with that linear law outside and the
-learned law scaled by k about u* inside (`BoxFallback.inside_gain`). The law that brings the most of
+learned law scaled by k about u* inside, the factor ramped in from 1 near x* (`BoxFallback.inside_gain`,
+`control.fallback.INSIDE_RAMP`). The law that brings the most of
 those states to x* is used (DESIGN §4 success: T = 20 s, within 0.05 over the last 2 s); a tie keeps
 the simpler one. Half the states are drawn from the half box and
 half from the training box, with seeds ``GATE_SEED + seed`` and ``GATE_SEED + seed + 1``: neither
@@ -21,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..control.controller import Controller
-from ..control.fallback import BoxFallback
+from ..control.fallback import INSIDE_RAMP, BoxFallback
 from ..control.linear import fastest_pole
 from ..model import System
 
@@ -69,7 +70,7 @@ def _gate_job(job) -> tuple[np.ndarray, np.ndarray | None]:
 def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int, workers: int = 1) -> dict:
     """Success of `ctrl` (the learned law everywhere), of ``ctrl.with_fallback(fallback)`` and, for a
     fallback whose gain k exceeds 1 (a robot with effort limits), of the same with the learned law
-    scaled by k about u* inside the box (`BoxFallback.with_inside_gain`), from the same `GATE_STATES`
+    scaled by k about u* inside the box, ramped in over `INSIDE_RAMP` (`BoxFallback.with_inside_gain`), from the same `GATE_STATES`
     states, simulated on `system` with its effort limits.
 
     Only the trajectories that leave the box at one of their samples (every `gate_step`: 2 ms unless
@@ -82,7 +83,7 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     where k = 1), "left_box" (how many trajectories of the learned law left the box),
     "only_networks" and "only_fallback" (how many states only that law brought to x*: the discordant
     pairs between the first two), "used" (bool: the run uses the fallback), "inside_gain" (k where
-    the scaled law is used, else 1), "step" (s)}. The law with the most successes is used; a tie
+    the scaled law is used, else 1), "inside_ramp" ([r₀, r₁] where it is used, else [0, 0]), "step" (s)}. The law with the most successes is used; a tie
     goes to the simpler one (the learned law everywhere, then the fallback outside only).
     """
     from .._parallel import process_map
@@ -96,7 +97,7 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     dt = gate_step(system, fallback)
     jobs = [(system, ctrl.with_fallback(None), x0, dt, fallback)]
     if fallback.gain > 1.0:
-        jobs.append((system, ctrl.with_fallback(fallback.with_inside_gain(fallback.gain)), x0, dt, None))
+        jobs.append((system, ctrl.with_fallback(fallback.with_inside_gain(fallback.gain, INSIDE_RAMP)), x0, dt, None))
     (ok, left), *rest = process_map(_gate_job, jobs, workers)
     ok_fb = ok.copy()
     if left.any():  # a trajectory that never leaves the box is the same under both laws
@@ -107,4 +108,5 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     rates = {"networks": float(ok.mean()), "with_fallback": float(ok_fb.mean()), "scaled": scaled}
     only_nn, only_fb = int((ok & ~ok_fb).sum()), int((ok_fb & ~ok).sum())  # the pairs between the first two
     return {"states": int(len(x0)), **rates, "left_box": int(left.sum()), "only_networks": only_nn, "only_fallback": only_fb,
-            "used": best > 0, "inside_gain": float(fallback.gain) if best == 2 else 1.0, "step": dt}
+            "used": best > 0, "inside_gain": float(fallback.gain) if best == 2 else 1.0,
+            "inside_ramp": list(INSIDE_RAMP) if best == 2 else [0.0, 0.0], "step": dt}

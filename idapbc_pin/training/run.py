@@ -118,6 +118,17 @@ class Run:
         return float(k)
 
     @property
+    def inside_ramp(self) -> tuple[float, float]:
+        """Where the inside gain ramps in (`BoxFallback.inside_ramp`): summary.json → fallback →
+        inside_ramp; (0, 0), a constant gain, for runs gated before the ramp existed."""
+        r = (self.summary.get("fallback") or {}).get("inside_ramp", [0.0, 0.0]) if self.uses_fallback else [0.0, 0.0]
+        ok = isinstance(r, list) and len(r) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in r)
+        if not (ok and np.isfinite(r[1]) and 0.0 <= r[0] <= r[1]):
+            raise DamagedFileError(f"'{self.path / 'summary.json'}' has fallback → inside_ramp = {r!r}, not two numbers 0 ≤ r0 ≤ r1. "
+                                   "Fix: set it to [0, 0] (a constant inside gain) or re-run the gate (`idapbc-pin train`).")
+        return float(r[0]), float(r[1])
+
+    @property
     def uses_recovery(self) -> bool:
         """True when `idapbc-pin recover` kept a recovery law (summary.json → recovery → used)."""
         return bool((self.summary.get("recovery") or {}).get("used", False))
@@ -131,7 +142,7 @@ class Run:
             if self.uses_recovery:
                 self._fallback = read_recovery(self.path)
             elif self.uses_fallback:
-                self._fallback = box_fallback(self.system, self.config, self.inside_gain)
+                self._fallback = box_fallback(self.system, self.config, self.inside_gain, self.inside_ramp)
         return self._fallback
 
 
@@ -363,7 +374,7 @@ def load_run(path, checkpoint: str | None = None, *, device: str = "cpu") -> Run
     run = Run(path, system, config, nets, _read_summary(path), checkpoint=name)
     if run.uses_recovery:
         run.fallback  # noqa: B018 -- reads recovery.npz now: a damaged one is refused at load, like a checkpoint
-    run.inside_gain  # noqa: B018 -- a damaged summary.json entry is refused at load too
+    run.inside_gain, run.inside_ramp  # noqa: B018 -- a damaged summary.json entry is refused at load too
     return run
 
 

@@ -46,7 +46,9 @@ def format_train_summary(run) -> str:
         k_in = getattr(run, "inside_gain", 1.0)
         if k_in != 1.0:
             sc = f" (gate: {100 * gate['scaled']:.0f} %)" if gate.get("scaled") is not None else ""
-            lines.append(f"inside the training box: the learned law scaled by {k_in:g} about u*, u* + {k_in:g}·(u − u*){sc}")
+            r0, r1 = getattr(run, "inside_ramp", (0.0, 0.0))
+            ramp = f", k ramped from 1 within {r0:g} of the box around x* to {k_in:g} beyond {r1:g}" if r1 > 0 else ""
+            lines.append(f"inside the training box: the learned law scaled about u*, u* + k·(u − u*), k = {k_in:g}{ramp}{sc}")
     elif (s.get("fallback") or {}).get("interrupted"):
         lines.append(f"outside the training box: the learned law, unchecked (the check was interrupted; "
                      f"`idapbc-pin train --resume {run.path}` runs it)")

@@ -134,7 +134,7 @@ def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool, ru
         verdict = "used" if gate["used"] else "not used"
         scaled = ("" if gate["scaled"] is None else
                   f"; {100 * gate['scaled']:.0f} % with it there and the learned law scaled by "
-                  f"{fallback_gain(system, config):g} inside ({'used' if gate['inside_gain'] != 1.0 else 'not used'})")
+                  f"{fallback_gain(system, config):g} inside away from x* ({'used' if gate['inside_gain'] != 1.0 else 'not used'})")
         print(f"outside the training box: success from {gate['states']} fresh states {100 * gate['networks']:.0f} % with the "
               f"learned law, {100 * gate['with_fallback']:.0f} % with the anchor's linear law there (linear law {verdict}; "
               f"{gate['only_fallback']} states reach x* only with it, {gate['only_networks']} only without){scaled}", flush=True)
