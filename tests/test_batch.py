@@ -321,6 +321,23 @@ def test_a_killed_batch_resumes_with_only_the_remaining_jobs(tmp_path):
     assert again.ran == [] and again.skipped == ["furuta", "reaction_wheel"]
 
 
+def test_a_finished_job_run_again_reuses_its_run_on_a_robot_with_effort_limits(tmp_path):
+    """The run's config.json holds its automatic values resolved (the fallback gain 3 of a robot with
+    effort limits among them); a job run again must resolve them the same way, or it would delete the
+    finished run and train from scratch."""
+    pipeline = _pipeline(tmp_path, '[[job]]\nname = "wheel"\nsource = "reaction_wheel"\nevaluate = { n = 2, T = 0.5, seed = 0 }\n')
+    out = tmp_path / "batch"
+    run_batch(pipeline, workers=1, out=out, progress=False)
+    first = json.loads((out / "wheel" / "job.json").read_text())
+    assert first["resumed"] is None and json.loads((out / "wheel" / first["run_dir"] / "config.json").read_text())["fallback_gain"] == 3.0
+    (out / "wheel" / "job.json").unlink()  # as if the job had to be evaluated again
+    again = run_batch(pipeline, workers=1, out=out, progress=False)
+    assert again.ran == ["wheel"]
+    record = json.loads((out / "wheel" / "job.json").read_text())
+    assert record["resumed"] == "reused" and record["run_dir"] == first["run_dir"]
+    assert [p.parent.name for p in (out / "wheel").glob("*/config.json")] == [first["run_dir"]]
+
+
 def test_a_job_killed_during_training_resumes_from_its_last_checkpoint(tmp_path):
     from idapbc_pin.model import load_system
     from idapbc_pin.training.train import train

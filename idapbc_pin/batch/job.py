@@ -18,14 +18,13 @@ import torch
 
 from .._io import write_json
 from ..certificate.certify import certify
-from ..control.anchor import anchor_settings
 from ..errors import IdapbcError
 from ..evaluation.evaluate import evaluate_run
 from ..model import load_system
 from ..reporting.report import figure
 from ..training.run import load_run, read_checkpoint, read_config
 from ..training.recovery import RecoveryConfig
-from ..training.train import train
+from ..training.train import resolved_config, train
 from ..training.weak_actuators import auto_recover
 from ..viewer import view
 from ._files import read_json_or_none, timestamp
@@ -133,9 +132,7 @@ def _stages(job: Job, workdir: Path, record: dict):
 
     with stage("load"):
         system = load_system(job.source_path, **job.system_arguments())
-        config = job.train_config()
-        scaling, anchor_q = anchor_settings(system, config)  # as train resolves them, so a rerun finds its run
-        config = config.replace(scaling=scaling, anchor_q=anchor_q)
+        config = resolved_config(system, job.train_config())  # as train resolves it, so a rerun finds its run
         torch.set_num_threads(config.threads)
     with stage("train"):
         run, how = _train_or_resume(system, config, workdir)

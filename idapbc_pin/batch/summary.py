@@ -212,7 +212,8 @@ def zoo_table_markdown(summary_csv) -> str:
         "in the box with a decreasing value on every sample (see docs/method.md): sampled, not proofs. NIDA-PBC outside "
         "the box = the law NIDA-PBC applies outside the training box, chosen after training (the anchor's linear law, or "
         "the networks'; docs/method.md §6; \"inside, the learned law × k\": the gate also scaled the learned law by k about u* "
-        "inside the box), or \"recovery law\" where a recovery law fitted to torque plans within the limits "
+        "inside the box, the factor ramped in from 1 within 20 % of the box around x* to k beyond 50 % for runs gated since "
+        "the ramp), or \"recovery law\" where a recovery law fitted to torque plans within the limits "
         "replaces the networks outside an inner box (README, \"A recovery law for weak actuators\")."
     )
     return _table(head, body) + "\n\n" + note + "\n"

@@ -177,10 +177,16 @@ def _resolve(system: System, config: TrainConfig | None, out, resume) -> tuple[T
         require_device(config.device)  # before the checkpoint: torch calls a GPU run's checkpoint unreadable on a CPU-only machine
         check_checkpoints(run_dir, system, config)  # a damaged best.pt must not pass unnoticed either
         return config, run_dir, read_checkpoint(run_dir, "last", map_location=config.device)
-    config = config or TrainConfig()
-    scaling, anchor_q = anchor_settings(system, config)
-    config = config.replace(scaling=scaling, anchor_q=anchor_q, fallback_gain=fallback_gain(system, config))
+    config = resolved_config(system, config or TrainConfig())
     return config, _new_run_dir(Path(out) if out is not None else Path("runs") / system.name), None
+
+
+def resolved_config(system: System, config: TrainConfig) -> TrainConfig:
+    """`config` with its automatic values resolved for `system` (the units and the anchor weight,
+    `control.anchor.anchor_settings`, and the fallback gain, `control.fallback.fallback_gain`): what a
+    new run's config.json records, so a batch that runs a job again finds the run it trained."""
+    scaling, anchor_q = anchor_settings(system, config)
+    return config.replace(scaling=scaling, anchor_q=anchor_q, fallback_gain=fallback_gain(system, config))
 
 
 def _new_run_dir(out: Path) -> Path:
