@@ -17,7 +17,7 @@ import pickle
 from concurrent.futures import ProcessPoolExecutor
 from typing import Callable, Iterator, Sequence
 
-__all__ = ["MAX_AUTO_WORKERS", "THREAD_ENV", "available_cores", "process_map", "resolve_workers", "thread_env"]
+__all__ = ["MAX_AUTO_WORKERS", "THREAD_ENV", "available_cores", "process_map", "resolve_workers", "stop_with_parent", "thread_env"]
 
 #: Environment of worker processes: one OpenMP / MKL / BLAS thread each (set before they import numpy or torch).
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
@@ -56,13 +56,40 @@ def thread_env():
                 os.environ[k] = v
 
 
-def _one_thread() -> None:
-    """Worker initialiser: one thread in torch and in every native thread pool of this process."""
+#: How often a worker checks that the process that started it is alive (s), and how long it lets an
+#: interrupted job wind down (save its checkpoint, write its record) before it exits (s).
+PARENT_POLL = 0.5
+PARENT_GRACE = 30.0
+
+
+def stop_with_parent(parent: int) -> None:
+    """Worker initialiser: once the process `parent` (the one that started this worker) is gone,
+    interrupt this worker as Ctrl-C would (SIGINT), then exit after `PARENT_GRACE` s if it is still
+    running. A driver killed on its own (SIGTERM, SIGKILL) would otherwise leave its workers
+    training on, and writing into folders a new run of the same batch uses."""
+    import signal
+    import threading
+    import time
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL)
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(PARENT_GRACE)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="stop-with-parent", daemon=True).start()
+
+
+def _one_thread(parent: int) -> None:
+    """Worker initialiser: one thread in torch and in every native thread pool of this process, and
+    `stop_with_parent`."""
     import torch
     from threadpoolctl import threadpool_limits
 
     torch.set_num_threads(1)
     threadpool_limits(1)
+    stop_with_parent(parent)
 
 
 def _call(fn_and_job: tuple[Callable, bytes]):
@@ -80,7 +107,7 @@ def process_map(fn: Callable, jobs: Sequence, workers: int) -> Iterator:
     if workers <= 1 or len(jobs) <= 1:
         yield from map(fn, jobs)
         return
-    pool = ProcessPoolExecutor(min(workers, len(jobs)), initializer=_one_thread)
+    pool = ProcessPoolExecutor(min(workers, len(jobs)), initializer=_one_thread, initargs=(os.getpid(),))
     try:
         yield from pool.map(_call, [(fn, pickle.dumps(job)) for job in jobs])
     finally:

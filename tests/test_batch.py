@@ -9,6 +9,7 @@ states): their numbers say nothing about control quality, only that every stage 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import os
@@ -336,6 +337,50 @@ def test_a_finished_job_run_again_reuses_its_run_on_a_robot_with_effort_limits(t
     record = json.loads((out / "wheel" / "job.json").read_text())
     assert record["resumed"] == "reused" and record["run_dir"] == first["run_dir"]
     assert [p.parent.name for p in (out / "wheel").glob("*/config.json")] == [first["run_dir"]]
+
+
+def _alive(pid: int) -> bool:
+    """Whether process `pid` exists and is not a zombie waiting to be reaped."""
+    try:
+        return "\nState:\tZ" not in Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/status").is_file(), reason="reads /proc")
+def test_a_batch_driver_killed_on_its_own_takes_its_workers_with_it(tmp_path):
+    """SIGKILL to the driver alone (no handler of its can run): its worker processes notice, interrupt
+    their jobs as Ctrl-C would, record them as interrupted (a rerun resumes them) and exit, instead of
+    training on into folders the next run of the batch uses."""
+    long = 'train = { epochs = 100000, width = 16, depth = 1, samples = 64, dtype = "float64", checkpoint_every = 5, seed = 0, fallback = "none" }'
+    pipeline = _pipeline(tmp_path, "".join(f'[[job]]\nname = "{n}"\nsource = "reaction_wheel"\n{long}\n' for n in ("a", "b")))
+    out = tmp_path / "batch"
+    code = "import sys; from idapbc_pin.batch import run_batch; run_batch(sys.argv[1], workers=2, out=sys.argv[2], progress=False)"
+    driver = subprocess.Popen([sys.executable, "-c", code, str(pipeline), str(out)], cwd=tmp_path, start_new_session=True,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        deadline, pids = time.monotonic() + 120, {}
+        while len(pids) < 2 and driver.poll() is None and time.monotonic() < deadline:
+            for name in ("a", "b"):
+                log = out / name / "job.log"
+                if log.is_file() and "(pid " in log.read_text():
+                    pids[name] = int(log.read_text().split("(pid ")[1].split(")")[0])
+            time.sleep(0.2)
+        assert len(pids) == 2 and driver.poll() is None, "the two jobs never started"
+        while not all(list((out / n).glob("*/checkpoints/last.pt")) for n in pids) and time.monotonic() < deadline:
+            time.sleep(0.2)  # both are training
+        driver.kill()
+        driver.wait()
+        deadline = time.monotonic() + 60
+        while any(_alive(pid) for pid in pids.values()) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not any(_alive(pid) for pid in pids.values()), "a worker outlived its driver"
+        for name in pids:
+            assert json.loads((out / name / "job.json").read_text())["status"] == "interrupted"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(driver.pid, signal.SIGKILL)
 
 
 def test_a_job_killed_during_training_resumes_from_its_last_checkpoint(tmp_path):

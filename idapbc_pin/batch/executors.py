@@ -3,7 +3,8 @@
 All three run the same `run_job`, with one torch thread (and one OpenMP / MKL / BLAS thread) per
 job, so N workers use N cores and the same seeds give the same results whichever runs them. A
 worker that dies (killed, out of memory, segfault) fails its job only: the driver writes that
-job's ``job.json``. Ray is an optional extra; a remote node that cannot see the batch directory
+job's ``job.json``. A driver that dies on its own (SIGTERM or SIGKILL to it alone) takes its local
+workers with it: each interrupts its job as Ctrl-C would (`idapbc_pin._parallel.stop_with_parent`). Ray is an optional extra; a remote node that cannot see the batch directory
 ships its job directory back as an archive (`idapbc_pin.batch._shipping`).
 """
 
@@ -16,7 +17,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 from .._io import write_json
-from .._parallel import THREAD_ENV, available_cores, thread_env
+from .._parallel import THREAD_ENV, available_cores, stop_with_parent, thread_env
 from ..errors import IdapbcError
 from ._shipping import unpack_dir
 from .job import run_job
@@ -70,7 +71,7 @@ def _run_pool(jobs: list[Job], batch_dir: Path, tracker: Tracker, workers: int) 
     ctx = multiprocessing.get_context("spawn")
     with thread_env():  # inherited by the spawned workers before they import torch
         while queue:
-            pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+            pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=stop_with_parent, initargs=(os.getpid(),))
             inflight = {}
             broken = False
             try:
