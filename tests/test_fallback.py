@@ -362,54 +362,35 @@ def test_train_prints_how_many_states_only_one_law_brings_home(tmp_path, capsys)
     assert f"{gate['only_fallback']} states reach x* only with it, {gate['only_networks']} only without" in printed
 
 
-@pytest.mark.parametrize("bad", [0.1, "three", None, float("nan")])
-def test_a_damaged_inside_gain_in_summary_json_is_refused_at_load_in_one_line(pendubot_run, tmp_path, bad):
+def _gated_copy(run, tmp_path, fallback: dict):
+    """A copy of `run` with ``fallback = "auto"`` in config.json and `fallback` as its gate's entry in
+    summary.json (what the gate after training writes)."""
     import shutil
 
-    from idapbc_pin._io import DamagedFileError
-
     path = tmp_path / "run"
-    shutil.copytree(pendubot_run.path, path)
+    shutil.copytree(run.path, path, dirs_exist_ok=True)
     summary = json.loads((path / "summary.json").read_text())
-    summary["fallback"] = {"used": True, "inside_gain": bad}
-    (path / "summary.json").write_text(json.dumps(summary))
+    (path / "summary.json").write_text(json.dumps({**summary, "fallback": fallback}))
     config = json.loads((path / "config.json").read_text())
     (path / "config.json").write_text(json.dumps({**config, "fallback": "auto"}))
-    with pytest.raises(DamagedFileError, match="inside_gain") as err:
-        ip.load_run(path)
-    assert "\n" not in str(err.value) and "Fix:" in str(err.value)
+    return path
 
 
-@pytest.mark.parametrize("bad", [[0.5, 0.2], [-0.1, 0.5], "0.2-0.5", [0.2], [0.2, float("inf")], [True, 0.5]])
-def test_a_damaged_inside_ramp_in_summary_json_is_refused_at_load_in_one_line(pendubot_run, tmp_path, bad):
-    import shutil
-
+@pytest.mark.parametrize("entry", [{"inside_gain": bad} for bad in (0.1, "three", None, float("nan"))]
+                         + [{"inside_gain": 3.0, "inside_ramp": bad} for bad in ([0.5, 0.2], [-0.1, 0.5], "0.2-0.5", [0.2], [0.2, float("inf")], [True, 0.5])])
+def test_a_damaged_inside_gain_or_ramp_in_summary_json_is_refused_at_load_in_one_line(pendubot_run, tmp_path, entry):
     from idapbc_pin._io import DamagedFileError
 
-    path = tmp_path / "run"
-    shutil.copytree(pendubot_run.path, path)
-    summary = json.loads((path / "summary.json").read_text())
-    summary["fallback"] = {"used": True, "inside_gain": 3.0, "inside_ramp": bad}
-    (path / "summary.json").write_text(json.dumps(summary))
-    config = json.loads((path / "config.json").read_text())
-    (path / "config.json").write_text(json.dumps({**config, "fallback": "auto"}))
-    with pytest.raises(DamagedFileError, match="inside_ramp") as err:
+    path = _gated_copy(pendubot_run, tmp_path, {"used": True, **entry})
+    with pytest.raises(DamagedFileError, match=list(entry)[-1]) as err:
         ip.load_run(path)
     assert "\n" not in str(err.value) and "Fix:" in str(err.value)
 
 
 def test_a_run_gated_before_the_ramp_loads_with_a_constant_inside_gain_and_a_new_one_with_its_ramp(pendubot_run, tmp_path):
-    import shutil
-
-    path = tmp_path / "run"
-    shutil.copytree(pendubot_run.path, path)
-    config = json.loads((path / "config.json").read_text())
-    (path / "config.json").write_text(json.dumps({**config, "fallback": "auto"}))
-    summary = json.loads((path / "summary.json").read_text())
     for entry, ramp in (({"used": True, "inside_gain": 3.0}, (0.0, 0.0)),
                         ({"used": True, "inside_gain": 3.0, "inside_ramp": [0.2, 0.5]}, (0.2, 0.5))):
-        (path / "summary.json").write_text(json.dumps({**summary, "fallback": entry}))
-        fb = ip.load_run(path).controller.fallback
+        fb = ip.load_run(_gated_copy(pendubot_run, tmp_path, entry)).controller.fallback
         assert fb.inside_gain == 3.0 and fb.inside_ramp == ramp
 
 
