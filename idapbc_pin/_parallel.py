@@ -59,7 +59,7 @@ def thread_env():
 #: How often a worker checks that the process that started it is alive (s), and how long it lets an
 #: interrupted job wind down (save its checkpoint, write its record) before it exits (s).
 PARENT_POLL = 0.5
-PARENT_GRACE = 30.0
+PARENT_GRACE = 10.0
 
 
 def stop_with_parent(parent: int) -> None:
