@@ -4,8 +4,9 @@ All three run the same `run_job`, with one torch thread (and one OpenMP / MKL / 
 job, so N workers use N cores and the same seeds give the same results whichever runs them. A
 worker that dies (killed, out of memory, segfault) fails its job only: the driver writes that
 job's ``job.json``. A driver that dies on its own (SIGTERM or SIGKILL to it alone) takes its local
-workers with it: each interrupts its job as Ctrl-C would (`idapbc_pin._parallel.stop_with_parent`). Ray is an optional extra; a remote node that cannot see the batch directory
-ships its job directory back as an archive (`idapbc_pin.batch._shipping`).
+workers with it: each interrupts its job as Ctrl-C would (`idapbc_pin._parallel.stop_with_parent`).
+Ray is an optional extra; a remote node that cannot see the batch directory ships its job directory
+back as an archive (`idapbc_pin.batch._shipping`).
 """
 
 from __future__ import annotations

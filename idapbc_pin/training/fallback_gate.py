@@ -4,12 +4,12 @@ scales the learned law inside it: decided by simulation.
 After training, the learned law is simulated on the true plant, with the actuators' limits, from
 `GATE_STATES` states of its own: as trained, with the anchor's linear law outside the training box,
 and (robots with effort limits, whose fallback gain k is 3) with that linear law outside and the
-learned law scaled by k about u* inside, the factor ramped in from 1 near x* (`BoxFallback.inside_gain`,
-`control.fallback.INSIDE_RAMP`). The law that brings the most of
-those states to x* is used (DESIGN §4 success: T = 20 s, within 0.05 over the last 2 s); a tie keeps
-the simpler one. Half the states are drawn from the half box and
-half from the training box, with seeds ``GATE_SEED + seed`` and ``GATE_SEED + seed + 1``: neither
-the training samples nor the evaluation's seed-0 states.
+learned law scaled by k about u* inside, the factor ramped in from 1 near x*
+(`BoxFallback.inside_gain`, `control.fallback.INSIDE_RAMP`). The law that brings the most of those
+states to x* is used (DESIGN §4 success: T = 20 s, within 0.05 over the last 2 s); a tie keeps the
+simpler one. Half the states are drawn from the half box and half from the training box, with
+seeds ``GATE_SEED + seed`` and ``GATE_SEED + seed + 1``: neither the training samples nor the
+evaluation's seed-0 states.
 
 Why a decision per run and not one rule (fast preset, seed 0, limits on both laws, 100 states of
 seed 7, half box then domain, learned law everywhere → with the fallback):
@@ -70,8 +70,8 @@ def _gate_job(job) -> tuple[np.ndarray, np.ndarray | None]:
 def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int, workers: int = 1) -> dict:
     """Success of `ctrl` (the learned law everywhere), of ``ctrl.with_fallback(fallback)`` and, for a
     fallback whose gain k exceeds 1 (a robot with effort limits), of the same with the learned law
-    scaled by k about u* inside the box, ramped in over `INSIDE_RAMP` (`BoxFallback.with_inside_gain`), from the same `GATE_STATES`
-    states, simulated on `system` with its effort limits.
+    scaled by k about u* inside the box, ramped in over `INSIDE_RAMP` (`BoxFallback.with_inside_gain`),
+    from the same `GATE_STATES` states, simulated on `system` with its effort limits.
 
     Only the trajectories that leave the box at one of their samples (every `gate_step`: 2 ms unless
     the loop is stiffer) are simulated again with the fallback; the others are the same under both
@@ -83,8 +83,9 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     where k = 1), "left_box" (how many trajectories of the learned law left the box),
     "only_networks" and "only_fallback" (how many states only that law brought to x*: the discordant
     pairs between the first two), "used" (bool: the run uses the fallback), "inside_gain" (k where
-    the scaled law is used, else 1), "inside_ramp" ([r₀, r₁] where it is used, else [0, 0]), "step" (s)}. The law with the most successes is used; a tie
-    goes to the simpler one (the learned law everywhere, then the fallback outside only).
+    the scaled law is used, else 1), "inside_ramp" ([r₀, r₁] where it is used, else [0, 0]), "step"
+    (s)}. The law with the most successes is used; a tie goes to the simpler one (the learned law
+    everywhere, then the fallback outside only).
     """
     from .._parallel import process_map
     from ..sim.states import uniform_states
