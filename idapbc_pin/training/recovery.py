@@ -349,7 +349,7 @@ def _gate_fits(run, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, config: Reco
     is) and let the gate choose among all (`choose_fit`); returns (the chosen law, its gate)."""
     laws = [law]
     jobs = [(run.system, X, U, config.width, config.steps, config.fit_seed + k) for k in range(1, config.fits)]
-    for k, (more, mse) in enumerate(process_map(_fit_job, jobs, resolve_workers(config.workers)), start=1):
+    for k, (more, mse) in enumerate(process_map(_fit_job, jobs, config.workers), start=1):
         laws.append(more)
         if progress:
             print(f"fit {k + 1}/{config.fits} (seed {config.fit_seed + k}): mean squared error {mse:.4f}  [{time.perf_counter() - start:.0f} s]", flush=True)

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from .._io import DamagedFileError, atomic_write_bytes, read_npz, write_json
-from .._parallel import process_map, resolve_workers
+from .._parallel import process_map
 from ..control.fallback import box_fallback
 from ..control.recovery import RecoveryLaw
 from ..sim.integrate import simulate
@@ -98,7 +98,7 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     scales = [float(r) for r in config.inner_scales]
     ctrls = [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales]
     counts, start = [], time.perf_counter()
-    for ok in process_map(_successes, [(system, c, x0) for c in ctrls], resolve_workers(config.workers)):
+    for ok in process_map(_successes, [(system, c, x0) for c in ctrls], config.workers):
         counts.append((int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())))
         if progress:
             print(f"  gate: {len(counts)}/{len(ctrls)} laws simulated from its {len(x0)} states  [{time.perf_counter() - start:.0f} s]", flush=True)
