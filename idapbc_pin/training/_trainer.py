@@ -90,10 +90,23 @@ def _live(trainer: Trainer) -> dict:
     }
 
 
+def _cloned(tree):
+    """A copy of a state dict's nesting of dicts, lists and tuples: tensors cloned, everything else
+    (numbers, strings, None, as in Adam's state and param groups) shared, since it is immutable.
+    Taken every epoch: `copy.deepcopy` of Adam's state cost ~10 % of a fast-preset epoch."""
+    if isinstance(tree, torch.Tensor):
+        return tree.detach().clone()
+    if isinstance(tree, dict):
+        return {k: _cloned(v) for k, v in tree.items()}
+    if isinstance(tree, (list, tuple)):
+        return type(tree)(_cloned(v) for v in tree)
+    return tree
+
+
 def snapshot(trainer: Trainer) -> dict:
     """A copy of everything an epoch changes (weights, Adam, adaptive weights, generator, counters)."""
     live = _live(trainer)
-    return {**live, "nets": {k: v.detach().clone() for k, v in live["nets"].items()}, "optimizer": copy.deepcopy(live["optimizer"])}
+    return {**live, "nets": _cloned(live["nets"]), "optimizer": _cloned(live["optimizer"])}
 
 
 def restore(trainer: Trainer, snap: dict | None) -> None:
