@@ -241,6 +241,31 @@ def test_nan_from_the_controller_stays_in_its_row(systems):
     assert np.all(np.isfinite(traj.x)) and np.all(np.isfinite(traj.u))
 
 
+# ------------------------------------------------------------------ rows that rest at x*
+def test_rows_that_rest_at_x_star_stop_without_changing_a_verdict(systems):
+    """``stop_settled`` (the fallback gate's simulations): a row that has rested in the success box
+    for the success window is integrated no further and its record holds there; every verdict is
+    that of the full horizon, and the last row still moving is never evaluated alone (a batch of
+    one rounds differently: BLAS's vector kernels)."""
+    system = systems("pendubot")
+    lqr = LQRController(system)
+    sizes = []
+
+    def law(x):
+        sizes.append(len(x))
+        return lqr(x)
+
+    x0 = system.x_star + np.array([[0.02, 0, 0, 0], [0, 0.05, 0, 0], [0.3, -0.3, 0, 0], [2.5, 1.0, 0, 0]])
+    full = simulate(system, lqr, x0, T=8.0)
+    stopped = simulate(system, law, x0, T=8.0, stop_settled=True)
+    assert success(full, system).tolist() == [True, True, True, False]
+    np.testing.assert_array_equal(success(stopped, system), success(full, system))
+    np.testing.assert_array_equal(stopped.x[:3, -1], stopped.x[:3, -2])  # held where they stopped
+    assert not np.array_equal(full.x[:3, -1], full.x[:3, -2])  # the full horizon still moves them
+    assert sum(sizes) < len(x0) * len(full.t)
+    assert 1 not in sizes and sizes[-1] == 2  # the failing row, alone at the end, evaluated beside a copy
+
+
 # ------------------------------------------------------------------ saturation and recording
 def test_saturation_clips_the_applied_input(systems):
     system = systems("paper_cartpole")

@@ -22,6 +22,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..model.angles import wrap_angles
 from .judge import Judge
 from .limits import input_limits
 from .step import judge_step
@@ -39,7 +40,7 @@ Controller = Callable[[np.ndarray], np.ndarray]
 # ====================================================================== the vector field
 def _out_of_bounds(q: np.ndarray, v: np.ndarray, bound: float) -> np.ndarray:
     """(N,) bool: a component of q (N, nq) or v (N, nq) is non-finite or beyond `bound`."""
-    ok = np.all(np.isfinite(q) & (np.abs(q) <= bound), axis=1) & np.all(np.isfinite(v) & (np.abs(v) <= bound), axis=1)
+    ok = (np.abs(q) <= bound).all(axis=1) & (np.abs(v) <= bound).all(axis=1)  # NaN compares False, so |NaN| and ∞ fail too
     return ~ok
 
 
@@ -245,28 +246,76 @@ def _initial_state(system, x0: np.ndarray, bound: float):
     return q, v, bad
 
 
-def _record(rhs, advance, q, v, x_last, diverged, steps: list[int], m: int):
+class _Settle:
+    """`simulate`'s ``stop_settled``: which rows have rested in the success box (DESIGN §4, the box of
+    `idapbc_pin.sim.metrics.in_target_box`) at `needed` consecutive record samples, the samples
+    that span its `SUCCESS_WINDOW`, and so stop being integrated (`done`, (N,) bool)."""
+
+    def __init__(self, system, n_rows: int, steps: list[int], dt: float):
+        from .metrics import SUCCESS_TOL, SUCCESS_WINDOW  # metrics reads trajectories; imported only here
+
+        self.tol, self.nq = SUCCESS_TOL, int(system.nq)
+        self.q_star = np.asarray(system.x_star, float)[: self.nq]
+        self.mask = np.asarray(system.angle_mask, bool)[: self.nq]
+        self.needed = int(math.floor(SUCCESS_WINDOW / ((steps[1] - steps[0]) * dt) + 1e-9)) + 1  # samples t ≥ t_end − window
+        self.run_length, self.done = np.zeros(n_rows, int), np.zeros(n_rows, bool)
+
+    @staticmethod
+    def applies(steps: list[int]) -> bool:
+        """Only on an evenly spaced record (the window is counted in samples)."""
+        gaps = np.diff(steps)
+        return gaps.size > 0 and bool(np.all(gaps == gaps[0]))
+
+    def stop(self, q, v, live):
+        """Count the live rows' (q, v (N, nq) of every row, `live` their indices) consecutive samples
+        in the box and mark those that reached `needed` as done. Returns (len(live),) bool: stopped."""
+        dq = wrap_angles(q[live] - self.q_star, self.mask)
+        inside = (np.abs(dq).max(axis=1) <= self.tol) & (np.abs(v[live]).max(axis=1) <= self.tol)
+        self.run_length[live] = np.where(inside, self.run_length[live] + 1, 0)
+        stopped = self.run_length[live] >= self.needed
+        self.done[live[stopped]] = True
+        return stopped
+
+    def batch_of_one_padded(self, rhs):
+        """`rhs` evaluated on two copies of a lone row once rows have stopped: a batch of one takes
+        other BLAS kernels (gemv, not gemm) whose rounding differs, and without the stop that row
+        would still be in a batch with the stopped ones."""
+
+        def padded(q, v, held=None):
+            if q.shape[0] != 1 or not self.done.any():
+                return rhs(q, v, held)
+            out = rhs(np.repeat(q, 2, axis=0), np.repeat(v, 2, axis=0), None if held is None else np.repeat(held, 2, axis=0))
+            return tuple(None if o is None else o[:1] for o in out)
+
+        return padded
+
+
+def _record(rhs, advance, q, v, x_last, diverged, steps: list[int], m: int, settle: _Settle | None = None):
     """Sample the closed loop at `steps`, advancing the live rows in between.
 
     q, v (N, nq) and x_last (N, n) are updated in place; returns X (N, K, n), V (N, K, nq),
-    U (N, K, m) and diverged (N,), rows frozen at their last good sample once they go bad.
+    U (N, K, m) and diverged (N,), rows frozen at their last good sample once they go bad, or (with
+    `settle`) once they have rested in the success box for its window (not flagged).
     """
     N, K = q.shape[0], len(steps)
     X, V, U = np.empty((N, K, x_last.shape[1])), np.empty((N, K, q.shape[1])), np.empty((N, K, m))
     diverged = diverged.copy()
     u_last = np.zeros((N, m))
     for r, step in enumerate(steps):
-        live = np.flatnonzero(~diverged)
+        live = np.flatnonzero(~diverged if settle is None else ~diverged & ~settle.done)
         if live.size:
             dq, dv, u, x, b = rhs(q[live], v[live])
             x_last[live] = x
             u_last[live[~b]] = u[~b]
             diverged[live[b]] = True
             live, dq, dv, u = live[~b], dq[~b], dv[~b], u[~b]
+            if settle is not None:
+                go_on = ~settle.stop(q, v, live)
+                live, dq, dv, u = live[go_on], dq[go_on], dv[go_on], u[go_on]
         X[:, r], V[:, r], U[:, r] = x_last, v, u_last
         if r == K - 1:
             break
-        if not live.size:  # everything diverged: the rest of the record is frozen
+        if not live.size:  # every row diverged or rests: the rest of the record is frozen
             X[:, r + 1 :], V[:, r + 1 :], U[:, r + 1 :] = x_last[:, None], v[:, None], u_last[:, None]
             break
         qn, vn, b = advance(q[live], v[live], (dq, dv, np.zeros(live.size, bool), u), steps[r + 1] - step)
@@ -291,6 +340,7 @@ def simulate(
     rtol: float = 1e-6,
     atol: float = 1e-9,
     threads: int | None = None,
+    stop_settled: bool = False,
 ) -> Trajectory:
     """Closed loop of the true plant from a batch of initial states.
 
@@ -319,6 +369,12 @@ def simulate(
     record_every : record every this many steps of `dt` (the final time is always recorded).
     bound : a state with |q| or |v| above this, or non-finite, is frozen and flagged diverged.
     threads : Pinocchio threads for URDF plants (default `DEFAULT_THREADS`).
+    stop_settled : stop integrating a row once it has been in the success box at every sample of
+        the last `SUCCESS_WINDOW` seconds (`idapbc_pin.sim.metrics`); its record holds that sample
+        from then on, so `success` reads True for it (settling time and peak input are those up
+        to then). For callers that need the success verdict only (the fallback gate). The other
+        rows are computed to the same bits as without the stop; a row's verdict changes only if
+        it would have left the box again after resting in it for the whole window.
 
     Returns
     -------
@@ -332,9 +388,12 @@ def simulate(
     x_star = np.asarray(system.x_star, float)
     clip = input_limits(system, limits, saturation).bound
     rhs = _vector_field(Judge(system, threads), ctrl, clip, bound, x_star[:nq], m)
+    settle = _Settle(system, x0.shape[0], steps, dt) if stop_settled and _Settle.applies(steps) else None
+    if settle is not None:
+        rhs = settle.batch_of_one_padded(rhs)
     q, v, bad0 = _initial_state(system, x0, bound)
     x_last = np.where(bad0[:, None], x_star, x0).copy()
     advance = _stepper(rhs, method, dt, bound, rtol, atol, hold)
-    X, V, U, diverged = _record(rhs, advance, q, v, x_last, bad0, steps, m)
+    X, V, U, diverged = _record(rhs, advance, q, v, x_last, bad0, steps, m, settle)
     t = np.asarray(steps, float) * dt
     return Trajectory(t=t, x=X, q=X[..., :nq], v=V, u=U, diverged=diverged)

@@ -42,6 +42,10 @@ GATE_STEP = 0.002
 #: double_pendulum_simple) has |λ|·dt = 1.5 at 10 ms, where LQR (no limits there) "diverged" from 155 of 200
 #: domain states and from none at 2 ms. A decision taken on such blow-ups would be noise.
 GATE_POLE_STEP = 0.5
+#: The trajectories the fallback changes are simulated again in this many batches, whatever the
+#: number of workers (a batch's rounding depends on its rows: BLAS's matrix-vector kernels), so the
+#: batches run side by side on two cores and the verdicts do not depend on the worker count.
+GATE_FALLBACK_CHUNKS = 2
 
 
 def gate_step(system: System, fallback: BoxFallback) -> float:
@@ -56,14 +60,15 @@ def gate_step(system: System, fallback: BoxFallback) -> float:
 
 
 def _gate_job(job) -> tuple[np.ndarray, np.ndarray | None]:
-    """Worker: (N,) bool, the success of `law` from x0 (N, n) on `system` with its effort limits, and
-    (N,) bool, whether each trajectory left `box`'s training box at one of its samples (None without
-    a box), for job = (system, law, x0, dt, box)."""
+    """Worker: for ``job = (system, law, x0, dt, box)``, (N,) bool, the success of `law` from x0
+    (N, n) on `system` with its effort limits, and (N,) bool, whether each trajectory left `box`'s
+    training box at one of its samples (None without a box). A row is no longer integrated once it
+    has rested in the success box for the success window (``simulate(stop_settled=True)``)."""
     from ..sim.integrate import simulate  # training sits upstream of the judge; imported only here
     from ..sim.metrics import success
 
     system, law, x0, dt, box = job
-    traj = simulate(system, law, x0, T=GATE_HORIZON, dt=dt, limits=True)
+    traj = simulate(system, law, x0, T=GATE_HORIZON, dt=dt, limits=True, stop_settled=True)
     return success(traj, system), (None if box is None else box.outside(traj.x).any(axis=1))  # (N, T_k) -> (N,)
 
 
@@ -75,9 +80,12 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
 
     Only the trajectories that leave the box at one of their samples (every `gate_step`: 2 ms unless
     the loop is stiffer) are simulated again with the fallback; the others are the same under both
-    laws (up to an RK4 stage grazing a face). The scaled law changes the law everywhere, so it is
-    simulated from every state, beside the learned law when `workers` > 1 (processes,
-    `idapbc_pin._parallel.process_map`: the count changes the time, never a verdict).
+    laws (up to an RK4 stage grazing a face); they run in `GATE_FALLBACK_CHUNKS` batches.
+    The scaled law changes the law everywhere, so it is simulated from every state, beside the
+    learned law when `workers` > 1 (processes, `idapbc_pin._parallel.process_map`: the count
+    changes the time, never a verdict). A trajectory is no longer integrated once it has rested in
+    the success box for the success window (``simulate(stop_settled=True)``): its verdict is known
+    then, unless it would leave the box again, which a loop stable at x* does not do.
 
     Returns {"states", "networks", "with_fallback", "scaled" (success rates in [0, 1]; "scaled" None
     where k = 1), "left_box" (how many trajectories of the learned law left the box),
@@ -102,7 +110,10 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     (ok, left), *rest = process_map(_gate_job, jobs, workers)
     ok_fb = ok.copy()
     if left.any():  # a trajectory that never leaves the box is the same under both laws
-        ok_fb[left] = _gate_job((system, ctrl.with_fallback(fallback), x0[left], dt, None))[0]
+        chunks = np.array_split(np.flatnonzero(left), min(GATE_FALLBACK_CHUNKS, int(left.sum())))
+        law = ctrl.with_fallback(fallback)
+        for rows, (ok_rows, _) in zip(chunks, process_map(_gate_job, [(system, law, x0[rows], dt, None) for rows in chunks], workers)):
+            ok_fb[rows] = ok_rows
     counts = [int(ok.sum()), int(ok_fb.sum())] + [int(r[0].sum()) for r in rest]
     scaled = float(rest[0][0].mean()) if rest else None
     best = int(np.argmax(counts))  # the first of the largest: ties go to the simpler law
