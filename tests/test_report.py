@@ -13,6 +13,7 @@ import torch
 import idapbc_pin as ip
 from idapbc_pin.cli.evaluate import add_eval_commands
 from idapbc_pin.control.baseline import LQRController
+from idapbc_pin.evaluation.closed_loop import simulate_run
 from idapbc_pin.evaluation.evaluate import evaluate_run, format_evaluation
 from idapbc_pin.evaluation.robustness import MeasuredController, default_conditions, parse_mismatch, perturbed_system, robustness_table
 from idapbc_pin.reporting.figure_data import figure_data
@@ -193,18 +194,32 @@ def _parser():
 
 def test_cli_commands_write_into_the_run_directory(tiny_run, capsys):
     run = str(tiny_run.path)
-    args = _parser().parse_args(["simulate", run, "--n", "2", "--T", "1", "--mismatch", "mass=1.2", "--saturation", "50", "--noise", "0.001"])
+    args = _parser().parse_args(["simulate", run, "--n", "2", "--T", "1", "--mismatch", "mass=1.2", "--saturation", "50", "--noise", "0.001",
+                                 "--workers", "1"])
     assert args.func(args) == 0
     out = capsys.readouterr().out
     assert "NIDA-PBC" in out and "mass=1.2" in out
     record = json.loads((tiny_run.path / "simulation.json").read_text())
     assert record["mismatch"] == {"mass": 1.2} and record["n"] == 2 and (tiny_run.path / "simulation.png").is_file()
-    args = _parser().parse_args(["simulate", run, "--x0", "0.1", "0.2", "--x0", "0", "-0.3", "--T", "0.5"])
+    args = _parser().parse_args(["simulate", run, "--x0", "0.1", "0.2", "--x0", "0", "-0.3", "--T", "0.5", "--workers", "1"])
     assert args.func(args) == 0
     assert json.loads((tiny_run.path / "simulation.json").read_text())["x0"] == [[0.1, 0.2, 0.0, 0.0], [0.0, -0.3, 0.0, 0.0]]
     args = _parser().parse_args(["certify", run, "--n", "500", "--settle", "0"])
     assert args.func(args) == 0
     assert "sampled certificate, not a proof" in capsys.readouterr().out
+
+
+def test_simulate_in_two_worker_processes_gives_the_figures_of_one(tiny_run):
+    """`idapbc-pin simulate --workers 2` runs NIDA-PBC and LQR side by side, each batch whole: the
+    same scores as in this process, under noise and a mismatched plant too (the radii's workers:
+    tests/test_simulate.py)."""
+    kw = dict(n=4, T=1.0, mismatch="mass=1.2", noise=0.001, write=False, radius=False)
+    one, two = simulate_run(tiny_run, workers=1, **kw), simulate_run(tiny_run, workers=2, **kw)
+    for name in ("NIDA-PBC", "LQR"):
+        a, b = one.roa[name], two.roa[name]
+        np.testing.assert_array_equal(a.success, b.success)
+        np.testing.assert_array_equal(a.settling_time, b.settling_time)
+        np.testing.assert_array_equal(a.peak_input, b.peak_input)
 
 
 @pytest.mark.parametrize(

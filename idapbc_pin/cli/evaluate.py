@@ -29,7 +29,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     result = simulate_run(
         _run(args), n=args.n, T=args.T, dt=args.dt, x0=x0, rho=args.rho, mismatch=args.mismatch,
         saturation=args.saturation, noise=args.noise, seed=args.seed, box=args.box, limits=not args.no_limits, radius=not args.no_radius,
-        judge=args.judge,
+        judge=args.judge, workers=workers_of(args),
     )
     print(result.table())
     return 0
@@ -84,6 +84,7 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--no-radius", action="store_true", help="skip the ROA radii (a few more ROA evaluations of --n states)")
     p.add_argument("--judge", choices=JUDGES, default="pinocchio",
                    help="engine of the true plant for both controllers (default pinocchio; mujoco needs `pip install mujoco`, URDF robots only)")
+    add_workers_argument(p)
     _add_run_options(p)
     p.set_defaults(func=_cmd_simulate)
 

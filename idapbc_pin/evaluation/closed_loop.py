@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .._io import write_json
+from .._parallel import process_map
 from ..control.baseline import LQRController
 from ..errors import IdapbcError
 from ..reporting.figure_data import figure_data, horizon
@@ -63,12 +64,21 @@ class SimulationResult:
         return "\n".join(lines)
 
 
-def _scores(system, controllers, x0, T, dt, saturation, limits, box_name, box, seed):
-    """Every controller from x0 on the judge `system`, scored by `idapbc_pin.sim.roa.score`;
-    -> (RoaResult, {name: Trajectory})."""
+def _score_job(job):
+    """Worker: `idapbc_pin.sim.roa.score` of one controller and its rollouts, for
+    job = (system, name, ctrl, x0, T, dt, saturation, limits)."""
+    system, name, ctrl, x0, T, dt, saturation, limits = job
+    return score(system, name, ctrl, x0, T, dt, saturation=saturation, limits=limits)
+
+
+def _scores(system, controllers, x0, T, dt, saturation, limits, box_name, box, seed, workers: int = 1):
+    """Every controller from x0 on the judge `system`, scored by `idapbc_pin.sim.roa.score`, side by
+    side in `workers` processes (`idapbc_pin._parallel.process_map`; each controller's batch whole, so
+    the count changes the time, never a score); -> (RoaResult, {name: Trajectory})."""
+    jobs = [(system, name, ctrl, x0, T, dt, saturation, limits) for name, ctrl in controllers.items()]
     scores, trajs = {}, {}
-    for name, ctrl in controllers.items():
-        scores[name], trajs[name] = score(system, name, ctrl, x0, T, dt, saturation=saturation, limits=limits)
+    for name, (scored, traj) in zip(controllers, process_map(_score_job, jobs, workers)):
+        scores[name], trajs[name] = scored, traj
     res = RoaResult(system=system.name, box=box, box_name=box_name, x0=x0, T=float(T), dt=float(dt), seed=int(seed), scores=scores,
                     limits=input_limits(system, limits, saturation))
     return res, trajs
@@ -148,6 +158,7 @@ def simulate_run(
     limits: bool = True,
     radius: bool = True,
     judge: str = "pinocchio",
+    workers: int = 1,
 ) -> SimulationResult:
     """Closed loop of a run's controller next to LQR from the same states, under optional conditions.
 
@@ -169,6 +180,8 @@ def simulate_run(
         rollouts from the domain or half box reused); False skips them, and so does a given `x0`.
     judge : ``"pinocchio"`` (the system's plant) or ``"mujoco"`` (`mujoco_judge`: MuJoCo loads the
         same URDF; no mismatch, and no built-in analytic systems).
+    workers : processes simulating the two controllers side by side, for the scores and the radii
+        (1: in this process, 0: one per core); the count changes the time, never a figure.
     """
     run = resolve_run(run)
     nominal = run.system
@@ -184,11 +197,12 @@ def simulate_run(
     controllers = {
         name: MeasuredController(law, plant=plant, model=nominal, noise=noise, seed=seed) if wrap else law for name, law in laws.items()
     }
-    res, trajs = _scores(plant, controllers, x0, T, dt, saturation, limits, box_name, bounds, seed)
+    res, trajs = _scores(plant, controllers, x0, T, dt, saturation, limits, box_name, bounds, seed, workers)
     found = None
     if radius and box_name != "custom":  # random states of a box, not given ones
         known = {1.0: res} if box_name == "domain" else {0.5: res}
-        found = roa_radius(plant, controllers, n=int(n), seed=seed, T=T, dt=dt, known=known, saturation=saturation, limits=limits)
+        found = roa_radius(plant, controllers, n=int(n), seed=seed, T=T, dt=dt, known=known, saturation=saturation, limits=limits,
+                           workers=workers)
     settings = {"n": int(x0.shape[0]), "T": T, "dt": dt, "hold": res.hold, "seed": seed, "box": box_name, "rho": float(nida.rho),
                 "mismatch": scales, "saturation": saturation, "noise": noise, "limits": res.limits.to_json(), "judge": judge}
     json_path, fig_path = _write(run, res, trajs, settings, x0, nida, n_figure, found) if write else (None, None)
