@@ -85,7 +85,7 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     learned law when `workers` > 1 (processes, `idapbc_pin._parallel.process_map`: the count
     changes the time, never a verdict). A trajectory is no longer integrated once it has rested in
     the success box for the success window (``simulate(stop_settled=True)``): its verdict is known
-    then, unless it would leave the box again, which a loop stable at x* does not do.
+    then, unless it would leave the box again (re-gating 30 runs changed no decision; docs/method.md §6).
 
     Returns {"states", "networks", "with_fallback", "scaled" (success rates in [0, 1]; "scaled" None
     where k = 1), "left_box" (how many trajectories of the learned law left the box),
