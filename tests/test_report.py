@@ -174,6 +174,11 @@ def test_robustness_table(tiny_run):
     assert "NIDA-PBC" in text and "LQR" in text and "mass ×1.2" in text
     data = json.loads((tiny_run.path / "robustness.json").read_text())
     assert len(data["rows"]) == 4 and set(data["rows"][0]) >= {"NIDA-PBC", "LQR"}
+    two = robustness_table(tiny_run, n=3, T=1.0, conditions=conds, write=False, workers=2)  # each row's laws side by side
+    for a, b in zip(res.results, two.results):
+        for name in ("NIDA-PBC", "LQR"):
+            np.testing.assert_array_equal(a[name].success, b[name].success)
+            np.testing.assert_array_equal(a[name].peak_input, b[name].peak_input)
 
 
 def test_report_writes_everything(tiny_run):

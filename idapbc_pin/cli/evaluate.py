@@ -51,7 +51,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
 def _cmd_robustness(args: argparse.Namespace) -> int:
     sat = "auto" if args.saturation is None else args.saturation
     conds = default_conditions(mass=args.mass, saturation=sat, noise=args.noise)
-    result = robustness_table(_run(args), n=args.n, T=args.T, seed=args.seed, box=args.box, conditions=conds, rho=args.rho, limits=not args.no_limits)
+    result = robustness_table(_run(args), n=args.n, T=args.T, seed=args.seed, box=args.box, conditions=conds, rho=args.rho, limits=not args.no_limits,
+                              workers=workers_of(args))
     print(result.table())
     print(f"wrote {Path(args.run) / 'robustness.json'}")
     return 0
@@ -120,5 +121,6 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--noise", type=float, default=0.01, metavar="SIGMA", help="measurement noise σ (default 0.01)")
     p.add_argument("--rho", type=float, metavar="R", help="extra damping ρ for Neural IDA-PBC")
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    add_workers_argument(p)
     _add_run_options(p)
     p.set_defaults(func=_cmd_robustness)

@@ -289,6 +289,7 @@ def robustness_table(
     rho: float | None = None,
     write: bool = True,
     limits: bool = True,
+    workers: int = 1,
 ) -> RobustnessResult:
     """Success rates of Neural IDA-PBC and LQR under model mismatch, saturation and noise.
 
@@ -302,6 +303,8 @@ def robustness_table(
     write : write ``robustness.json`` into the run directory.
     limits : apply the system's effort limits in every row (False lifts them; a saturation row
         then clips to its own bound only).
+    workers : processes simulating the two controllers of each row side by side (1: in this
+        process, 0: one per core; `roa`); the count changes the time, never a figure.
     """
     t0 = time.perf_counter()
     run = resolve_run(run)
@@ -325,7 +328,7 @@ def robustness_table(
             "NIDA-PBC": MeasuredController(nida, plant=plant, model=nominal, noise=cond.noise, seed=seed + 1000 * k),
             "LQR": MeasuredController(lqr, plant=plant, model=nominal, noise=cond.noise, seed=seed + 1000 * k),
         }
-        res = roa(plant, controllers, n=n, box=box, seed=seed, T=T, dt=dt, saturation=sat, limits=limits)
+        res = roa(plant, controllers, n=n, box=box, seed=seed, T=T, dt=dt, saturation=sat, limits=limits, workers=workers)
         if lqr_peak is None and not cond.mismatch and cond.saturation is None and not cond.noise:
             lqr_peak = res["LQR"].median_peak_input
         resolved.append(dataclasses.replace(cond, saturation=None if sat is None else float(np.max(sat))))
