@@ -22,9 +22,9 @@ from typing import Callable
 
 import numpy as np
 
-from ..model.angles import wrap_angles
 from .judge import Judge
 from .limits import input_limits
+from .metrics import at_target, window_samples
 from .step import judge_step
 from .trajectory import Trajectory
 
@@ -247,17 +247,13 @@ def _initial_state(system, x0: np.ndarray, bound: float):
 
 
 class _Settle:
-    """`simulate`'s ``stop_settled``: which rows have rested in the success box (DESIGN §4, the box of
-    `idapbc_pin.sim.metrics.in_target_box`) at `needed` consecutive record samples, the samples
-    that span its `SUCCESS_WINDOW`, and so stop being integrated (`done`, (N,) bool)."""
+    """`simulate`'s ``stop_settled``: which rows have rested in the success box (DESIGN §4,
+    `idapbc_pin.sim.metrics.at_target`) at `needed` consecutive record samples, the samples its
+    success test reads, and so stop being integrated (`done`, (N,) bool)."""
 
     def __init__(self, system, n_rows: int, steps: list[int], dt: float):
-        from .metrics import SUCCESS_TOL, SUCCESS_WINDOW  # metrics reads trajectories; imported only here
-
-        self.tol, self.nq = SUCCESS_TOL, int(system.nq)
-        self.q_star = np.asarray(system.x_star, float)[: self.nq]
-        self.mask = np.asarray(system.angle_mask, bool)[: self.nq]
-        self.needed = int(math.floor(SUCCESS_WINDOW / ((steps[1] - steps[0]) * dt) + 1e-9)) + 1  # samples t ≥ t_end − window
+        self.system = system
+        self.needed = window_samples(np.asarray(steps, float) * dt)
         self.run_length, self.done = np.zeros(n_rows, int), np.zeros(n_rows, bool)
 
     @staticmethod
@@ -269,8 +265,7 @@ class _Settle:
     def stop(self, q, v, live):
         """Count the live rows' (q, v (N, nq) of every row, `live` their indices) consecutive samples
         in the box and mark those that reached `needed` as done. Returns (len(live),) bool: stopped."""
-        dq = wrap_angles(q[live] - self.q_star, self.mask)
-        inside = (np.abs(dq).max(axis=1) <= self.tol) & (np.abs(v[live]).max(axis=1) <= self.tol)
+        inside = at_target(q[live], v[live], self.system)
         self.run_length[live] = np.where(inside, self.run_length[live] + 1, 0)
         stopped = self.run_length[live] >= self.needed
         self.done[live[stopped]] = True

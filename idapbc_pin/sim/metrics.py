@@ -14,12 +14,14 @@ from .trajectory import Trajectory
 __all__ = [
     "SUCCESS_TOL",
     "SUCCESS_WINDOW",
+    "at_target",
     "equilibrium_offset",
     "in_target_box",
     "peak_input",
     "settled",
     "settling_time",
     "success",
+    "window_samples",
 ]
 
 #: DESIGN §4: success is judged over the last SUCCESS_WINDOW seconds ...
@@ -32,11 +34,21 @@ def _window(t: np.ndarray, window: float) -> np.ndarray:
     return t >= t[-1] - window - 1e-9 * max(1.0, abs(t[-1]))
 
 
-def in_target_box(traj: Trajectory, system, tol: float = SUCCESS_TOL) -> np.ndarray:
-    """(N, T_k) bool: ‖wrap(q − q*)‖∞ ≤ tol and ‖v‖∞ ≤ tol at each sample (rad or m, per s)."""
+def at_target(q: np.ndarray, v: np.ndarray, system, tol: float = SUCCESS_TOL) -> np.ndarray:
+    """(...) bool: ‖wrap(q − q*)‖∞ ≤ tol and ‖v‖∞ ≤ tol for q, v of shape (..., nq) (rad or m, per s)."""
     nq = system.nq
-    dq = wrap_angles(traj.q - np.asarray(system.x_star)[:nq], np.asarray(system.angle_mask)[:nq])
-    return (np.abs(dq).max(axis=-1) <= tol) & (np.abs(traj.v).max(axis=-1) <= tol)
+    dq = wrap_angles(q - np.asarray(system.x_star)[:nq], np.asarray(system.angle_mask)[:nq])
+    return (np.abs(dq).max(axis=-1) <= tol) & (np.abs(v).max(axis=-1) <= tol)
+
+
+def in_target_box(traj: Trajectory, system, tol: float = SUCCESS_TOL) -> np.ndarray:
+    """(N, T_k) bool: the state is in the target box (`at_target`) at each sample."""
+    return at_target(traj.q, traj.v, system, tol)
+
+
+def window_samples(t: np.ndarray, window: float = SUCCESS_WINDOW) -> int:
+    """How many samples of the times t (T_k,) the success test reads: those of the last `window` s."""
+    return int(_window(np.asarray(t, float), window).sum())
 
 
 def success(traj: Trajectory, system, window: float = SUCCESS_WINDOW, tol: float = SUCCESS_TOL) -> np.ndarray:
