@@ -8,7 +8,10 @@ Claims:
 * labels are torques within the limits of trajectories that reach x*;
 * a torque plan within the limits brings a pendubot with an 8 N·m shoulder to x* from a half-box
   state saturated LQR loses; plans searched together equal plans searched one start at a time;
-* DAgger searches no plan after a first fit that loses every start of its first round;
+* the plans' starts and the DAgger starts come from the box `start_box` names (half box or
+  training box);
+* DAgger searches no plan after a first fit that loses every start of its first round, unless those
+  most of those starts come to rest in the near box around x*;
 * the default gate forgives a recovery law 2 lost states of the half or near box, not 6;
 * `recover` writes recovery.npz exactly when its gate keeps the law, and the run's controller then
   applies it; a later `recover` that does not keep one removes it;
@@ -18,7 +21,8 @@ Claims:
 * a damaged or missing recovery.npz is refused when the run loads, with one line;
 * `train --recover auto` (the default) fits one exactly when saturated LQR leaves room: it fails on
   ≥ 10 % of the half box (the zoo pendubot, whose 20 N·m limit does not bind, and an 8 N·m shoulder,
-  where it binds; not the cartpole), and never tests a robot without limits.
+  where it binds; not the cartpole), or else of the training box, and then from training-box starts
+  (the cartpole; not the reaction wheel); it never tests a robot without limits.
 (The exported controller.py applies it as the library does: tests/test_export.py.)
 """
 
@@ -28,6 +32,7 @@ import json
 import shutil
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -41,13 +46,15 @@ from idapbc_pin.errors import IdapbcError
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
-from idapbc_pin.sim.states import uniform_states
+from idapbc_pin.sim.radius import scaled_box
+from idapbc_pin.sim.states import evaluation_box, uniform_states
 from idapbc_pin.training import recovery as recovery_module
 from idapbc_pin.training import recovery_gate
 from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan, search_plans
-from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, fit_recovery_law, gate_choice, recover, refit, regate
-from idapbc_pin.training.recovery_gate import read_labels, save_labels
+from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, ends_near, fit_recovery_law, gate_choice, recover, refit, regate
+from idapbc_pin.training.recovery_gate import NEAR_SCALE, read_labels, save_labels
 from idapbc_pin.training.run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
+from idapbc_pin.training import weak_actuators
 from idapbc_pin.training.weak_actuators import BIND_POINTS, BIND_STATES, ROOM_POINTS, auto_recover, limits_bind
 
 from .conftest import sample_domain
@@ -282,6 +289,79 @@ def test_dagger_labels_nothing_after_a_first_fit_that_loses_every_start(weak_pen
         assert "stopped" not in info and labelled == [9] and len(X2) == 5  # 3 failures × 3 visited times, 1 label each
 
 
+def test_a_first_fit_that_loses_every_start_but_rests_near_x_star_gets_its_dagger_rounds(monkeypatch):
+    """A law that brings every start to rest 0.2 m from x* (the cartpole's LQR plus 0.2 N) fails the
+    success test from all of them, but ends in the near box: DAgger labels the states it visits
+    instead of stopping (0.5 N rests 0.5 m away, outside the near box, and stops)."""
+    system = ip.load_system("cartpole")
+    lqr = LQRController(system)
+    near = uniform_states(system, 3, scaled_box(system, 0.05), 0)
+    monkeypatch.setattr(recovery_module, "uniform_states", lambda *args: near)
+    labelled = []
+
+    def labels(system, x0, *args, **kwargs):
+        labelled.append(len(x0))
+        return np.zeros((1, system.n)), np.zeros((1, system.m)), 0, 0
+
+    monkeypatch.setattr(recovery_module, "collect_labels", labels)
+    monkeypatch.setattr(recovery_module, "fit_recovery_law", lambda system, X, U, *a: (None, 0.0))
+    config = RecoveryConfig(**(TINY | {"dagger_starts": 3}))
+    X, U = np.zeros((4, system.n)), np.zeros((4, system.m))
+    for bias, stops in ((0.2, False), (0.5, True)):
+        law = SimpleNamespace(law=lambda x, b=bias: lqr(x) + b)
+        _, _, _, info = recovery_module.dagger_round(system, law, X, U, 0, config, progress=False)
+        assert info["failed"] == 3 and info.get("stopped", False) == stops
+    assert labelled == [9]  # only the 0.2 N law's round: 3 failures × 3 visited times
+
+
+def test_the_near_box_is_the_gates_around_x_star_with_angles_wrapped():
+    system = ip.load_system("cartpole")
+    lo, hi = scaled_box(system, NEAR_SCALE)
+    x_star = np.asarray(system.x_star)
+    inside = np.stack([x_star, 0.99 * hi, 0.99 * lo, x_star + np.where(system.angle_mask, 2 * np.pi, 0.0)])
+    outside = np.stack([x_star + 1.01 * (hi - x_star) * np.eye(system.n)[k] for k in range(system.n)])
+    assert ends_near(inside, system).all() and not ends_near(outside, system).any()
+
+
+@pytest.mark.parametrize("box", ["half", "domain"])
+def test_the_labels_and_dagger_start_from_the_box_the_config_names(tiny_run, monkeypatch, box):
+    """`start_box` decides where the plans' starts and the DAgger starts are drawn: the half box by
+    default, the training box where saturated LQR leaves room only there."""
+    drawn, starts = [], []
+    real = recovery_module.uniform_states
+
+    def spy(system, n, which, seed):
+        drawn.append(which)
+        return real(system, n, which, seed)
+
+    class Stop(Exception):
+        pass
+
+    def labels(system, x0, *args, **kwargs):
+        starts.append(x0)
+        raise Stop
+
+    monkeypatch.setattr(recovery_module, "uniform_states", spy)
+    monkeypatch.setattr(recovery_module, "collect_labels", labels)
+    config = RecoveryConfig(**(TINY | {"starts": 200, "start_box": box}))
+    with pytest.raises(Stop):
+        recover(tiny_run.path, config, progress=False)
+    system = tiny_run.system
+    (x0,) = starts
+    lo, hi = evaluation_box(system, box)
+    half_lo, half_hi = evaluation_box(system, "half")
+    assert drawn == [box] and np.all((x0 >= lo) & (x0 <= hi))
+    assert np.any((x0 < half_lo) | (x0 > half_hi)) == (box == "domain")  # 200 training-box states: some outside the half box
+    X, U = np.zeros((4, system.n)), np.zeros((4, system.m))
+    recovery_module.dagger_round(system, _idle_law(system), X, U, 0, config, progress=False)
+    assert drawn == [box, box]
+
+
+def test_a_start_box_that_is_neither_half_nor_domain_is_refused_in_one_line():
+    with pytest.raises(IdapbcError, match="start_box must be one of half, domain"):
+        RecoveryConfig(start_box="quarter")
+
+
 @pytest.mark.slow
 def test_recover_keeps_the_law_exactly_when_its_gate_does(tiny_run, tmp_path, monkeypatch):
     _short_gate(monkeypatch)
@@ -514,6 +594,20 @@ def test_the_limits_bind_on_an_8_nm_shoulder_and_not_at_the_zoo_pendubots_20():
     assert not cartpole["room"] and cartpole["saturated"] > (100 - ROOM_POINTS) * BIND_STATES / 100
 
 
+def test_where_the_half_box_leaves_no_room_the_training_box_is_tested_and_the_plans_start_there(tiny_run, tmp_path, monkeypatch, capsys):
+    """The cartpole's 50 N slider leaves no room on the half box and room on the training box:
+    `train --recover auto` then fits the recovery law from training-box starts."""
+    cartpole = ip.load_system("cartpole")
+    wide = limits_bind(cartpole, box="domain")
+    assert wide["room"] and BIND_STATES - wide["saturated"] >= ROOM_POINTS * BIND_STATES / 100
+    asked = []
+    monkeypatch.setattr(weak_actuators, "recover", lambda run, config, progress: asked.append(config.start_box) or {"used": False})
+    monkeypatch.setattr(weak_actuators, "limits_bind", lambda system, box="half": {"half": limits_bind(cartpole), "domain": wide}[box])
+    assert auto_recover(tiny_run, "auto", RecoveryConfig(**TINY)) == {"used": False} and asked == ["domain"]
+    printed = capsys.readouterr().out
+    assert "no room there; testing the training box" in printed and "fitting a recovery law from training-box starts" in printed
+
+
 def test_a_robot_without_limits_is_never_tested_and_never_binds():
     for system in (ip.load_system("pendubot", effort={"shoulder": np.inf}), ip.load_system("paper_mass_spring_damper")):
         assert limits_bind(system) == {"states": 0, "saturated": 0, "unsaturated": 0, "binds": False, "room": False}
@@ -530,9 +624,9 @@ def test_auto_recovers_exactly_when_saturated_lqr_leaves_room(tiny_run, tmp_path
     assert "(the limits bind)" in printed and "fitting a recovery law" in printed
     assert entry["used"] and (path / RECOVERY_FILE).is_file()
     strong = tmp_path / "strong"
-    main(["train", "cartpole", "--fast", "--epochs", "2", "--width", "8", "--depth", "1", "--evaluate", "0", "--out", str(strong)])
+    main(["train", "reaction_wheel", "--fast", "--epochs", "2", "--width", "8", "--depth", "1", "--evaluate", "0", "--out", str(strong)])
     printed = capsys.readouterr().out
-    assert "(the limits do not bind)" in printed and "no recovery law" in printed
+    assert "(the limits do not bind)" in printed and "testing the training box" in printed and "no recovery law" in printed
     (run_dir,) = strong.iterdir()
     assert not (run_dir / RECOVERY_FILE).exists() and "recovery" not in json.loads((run_dir / "summary.json").read_text())
     with pytest.raises(IdapbcError, match="unknown recover mode"):
