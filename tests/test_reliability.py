@@ -114,7 +114,7 @@ DAMAGE = {
 #: command name -> argv after ``idapbc-pin`` for a run directory and a scratch folder (small sizes:
 #: a damaged run must be refused before any of the work starts, but a bug should not take minutes)
 COMMANDS = {
-    "train --resume": lambda run, tmp: ["train", "--resume", run, "--evaluate", "0"],
+    "train --resume": lambda run, tmp: ["train", "--resume", run, "--evaluate", "0", "--recover", "never"],
     "simulate": lambda run, tmp: ["simulate", run, "--n", "2", "--T", "0.1", "--no-radius"],
     "certify": lambda run, tmp: ["certify", run, "--n", "16", "--settle", "0"],
     "report": lambda run, tmp: ["report", run, "--n", "2", "--T", "0.1", "--n-figure", "1", "--no-html", "--no-radius"],
@@ -152,7 +152,7 @@ def test_a_broken_summary_is_rewritten_by_the_resume_its_error_suggests(run_dir)
     _truncate(run_dir / "summary.json")
     status, _, err, _ = cli("simulate", run_dir, "--n", "2", "--T", "0.1", "--no-radius")
     assert status == 2 and "train --resume" in err
-    status, _, err, _ = cli("train", "--resume", run_dir, "--evaluate", "0")
+    status, _, err, _ = cli("train", "--resume", run_dir, "--evaluate", "0", "--recover", "never")
     assert status == 0, err
     assert json.loads((run_dir / "summary.json").read_text())["epochs_done"] == 4
     assert cli("simulate", run_dir, "--n", "2", "--T", "0.1", "--no-radius")[0] == 0
@@ -174,7 +174,7 @@ def test_the_error_offers_the_intact_checkpoint_and_both_offers_work(damaged, in
     assert (tmp_path / "replay.html").stat().st_size > 10_000 and "wrote" in out
 
     shutil.copyfile(run_dir / CKPT / f"{intact}.pt", run_dir / CKPT / f"{damaged}.pt")
-    status, _, err, _ = cli("train", "--resume", run_dir, "--epochs", "6", "--evaluate", "0")
+    status, _, err, _ = cli("train", "--resume", run_dir, "--epochs", "6", "--evaluate", "0", "--recover", "never")
     assert status == 0, err
     assert ip.load_run(run_dir, checkpoint="last").summary["epochs_done"] == 6
 
@@ -194,14 +194,14 @@ def test_a_diverging_learning_rate_ends_in_one_line_and_the_suggested_resume_com
     """Training either finishes, or stops with one error line whose Fix is a resume command with a
     smaller learning rate; that command completes, and every reader accepts the run."""
     status, _, err, _ = cli("train", "cartpole", "--fast", "--epochs", "8", "--width", "8", "--depth", "1",
-                            "--lr", lr, "--out", tmp_path, "--evaluate", "0")
+                            "--lr", lr, "--out", tmp_path, "--evaluate", "0", "--recover", "never")
     (run_dir,) = tmp_path.iterdir()
     if status != 0:
         assert status == 2 and "Traceback" not in err
         last = err.strip().splitlines()[-1]  # the progress bar's lines come before it
         assert last.startswith("error: ") and "Fix: idapbc-pin train --resume" in last, err
         suggested = last.split("Fix: idapbc-pin ", 1)[1].split()
-        status, _, err, _ = cli(*suggested, "--evaluate", "0")
+        status, _, err, _ = cli(*suggested, "--evaluate", "0", "--recover", "never")
         assert status == 0, err
     status, _, err, caught = cli("simulate", run_dir, "--n", "2", "--T", "0.5", "--no-radius")
     assert status == 0 and caught == [], err
@@ -211,7 +211,7 @@ def test_a_garbled_metrics_csv_never_ends_a_resume_in_a_traceback(run_dir):
     """metrics.csv is only appended to by training: a resume may rebuild it or refuse with one line."""
     (run_dir / "metrics.csv").write_bytes(b"\xff\xfe\x00garbled")
     before = snapshot(run_dir)
-    status, _, err, _ = cli("train", "--resume", run_dir, "--epochs", "6", "--evaluate", "0")
+    status, _, err, _ = cli("train", "--resume", run_dir, "--epochs", "6", "--evaluate", "0", "--recover", "never")
     if status != 0:
         assert status == 2 and err.startswith("error: ") and err.count("\n") == 1 and "metrics.csv" in err, err
         assert snapshot(run_dir) == before
