@@ -231,8 +231,8 @@ def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int,
     plan_seed + 300 + r), label the states its failures visit at 0.5, 1.5 and 3 s (`collect_labels`,
     plan streams plan_seed + 1000 (r + 1)), and fit a fresh law on all labels.
     Returns (law, X, U, counts of the round). In round 0, when `law` fails from every start, fewer
-    than half of them end in the near box (`ends_near`) and `config.stop_when_lost`, nothing is labelled: `law`, X and U come back as they were, the counts
-    with "stopped": True."""
+    than half of them end in the near box (`ends_near`) and `config.stop_when_lost`, nothing is
+    labelled: `law`, X and U come back as they were, the counts with "stopped": True."""
     start = time.perf_counter() if start is None else start
     x0 = uniform_states(system, config.dagger_starts, config.start_box, config.plan_seed + 300 + r)
     traj = simulate(system, law.law, x0, T=20.0, dt=PLAN_STEP)

@@ -77,21 +77,28 @@ def auto_recover(run, mode: str = "auto", config: RecoveryConfig = RecoveryConfi
     if mode == "never":
         return None
     if mode == "auto":
-        test = limits_bind(run.system)
-        if progress and test["states"]:
-            n, sat = test["states"], test["saturated"]
-            verdict = "fitting a recovery law where it fails (20-60 min on 2 cores; --recover never skips it)" if test["room"] else \
-                "no room there; testing the training box"
-            print(f"torque limits: saturated LQR brings {sat} of {n} half-box states to x*, unsaturated LQR {test['unsaturated']} "
-                  f"(the limits {'bind' if test['binds'] else 'do not bind'}); it fails on {n - sat}: {verdict}", flush=True)
-        if not test["room"]:
-            test = limits_bind(run.system, box="domain")
+        for box in ("half", "domain"):  # the training box only where the half box leaves no room
+            test = limits_bind(run.system, box=box)
             if progress and test["states"]:
-                n, sat = test["states"], test["saturated"]
-                verdict = "fitting a recovery law from training-box starts (20-60 min on 2 cores; --recover never skips it)" if test["room"] else \
-                    "no recovery law (--recover always fits one anyway)"
-                print(f"torque limits: on the training box saturated LQR brings {sat} of {n} states to x*; it fails on {n - sat}: {verdict}", flush=True)
-            if not test["room"]:
-                return None
+                _tell(test, box)
+            if test["room"]:
+                break
+        else:
+            return None
+        if box == "domain":
             config = replace(config, start_box="domain")
     return recover(run, config, progress)
+
+
+def _tell(test: dict, box: str) -> None:
+    """Print `limits_bind`'s verdict on `box` and what `auto_recover` does next."""
+    n, sat = test["states"], test["saturated"]
+    if box == "half":
+        verdict = "fitting a recovery law where it fails (20-60 min on 2 cores; --recover never skips it)" if test["room"] else \
+            "no room there; testing the training box"
+        print(f"torque limits: saturated LQR brings {sat} of {n} half-box states to x*, unsaturated LQR {test['unsaturated']} "
+              f"(the limits {'bind' if test['binds'] else 'do not bind'}); it fails on {n - sat}: {verdict}", flush=True)
+    else:
+        verdict = "fitting a recovery law from training-box starts (20-60 min on 2 cores; --recover never skips it)" if test["room"] else \
+            "no recovery law (--recover always fits one anyway)"
+        print(f"torque limits: on the training box saturated LQR brings {sat} of {n} states to x*; it fails on {n - sat}: {verdict}", flush=True)
