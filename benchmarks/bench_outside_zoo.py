@@ -4,7 +4,7 @@ Writes variants of the zoo URDFs (heavier or lighter links, continuous joints, m
 into a temporary folder, loads each from its path as a user would (`load_system(path, actuated=…)`,
 so the default training box follows the variant's own masses), trains it with every default of the fast preset
 (`TrainConfig.fast(seed=…)`), then fits a recovery law as `train` does by default (`--recover auto`:
-where saturated LQR fails from ≥ 10 of 100 half-box states, 20-60 min per robot; `--recover never`
+where saturated LQR fails from ≥ 10 of 100 half-box states, 15-60 min per robot; `--recover never`
 judges the IDA-PBC law alone, as this benchmark did before that default) and judges NIDA-PBC and LQR (Q = I, R = I) with MuJoCo from the same
 uniform states (their own seed, not the evaluation's seed 0), with the URDF's effort limits on both,
 and prints NIDA-PBC's lead with its 95 % interval (`idapbc_pin.sim.paired`).

@@ -9,7 +9,8 @@ Claims:
 * a torque plan within the limits brings a pendubot with an 8 N·m shoulder to x* from a half-box
   state saturated LQR loses; plans searched together equal plans searched one start at a time;
 * the plans' starts and the DAgger starts come from the box `start_box` names (half box or
-  training box);
+  training box); the labels come from the `teacher` it names (saturated LQR, or the run's own law,
+  whose labels near x* are its own torques);
 * DAgger searches no plan after a first fit that loses every start of its first round, unless those
   most of those starts come to rest in the near box around x*;
 * the default gate forgives a recovery law 2 lost states of the half or near box, not 6;
@@ -360,6 +361,62 @@ def test_the_labels_and_dagger_start_from_the_box_the_config_names(tiny_run, mon
 def test_a_start_box_that_is_neither_half_nor_domain_is_refused_in_one_line():
     with pytest.raises(IdapbcError, match="start_box must be one of half, domain"):
         RecoveryConfig(start_box="quarter")
+
+
+def test_with_the_run_as_teacher_the_labels_near_x_star_are_the_run_s_own_saturated_law(tiny_run):
+    """`teacher` = a law: the starts it brings to x* are labelled with its own torques (saturated),
+    states sampled every LABEL_EVERY ticks of its trajectory: the fitted law imitates it there."""
+    system, teacher = tiny_run.system, tiny_run.own_controller
+    x0 = uniform_states(system, 3, scaled_box(system, 0.02), 101)  # right by x*: the run's law holds them
+    X, U, taught, recovered = collect_labels(system, x0, 101, RecoveryConfig(workers=1), progress=False, teacher=teacher)
+    assert (taught, recovered) == (3, 0) and len(X) == 3 * (LABEL_SPAN // LABEL_EVERY)
+    np.testing.assert_allclose(U, system.saturate(teacher(X)), rtol=0, atol=1e-9)
+    lqr = system.saturate(LQRController(system)(X))
+    assert np.abs(U - lqr).max() > 1e-6  # not LQR's torques
+
+
+@pytest.mark.parametrize("teacher", ["lqr", "run"])
+def test_recover_hands_the_teacher_the_config_names_to_the_labels(tiny_run, monkeypatch, teacher):
+    """`teacher` = "lqr" labels with saturated LQR (None: `collect_labels`' own), "run" with the
+    run's law without a recovery law (`Run.own_controller`)."""
+    given = []
+
+    class Stop(Exception):
+        pass
+
+    def labels(system, x0, plan_seed, config, progress, start, law):
+        given.append(law)
+        raise Stop
+
+    monkeypatch.setattr(recovery_module, "collect_labels", labels)
+    with pytest.raises(Stop):
+        recover(tiny_run.path, RecoveryConfig(**(TINY | {"teacher": teacher})), progress=False)
+    (law,) = given
+    if teacher == "lqr":
+        assert law is None
+    else:
+        x = uniform_states(tiny_run.system, 50, "domain", seed=4)
+        np.testing.assert_array_equal(law(x), tiny_run.own_controller(x))
+
+
+def test_a_teacher_that_is_neither_lqr_nor_run_is_refused_in_one_line():
+    with pytest.raises(IdapbcError, match="teacher must be one of lqr, run"):
+        RecoveryConfig(teacher="mpc")
+
+
+def test_the_run_s_own_law_is_its_law_without_the_recovery_law_and_keeps_the_inside_gain(tiny_run, tmp_path):
+    """`Run.own_controller`: the networks, and the linear law outside the box with the gate's
+    inside gain where the run uses it, never an earlier recovery law (what the gate compares with)."""
+    path, law = _with_recovery(tiny_run, tmp_path)
+    summary = json.loads((path / "summary.json").read_text())
+    summary["fallback"] = {"used": True, "inside_gain": 3.0, "inside_ramp": [0.2, 0.5]}
+    (path / "summary.json").write_text(json.dumps(summary))
+    run = ip.load_run(path)
+    own = run.own_controller
+    assert isinstance(run.fallback, RecoveryLaw) and own.fallback.inside_gain == 3.0 and own.fallback.inside_ramp == (0.2, 0.5)
+    x = uniform_states(run.system, 200, "domain", seed=3)
+    np.testing.assert_allclose(own(x), own.fallback.apply(x, run.controller.with_fallback(None)(x)), atol=1e-12)
+    assert not np.allclose(own(x), run.controller(x))
 
 
 @pytest.mark.slow

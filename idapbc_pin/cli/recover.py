@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from ..training.recovery import START_BOXES, RecoveryConfig, recover, refit, regate
+from ..training.recovery import START_BOXES, TEACHERS, RecoveryConfig, recover, refit, regate
 
 __all__ = ["add_recover_command"]
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    keys = ("starts", "start_box", "dagger", "workers", "margin", "half_loss", "fit_seed", "fits", "width", "steps")
+    keys = ("starts", "start_box", "teacher", "dagger", "workers", "margin", "half_loss", "fit_seed", "fits", "width", "steps")
     config = RecoveryConfig(**{k: getattr(args, k) for k in keys if getattr(args, k) is not None})
     if args.regate:
         entry = regate(args.run, config, keep=args.keep)
@@ -34,16 +34,19 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
         "recover",
         help="weak actuators: fit a recovery law to torque plans within the limits, beside the IDA-PBC law",
         description=(
-            "Search torque plans within RUN's effort limits from states LQR loses (half box, or --start-box domain), fit a small feedback law to "
+            "Search torque plans within RUN's effort limits from states RUN's own law loses (half box, or --start-box domain; --teacher lqr: "
+            "states saturated LQR loses), fit a small feedback law to "
             "them (then DAgger rounds), and use it outside an inner box around x* if simulation on states of its own "
             "shows it brings more states to x*. Writes RUN/recovery.npz (kept) or RUN/recovery-refused.npz (not kept; "
-            "--regate judges it again) and summary.json → recovery. Took 20-50 minutes on 2 cores for a 2-DoF robot."
+            "--regate judges it again) and summary.json → recovery. Took 15-50 minutes on 2 cores for a 2-DoF robot."
         ),
     )
     p.add_argument("run", metavar="RUN", help="run directory written by `idapbc-pin train` (effort limits on every actuated joint)")
-    p.add_argument("--starts", type=int, metavar="N", help=f"start states labelled by LQR or plans (default {d.starts})")
+    p.add_argument("--starts", type=int, metavar="N", help=f"start states labelled by the teacher or plans (default {d.starts})")
     p.add_argument("--start-box", choices=START_BOXES, dest="start_box",
                    help=f"box of the start states and DAgger starts: the half box, or the training box (default {d.start_box})")
+    p.add_argument("--teacher", choices=TEACHERS,
+                   help=f"law that labels the starts it brings to x* and catches every plan: saturated LQR, or the run's own law (default {d.teacher})")
     p.add_argument("--dagger", type=int, metavar="K", help=f"DAgger rounds after the first fit (default {d.dagger})")
     p.add_argument("--workers", type=int, metavar="W", help="processes searching plans, fitting and running the gate's simulations (default: one per core, at most 16; "
                         "the count changes the time, not the result)")

@@ -113,7 +113,7 @@ def add_train_command(sub) -> None:
     p.add_argument("--fallback-gain", dest="fallback_gain", type=float, metavar="K", help=FIELD_HELP["fallback_gain"])
     p.add_argument("--recover", nargs="?", const="always", default="auto", choices=["auto", "always", "never"],
                    help="weak actuators: after training, fit a recovery law to torque plans within the limits and keep it "
-                        "if simulation shows it helps (`idapbc-pin recover`; 20-50 min on 2 cores for a 2-DoF robot, an hour for a 3-DoF one). "
+                        "if simulation shows it helps (`idapbc-pin recover`; 15-50 min on 2 cores for a 2-DoF robot, an hour for a 3-DoF one). "
                         "auto (default): only where saturated LQR leaves room, i.e. fails from at least 10 of 100 half-box "
                         "states, or else of 100 training-box states (then the plans start from the training box: the cartpole; "
                         "reaction wheel and double pendulum leave no room at their URDF limits); --recover alone: always; never: skip")

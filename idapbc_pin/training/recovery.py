@@ -3,9 +3,15 @@
 The steps (`RecoveryConfig` holds every number):
 
 1. **Labels.** From `starts` uniform start states of the half box, or of the training box
-   (`start_box`; seed `plan_seed`, never an evaluation seed), saturated LQR runs first; where it fails, a torque plan within the limits is
-   searched (`plans.search_plans`, PLAN_BATCH starts at a time), then LQR. Every start that
-   reaches x* gives labels (x(t), u(t)) every 10 ms over its first 6 s.
+   (`start_box`; seed `plan_seed`, never an evaluation seed), the `teacher` runs first: the run's
+   own law (`Run.own_controller`, the default) or saturated LQR. Where it fails, a torque plan
+   within the limits is searched (`plans.search_plans`, PLAN_BATCH starts at a time), then the
+   teacher takes over. Every start that reaches x* gives labels (x(t), u(t)) every 10 ms over its
+   first 6 s. With the run's law as the teacher the fitted law imitates the IDA-PBC law on the
+   states that law already brings to x*, so a trajectory that leaves the inner box meets a law
+   that continues what the IDA-PBC law was doing; with LQR it met LQR's habits, and on the zoo
+   pendubot the gate refused that law for the states near x* it lost (README, "A recovery law for
+   weak actuators").
 2. **Fit.** A `control.recovery.RecoveryLaw` MLP (two tanh layers of `width`) by least squares on
    u/ū (Adam, minibatches of 4096). After the DAgger rounds, `fits` laws are fitted to the final
    labels (seeds `fit_seed`, `fit_seed` + 1, …) and the gate judges each.
@@ -29,7 +35,7 @@ What it buys, measured (README, "Can one feedback law learn the plans?"): on a p
 8 N·m shoulder the distilled law brought 53 % of the half box to x* where saturated LQR and the
 IDA-PBC law brought about 25 %; on an acrobot with a 5 N·m elbow it tied. With the gate, `recover`
 doubled the half-box basin of two weak pendubots and added 1 to 7.5 points on the acrobot (README,
-"A recovery law for weak actuators"). Plans cost 20–50 minutes per 2-DoF robot on 2 shared cores (an hour for the 3-DoF cart_double_pendulum)
+"A recovery law for weak actuators"). Plans cost 15–50 minutes per 2-DoF robot on 2 shared cores (an hour for the 3-DoF cart_double_pendulum)
 (`workers` processes), so `train` runs `recover` only where saturated LQR leaves room
 (`training.weak_actuators`).
 
@@ -62,7 +68,7 @@ from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plans
 from .recovery_gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, read_labels, save_labels, save_recovery
 from .run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
 
-__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "START_BOXES", "choose_inner", "collect_labels", "dagger_round", "ends_near", "fit_recovery_law", "gate_choice", "recover", "refit", "regate"]
+__all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "START_BOXES", "TEACHERS", "choose_inner", "collect_labels", "dagger_round", "ends_near", "fit_recovery_law", "gate_choice", "recover", "refit", "regate"]
 
 #: A label every LABEL_EVERY ticks (10 ms) over the first LABEL_SPAN ticks (6 s) of a successful start.
 LABEL_EVERY, LABEL_SPAN = 5, 3000
@@ -72,6 +78,8 @@ PLAN_BATCH = 16
 
 #: Boxes the recovery law's start states may be drawn from (`RecoveryConfig.start_box`).
 START_BOXES = ("half", "domain")
+#: Feedback laws that label the starts they bring to x* and catch every plan (`RecoveryConfig.teacher`).
+TEACHERS = ("lqr", "run")
 
 
 @dataclass(frozen=True)
@@ -80,10 +88,16 @@ class RecoveryConfig:
 
     Attributes
     ----------
-    starts : start states labelled by LQR or plans, uniform in `start_box`.
+    starts : start states labelled by the teacher or plans, uniform in `start_box`.
     start_box : where the starts and the DAgger starts are drawn: ``"half"`` (the half box) or
         ``"domain"`` (the training box; `train --recover auto` uses it where saturated LQR leaves no
         room on the half box but does on the training box, `weak_actuators.auto_recover`).
+    teacher : the feedback law that runs from each start first, labels the starts it brings to x*,
+        and takes over from every plan after its horizon: ``"run"`` (the run's own law as the gate
+        judges it, without an earlier recovery law; the default) or ``"lqr"`` (saturated LQR,
+        Q = I, R = I; the default until this version). With "run" the fitted law imitates the
+        IDA-PBC law on the states that law already brings to x*, and the plans only have to reach
+        that law's basin.
     plan_seed : seed of those start states and of the plans' searches.
     dagger : DAgger rounds after the first fit.
     dagger_starts : starts of the fitted law per DAgger round, uniform in `start_box`.
@@ -114,6 +128,7 @@ class RecoveryConfig:
 
     starts: int = 240
     start_box: str = "half"
+    teacher: str = "run"
     plan_seed: int = 101
     dagger: int = 2
     dagger_starts: int = 30
@@ -138,6 +153,7 @@ class RecoveryConfig:
             (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
             (self.half_loss >= 0, "half_loss must be ≥ 0"),
             (self.start_box in START_BOXES, f"start_box must be one of {', '.join(START_BOXES)}"),
+            (self.teacher in TEACHERS, f"teacher must be one of {', '.join(TEACHERS)}"),
         ]
         for ok, what in checks:
             if not ok:
@@ -146,10 +162,11 @@ class RecoveryConfig:
 
 # ------------------------------------------------------------------------------------ labels
 def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """Worker: (X (K, n), U (K, m), LQR successes, plans that reached x*) for one chunk of starts."""
-    system, x0, first, plan_seed, settings = job
+    """Worker: (X (K, n), U (K, m), the teacher's successes, plans that reached x*) for one chunk of
+    starts (teacher None: saturated LQR)."""
+    system, x0, first, plan_seed, settings, teacher = job
     torch.set_num_threads(1)
-    lqr = LQRController(system)
+    lqr = LQRController(system) if teacher is None else teacher
     traj = simulate(system, lqr, x0, T=20.0, dt=PLAN_STEP)
     ok = success(traj, system)
     X = [traj.x[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
@@ -172,14 +189,16 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
     return (np.concatenate(X), np.concatenate(U), int(ok.sum()), recovered) if X else (*empty, int(ok.sum()), recovered)
 
 
-def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfig, progress: bool = True, start: float | None = None):
+def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfig, progress: bool = True, start: float | None = None, teacher=None):
     """Labels (X (K, n), U (K, m)) of `system` from the start states x0 (N, n), with the counts of
-    starts saturated LQR and the plans brought to x*: (X, U, lqr_ok, recovered). The plan of start i
-    draws from the stream (plan_seed, i); `config.workers` processes (the system is pickled to them)."""
+    starts the teacher and the plans brought to x*: (X, U, teacher_ok, recovered). The teacher is
+    `teacher` (a law (N, n) -> (N, m), picklable), or saturated LQR when None; it also catches every
+    plan after its horizon. The plan of start i draws from the stream (plan_seed, i);
+    `config.workers` processes (the system and the teacher are pickled to them)."""
     start = time.perf_counter() if start is None else start
     workers = resolve_workers(config.workers)
     chunks = [c for c in np.array_split(np.arange(len(x0)), max(1, 4 * workers)) if c.size]
-    jobs = [(system, x0[c], int(c[0]), plan_seed, config.plan) for c in chunks]
+    jobs = [(system, x0[c], int(c[0]), plan_seed, config.plan, teacher) for c in chunks]
     parts = []
     for k, part in enumerate(process_map(_label_chunk, jobs, workers)):
         parts.append(part)
@@ -226,10 +245,11 @@ def _fit_job(job) -> tuple[RecoveryLaw, float]:
 
 
 # ------------------------------------------------------------------------------------ recover
-def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int, config: RecoveryConfig, progress: bool = True, start: float | None = None):
+def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int, config: RecoveryConfig, progress: bool = True, start: float | None = None,
+                 teacher=None):
     """DAgger round r: run `law` alone from `config.dagger_starts` starts in `config.start_box` (seed
-    plan_seed + 300 + r), label the states its failures visit at 0.5, 1.5 and 3 s (`collect_labels`,
-    plan streams plan_seed + 1000 (r + 1)), and fit a fresh law on all labels.
+    plan_seed + 300 + r), label the states its failures visit at 0.5, 1.5 and 3 s (`collect_labels`
+    with `teacher`, plan streams plan_seed + 1000 (r + 1)), and fit a fresh law on all labels.
     Returns (law, X, U, counts of the round). In round 0, when `law` fails from every start, fewer
     than half of them end in the near box (`ends_near`) and `config.stop_when_lost`, nothing is
     labelled: `law`, X and U come back as they were, the counts with "stopped": True."""
@@ -241,21 +261,25 @@ def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int,
         if progress:
             print(f"DAgger round 1/{config.dagger}: the law fails from all {failed.size} starts, most ending outside the near box: no DAgger rounds "
                   f"(stop_when_lost), the gate judges the first fit  [{time.perf_counter() - start:.0f} s]", flush=True)
-        return law, X, U, {"failed": int(failed.size), "visited": 0, "lqr": 0, "plans": 0, "mse": None, "stopped": True}
+        return law, X, U, {"failed": int(failed.size), "visited": 0, "teacher": 0, "plans": 0, "mse": None, "stopped": True}
     visited = np.concatenate([traj.x[failed, round(t / PLAN_STEP)] for t in (0.5, 1.5, 3.0)]) if failed.size else x0[:0]
     if progress:
         print(f"DAgger round {r + 1}/{config.dagger}: the law fails from {failed.size} of {config.dagger_starts} starts; "
               f"labelling the {len(visited)} states they visit  [{time.perf_counter() - start:.0f} s]", flush=True)
     if visited.size:
-        Xr, Ur, lqr_ok, recovered = collect_labels(system, visited, config.plan_seed + 1000 * (r + 1), config, progress, start)
+        Xr, Ur, taught, recovered = collect_labels(system, visited, config.plan_seed + 1000 * (r + 1), config, progress, start, teacher)
         X, U = np.concatenate([X, Xr]), np.concatenate([U, Ur])
     else:
-        lqr_ok = recovered = 0
+        taught = recovered = 0
     law, mse = fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed)
     if progress:
-        print(f"DAgger round {r + 1}/{config.dagger}: of those states LQR brings {lqr_ok} to x*, plans {recovered}; refitted on "
+        print(f"DAgger round {r + 1}/{config.dagger}: of those states {_teacher_name(config)} brings {taught} to x*, plans {recovered}; refitted on "
               f"{len(X)} labels, mean squared error {mse:.4f}  [{time.perf_counter() - start:.0f} s]", flush=True)
-    return law, X, U, {"failed": int(failed.size), "visited": int(len(visited)), "lqr": int(lqr_ok), "plans": int(recovered), "mse": mse}
+    return law, X, U, {"failed": int(failed.size), "visited": int(len(visited)), "teacher": int(taught), "plans": int(recovered), "mse": mse}
+
+
+def _teacher_name(config: RecoveryConfig) -> str:
+    return "saturated LQR" if config.teacher == "lqr" else "the run's law"
 
 
 def ends_near(x: np.ndarray, system) -> np.ndarray:
@@ -288,20 +312,21 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     torch.set_num_threads(1)
     start = time.perf_counter()
     x0 = uniform_states(system, config.starts, config.start_box, config.plan_seed)
-    X, U, lqr_ok, recovered = collect_labels(system, x0, config.plan_seed, config, progress, start)
+    teacher = run.own_controller if config.teacher == "run" else None
+    X, U, taught, recovered = collect_labels(system, x0, config.plan_seed, config, progress, start, teacher)
     if not len(X):
         raise IdapbcError(f"no start state reached x*, with LQR or with a plan: nothing to fit a recovery law to ({system.name}). Fix: check the limits.")
     save_labels(run.path, X, U)  # after every labelling step: an interrupted recover keeps its plans for --refit
     if progress:
-        print(f"labels: saturated LQR brings {lqr_ok} of {config.starts} starts to x*, plans {recovered} of the other "
-              f"{config.starts - lqr_ok}; {len(X)} labels  [{time.perf_counter() - start:.0f} s]", flush=True)
+        print(f"labels: {_teacher_name(config)} brings {taught} of {config.starts} starts to x*, plans {recovered} of the other "
+              f"{config.starts - taught}; {len(X)} labels  [{time.perf_counter() - start:.0f} s]", flush=True)
     try:
         law, mse = fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed)
         if progress:
             print(f"fitted: mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
         rounds = []
         for r in range(config.dagger):
-            law, X, U, info = dagger_round(system, law, X, U, r, config, progress, start)
+            law, X, U, info = dagger_round(system, law, X, U, r, config, progress, start, teacher)
             rounds.append(info)
             if info.get("stopped"):
                 break
@@ -313,7 +338,7 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
         raise
     law, gate = _gate_fits(run, law, X, U, config, progress, start)
     entry = _verdict(gate, config, keep) | {
-        "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "lqr_starts": int(lqr_ok), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
+        "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "teacher": config.teacher, "teacher_starts": int(taught), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
         "seconds": round(time.perf_counter() - start, 1),
     }
     return _save_and_tell(run, law, entry, config, progress, start)

@@ -22,7 +22,6 @@ import torch
 
 from .._io import DamagedFileError, atomic_write_bytes, read_npz, write_json
 from .._parallel import process_map
-from ..control.fallback import box_fallback
 from ..control.recovery import RecoveryLaw
 from ..sim.integrate import simulate
 from ..sim.metrics import success
@@ -93,7 +92,7 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
         uniform_states(system, half, "half", seed), uniform_states(system, n - half, "domain", seed + 1),
         uniform_states(system, config.near_states, scaled_box(system, NEAR_SCALE), seed + 2),
     ])  # fmt: skip
-    ctrl = run.controller.with_fallback(box_fallback(system, run.config) if run.uses_fallback else None)  # not an earlier recovery law
+    ctrl = run.own_controller  # not an earlier recovery law
 
     scales = [float(r) for r in config.inner_scales]
     ctrls = [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales]

@@ -97,6 +97,14 @@ class Run:
         return Controller(self.system, self.nets, self.fallback)
 
     @property
+    def own_controller(self) -> Controller:
+        """The run's law without a recovery law: the networks, and where the run uses it the linear
+        law outside the training box with the gate's inside gain (what `recover` improves on, and
+        what its gate and its `teacher` = "run" simulate)."""
+        fallback = box_fallback(self.system, self.config, self.inside_gain, self.inside_ramp) if self.uses_fallback else None
+        return Controller(self.system, self.nets, fallback)
+
+    @property
     def uses_fallback(self) -> bool:
         """True when the run switches to the anchor's linear law outside the training box:
         ``config.fallback == "linear"``, or ``"auto"`` and the gate after training chose it

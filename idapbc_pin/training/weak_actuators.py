@@ -1,7 +1,7 @@
 """When `train` fits a recovery law on its own: saturated LQR leaves room on the half box, or else on
 the training box.
 
-A recovery law (`training.recovery`) is worth its cost (20–50 minutes of plans on 2 cores for a 2-DoF robot, about an hour for the 3-DoF cart_double_pendulum) where a
+A recovery law (`training.recovery`) is worth its cost (15–50 minutes of plans on 2 cores for a 2-DoF robot, about an hour for the 3-DoF cart_double_pendulum) where a
 linear law under the robot's torque limits loses states that torque plans within the same limits
 bring to x* (README, "A recovery law for weak actuators"). The test runs saturated LQR from
 `BIND_STATES` uniform half-box states (a seed no evaluation uses): it leaves **room** when at least
@@ -94,11 +94,11 @@ def _tell(test: dict, box: str) -> None:
     """Print `limits_bind`'s verdict on `box` and what `auto_recover` does next."""
     n, sat = test["states"], test["saturated"]
     if box == "half":
-        verdict = "fitting a recovery law where it fails (20-60 min on 2 cores; --recover never skips it)" if test["room"] else \
+        verdict = "fitting a recovery law where it fails (15-60 min on 2 cores; --recover never skips it)" if test["room"] else \
             "no room there; testing the training box"
         print(f"torque limits: saturated LQR brings {sat} of {n} half-box states to x*, unsaturated LQR {test['unsaturated']} "
               f"(the limits {'bind' if test['binds'] else 'do not bind'}); it fails on {n - sat}: {verdict}", flush=True)
     else:
-        verdict = "fitting a recovery law from training-box starts (20-60 min on 2 cores; --recover never skips it)" if test["room"] else \
+        verdict = "fitting a recovery law from training-box starts (15-60 min on 2 cores; --recover never skips it)" if test["room"] else \
             "no recovery law (--recover always fits one anyway)"
         print(f"torque limits: on the training box saturated LQR brings {sat} of {n} states to x*; it fails on {n - sat}: {verdict}", flush=True)
