@@ -166,8 +166,8 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
     starts (teacher None: saturated LQR)."""
     system, x0, first, plan_seed, settings, teacher = job
     torch.set_num_threads(1)
-    lqr = LQRController(system) if teacher is None else teacher
-    traj = simulate(system, lqr, x0, T=20.0, dt=PLAN_STEP)
+    law = LQRController(system) if teacher is None else teacher
+    traj = simulate(system, law, x0, T=20.0, dt=PLAN_STEP)
     ok = success(traj, system)
     X = [traj.x[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
     U = [system.saturate(traj.u[i, :LABEL_SPAN:LABEL_EVERY]) for i in np.flatnonzero(ok)]
@@ -176,11 +176,11 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
     for k in range(0, lost.size, PLAN_BATCH):
         group = lost[k : k + PLAN_BATCH]
         rngs = [np.random.default_rng((plan_seed, first + int(i))) for i in group]
-        plans = search_plans(system, lqr, x0[group], bound, settings, rngs)
+        plans = search_plans(system, law, x0[group], bound, settings, rngs)
         # Each plan is judged alone, as before batching: numpy's matrix product (LQR's -Kδ) rounds a
         # batch of one differently, which would move every measured run's labels by ~1e-14.
         for plan, i in zip(plans, group):
-            t = simulate(system, PlanThenLaw(plan[None], settings.horizon, lqr), x0[i : i + 1], T=20.0, dt=PLAN_STEP)
+            t = simulate(system, PlanThenLaw(plan[None], settings.horizon, law), x0[i : i + 1], T=20.0, dt=PLAN_STEP)
             if success(t, system)[0]:
                 recovered += 1
                 X.append(t.x[0, :LABEL_SPAN:LABEL_EVERY])
@@ -315,7 +315,7 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     teacher = run.own_controller if config.teacher == "run" else None
     X, U, taught, recovered = collect_labels(system, x0, config.plan_seed, config, progress, start, teacher)
     if not len(X):
-        raise IdapbcError(f"no start state reached x*, with LQR or with a plan: nothing to fit a recovery law to ({system.name}). Fix: check the limits.")
+        raise IdapbcError(f"no start state reached x*, with the teacher or with a plan: nothing to fit a recovery law to ({system.name}). Fix: check the limits.")
     save_labels(run.path, X, U)  # after every labelling step: an interrupted recover keeps its plans for --refit
     if progress:
         print(f"labels: {_teacher_name(config)} brings {taught} of {config.starts} starts to x*, plans {recovered} of the other "
