@@ -101,8 +101,11 @@ class Run:
         """The run's law without a recovery law: the networks, and where the run uses it the linear
         law outside the training box with the gate's inside gain (what `recover` improves on, and
         what its gate and its `teacher` = "run" simulate)."""
-        fallback = box_fallback(self.system, self.config, self.inside_gain, self.inside_ramp) if self.uses_fallback else None
-        return Controller(self.system, self.nets, fallback)
+        return Controller(self.system, self.nets, self._linear_fallback())
+
+    def _linear_fallback(self) -> BoxFallback | None:
+        """The linear law outside the box with the gate's inside gain, where the run uses it; else None."""
+        return box_fallback(self.system, self.config, self.inside_gain, self.inside_ramp) if self.uses_fallback else None
 
     @property
     def uses_fallback(self) -> bool:
@@ -147,10 +150,7 @@ class Run:
         outside its inner box when the run has one (`control.recovery`), else the linear law
         outside the training box when the run uses it (`control.fallback`)."""
         if self._fallback is None:
-            if self.uses_recovery:
-                self._fallback = read_recovery(self.path)
-            elif self.uses_fallback:
-                self._fallback = box_fallback(self.system, self.config, self.inside_gain, self.inside_ramp)
+            self._fallback = read_recovery(self.path) if self.uses_recovery else self._linear_fallback()
         return self._fallback
 
 
