@@ -109,6 +109,15 @@ def test_training_on_the_gpu_follows_training_on_the_cpu(tmp_path, rollout_epoch
 
 
 @CUDA
+def test_a_gpu_run_passes_the_fallback_gate_in_worker_processes(tmp_path):
+    # the gate simulates the law in worker processes on the CPU: the networks' run-time caches from
+    # training on the GPU must not travel there (it failed: "Cannot re-initialize CUDA in forked subprocess")
+    system = ip.load_system("pendubot")
+    run = train(system, SMALL.replace(device="cuda", fallback="auto"), out=tmp_path, progress=False, workers=2)
+    assert run.summary["fallback"]["states"] > 0 and not next(run.nets.parameters()).is_cuda
+
+
+@CUDA
 def test_same_seed_on_the_gpu_gives_the_same_weights(tmp_path):
     system = ip.load_system("pendubot")
     a, b = (train(system, SMALL.replace(device="cuda"), out=tmp_path / k, progress=False) for k in "ab")

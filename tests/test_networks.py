@@ -457,3 +457,28 @@ def test_torch_func_transforms_work_too():
     torch.testing.assert_close(func_hessian(H1)(x_star), torch.tensor(np.array(an.P)), rtol=0, atol=1e-12)
     x = points_away(x_star, 0, 8)
     torch.testing.assert_close(vmap(grad(H1))(x), H.grad(x), rtol=0, atol=1e-13)
+
+
+def test_moving_or_casting_the_networks_drops_their_run_time_caches():
+    """`desired_fast` caches the networks' values at x*; a move to another device or dtype (a run
+    trained on a GPU is simulated on the CPU) must not keep the old ones, and a copy sent to a worker
+    process must not carry them (on a GPU machine it failed: "Cannot re-initialize CUDA in forked
+    subprocess")."""
+    import copy
+    import pickle
+
+    import idapbc_pin as ip
+    from idapbc_pin.config import TrainConfig
+    from idapbc_pin.control.nets import build_nets
+
+    system = ip.load_system("pendubot")
+    torch.manual_seed(0)
+    nets = build_nets(system, TrainConfig.fast(width=16, depth=2, dtype="float32"))
+    fresh = copy.deepcopy(nets).double()
+    x = torch.as_tensor(np.random.default_rng(0).uniform(*system.domain, size=(8, system.n)))
+    nets.desired_fast(x.float())  # fills the caches in float32
+    assert "_cache" in nets.__dict__ and nets.H.icnn.__dict__["_pos_cache"]
+    shipped = pickle.loads(pickle.dumps(nets))
+    assert "_cache" not in shipped.__dict__ and "_pos_cache" not in shipped.H.icnn.__dict__
+    nets.double()
+    assert torch.equal(nets.desired_fast(x), fresh.desired_fast(x))

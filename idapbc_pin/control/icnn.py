@@ -6,7 +6,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from .layers import softplus
+from .layers import _Cached, softplus
 
 __all__ = ["ICNN"]
 
@@ -16,7 +16,7 @@ def _inv_softplus(y: Tensor) -> Tensor:
     return y + torch.log(-torch.expm1(-y))
 
 
-class ICNN(nn.Module):
+class ICNN(_Cached):
     """Input-convex neural network Ĥ: ℝⁿ → ℝ (Amos, Xu, Kolter 2017), smooth.
 
     ``z₁ = σ(W_x⁰u + b⁰)``, ``z_{k+1} = σ(W_z^{k+} z_k + W_x^k u + b^k)`` (k = 1 … depth-1),
@@ -42,6 +42,8 @@ class ICNN(nn.Module):
     ``U(0.2, 1.8)/width`` (through softplus⁻¹), so a hidden unit's input has the mean of one unit's
     output and the depth neither blows up nor vanishes at initialisation (cf. Hoedt & Klambauer 2023).
     """
+
+    _CACHES = ("_pos_cache",)  # W⁺ = softplus(Ŵ) per layer, without autograd (`_positive`)
 
     def __init__(self, n: int, width: int, depth: int, *, affine_out: bool = True, dtype=None, device=None):
         super().__init__()

@@ -111,6 +111,26 @@ def _activation(name: str) -> nn.Module:
     return acts[name]()
 
 
+class _Cached(nn.Module):
+    """A module that keeps run-time caches of tensors in its ``__dict__`` (outside the state dict),
+    named in ``_CACHES``. Moving or casting it (``.to``, ``.cpu``, ``.double``) drops them, since they
+    hold tensors of the old device and dtype (a run trained on a GPU is simulated on the CPU), and a
+    pickled copy (sent to a worker process, or `copy.deepcopy`) leaves them behind."""
+
+    _CACHES: tuple[str, ...] = ()
+
+    def _drop_caches(self) -> None:
+        for name in self._CACHES:
+            self.__dict__.pop(name, None)
+
+    def _apply(self, fn, *args, **kwargs):
+        self._drop_caches()
+        return super()._apply(fn, *args, **kwargs)
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k not in self._CACHES}
+
+
 class _SoftplusModule(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         return softplus(x)

@@ -31,17 +31,20 @@ from .anchor import anchor_settings, half_widths, local_rate, system_anchor
 from .damping import DampingNet
 from .energy import EnergyNet
 from .interconnection import InterconnectionNet
+from .layers import _Cached
 
 __all__ = ["IdaPbcNets", "build_nets"]
 
 
 
-class IdaPbcNets(nn.Module):
+class IdaPbcNets(_Cached):
     """H_d, J_d, R_d and the system's constant input structure, in one torch module.
 
     Buffers: g (n, m), g_perp (n − m, n), G_inv (n, n), x_star (n,), the decay rate λ, and
     ``angle_mask`` (n,) bool, True on the angles the control law wraps (`wrap`), or None.
     """
+
+    _CACHES = ("_cache", "_cache_key", "_params")  # the networks' values at x* (`desired_fast`)
 
     def __init__(self, H: EnergyNet, J: InterconnectionNet, R: DampingNet, g, g_perp, decay_rate: float, angle_mask=None):
         super().__init__()
