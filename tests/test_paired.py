@@ -85,6 +85,27 @@ def test_roa_tables_state_the_lead_of_the_first_controller():
     assert c.text() in res.table()
 
 
+def test_settling_is_compared_on_the_states_both_controllers_reach():
+    # each controller's own median times it on its own successes, the common one on the same starts
+    from idapbc_pin.sim.roa import ControllerScore, RoaResult
+
+    def scored(name, t):
+        t = np.array(t, float)
+        ok = np.isfinite(t)
+        return ControllerScore(name, ok, t, np.zeros(5), ok, np.ones(5), ~ok, 0.0)
+
+    box = (-np.ones(2), np.ones(2))
+    far = scored("NIDA-PBC", [1.0, 2.0, 3.0, 9.0, 9.0])  # also reaches the two far starts, slowly
+    lqr = scored("LQR", [0.5, 1.0, 1.5, np.nan, np.nan])
+    res = RoaResult("toy", box, "half", np.zeros((5, 2)), 5.0, 0.01, 0, {"NIDA-PBC": far, "LQR": lqr})
+    assert far.median_settling_time == 3.0 and lqr.median_settling_time == 1.0
+    assert res.common_settling("NIDA-PBC", "LQR") == {"states": 3, "NIDA-PBC": 2.0, "LQR": 1.0}
+    assert "median settle on the 3 states both reach: NIDA-PBC 2.00 s, LQR 1.00 s" in res.table()
+    never = scored("none", [np.nan] * 5)
+    res = RoaResult("toy", box, "half", np.zeros((5, 2)), 5.0, 0.01, 0, {"NIDA-PBC": far, "none": never})
+    assert res.common_settling("NIDA-PBC", "none")["states"] == 0 and "states both reach" not in res.table()
+
+
 def test_outcomes_of_different_states_are_refused_in_one_line():
     with pytest.raises(ValueError, match="same states"):
         paired_comparison(np.ones(5, bool), np.ones(6, bool), "NIDA-PBC", "LQR")

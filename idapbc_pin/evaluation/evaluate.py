@@ -37,7 +37,8 @@ class Evaluation:
 
     def record(self) -> dict:
         """JSON-ready summary: per box and controller, success rate and medians, and NIDA-PBC's lead over
-        LQR on the box's states (``"paired"``: counts, interval, McNemar's p; `sim.paired`); the radii
+        LQR on the box's states (``"paired"``: counts, interval, McNemar's p; `sim.paired`) and both
+        median settling times on the states both reach (``"common_settling"``); the radii
         ``"radius": {controller: s}`` (with ``"radius_search"``: settings, brackets, probes) and the
         input bound applied (``"limits"``)."""
         out = {}
@@ -60,6 +61,8 @@ class Evaluation:
             out[box]["hold"] = res.hold  # the law sampled once per step of dt and held (a 1/dt Hz controller)
             if {"NIDA-PBC", "LQR"} <= set(res.scores):  # the lead on these states, its interval and p-value
                 out[box]["paired"] = res.compare("NIDA-PBC", "LQR").to_dict()
+                common = res.common_settling("NIDA-PBC", "LQR")  # median settling on the states both reach
+                out[box]["common_settling"] = {k: v if k == "states" else finite_or_none(v) for k, v in common.items()}
         out["limits"] = input_limits(self.run.system, self.limits).to_json()
         if self.radius is not None:
             out["radius"] = dict(self.radius.radius)

@@ -114,6 +114,15 @@ class RoaResult:
         (`paired.paired_comparison`)."""
         return paired_comparison(self.scores[a].success, self.scores[b].success, a, b, level)
 
+    def common_settling(self, a: str, b: str) -> dict:
+        """Median settling times of `a` and `b` on the states both bring to x* (s; nan where none):
+        ``{"states": k, a: t_a, b: t_b}``. The per-controller medians of `table` are over each one's
+        own successes, so a controller that also reaches the far states LQR fails from is timed on
+        harder starts; on the common states both are timed from the same ones."""
+        sa, sb = self.scores[a], self.scores[b]
+        both = sa.success & sb.success
+        return {"states": int(both.sum()), a: _median(sa.settling_time[both]), b: _median(sb.settling_time[both])}
+
     def table(self) -> str:
         """The scores side by side, one row per controller."""
         head = (
@@ -134,7 +143,12 @@ class RoaResult:
             )
         rows.append("settle, offset, peak |u|: medians over successes, settled states, all states")
         names = list(self.scores)
-        rows += [self.compare(names[0], other).text() for other in names[1:]]
+        for other in names[1:]:
+            rows.append(self.compare(names[0], other).text())
+            common = self.common_settling(names[0], other)
+            if common["states"]:
+                rows.append(f"median settle on the {common['states']} states both reach: {names[0]} {common[names[0]]:.2f} s, "
+                            f"{other} {common[other]:.2f} s")
         return "\n".join(rows)
 
 
