@@ -36,7 +36,6 @@ from .layers import _Cached
 __all__ = ["IdaPbcNets", "build_nets"]
 
 
-
 class IdaPbcNets(_Cached):
     """H_d, J_d, R_d and the system's constant input structure, in one torch module.
 
