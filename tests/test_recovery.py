@@ -213,6 +213,25 @@ def test_a_controller_sent_to_a_worker_process_gives_the_same_torques_there_and_
     assert not any(p.is_shared() for p in fresh.nets.parameters())  # process_map sends plain pickles
 
 
+def test_the_gate_s_verdicts_are_the_full_rollouts_though_rows_at_rest_stop_early(weak_pendubot):
+    """The gate reads success only, so it integrates a state no further once that state has rested
+    in the success box for the success window: the same verdicts as 20 s rollouts, fewer law calls."""
+    system, lqr = weak_pendubot, LQRController(weak_pendubot)
+    x0 = uniform_states(system, 24, "half", seed=3)
+    rows = []
+
+    def counting(x):
+        rows.append(x.shape[0])
+        return lqr(x)
+
+    verdicts = recovery_gate._successes((system, counting, x0))
+    gate_rows, rows[:] = sum(rows), []
+    full = success(simulate(system, counting, x0, T=20.0, dt=PLAN_STEP), system)
+    np.testing.assert_array_equal(verdicts, full)
+    assert 0 < full.sum() < len(x0)  # both verdicts occur
+    assert gate_rows < 0.8 * sum(rows)
+
+
 def test_the_gate_never_keeps_a_recovery_law_that_shrinks_the_basin_near_x_star():
     # (half-box, training-box, near-box) successes of the run's law and of each inner box r
     run = (40, 20, 50)

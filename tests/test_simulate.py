@@ -527,6 +527,24 @@ def test_radius_is_the_largest_passing_scale_on_the_same_states():
     assert "sat 0.78" in result.line() or f"sat {s:.2f}" in result.line()
 
 
+def test_radius_probes_stop_rows_at_rest_without_changing_a_count():
+    """A probe integrates a state no further once it has rested in the success box for the success
+    window: each probe's count is that of the full 20 s rollouts of its states, for fewer law calls."""
+    system, rows = SaturatedUnstable(), []
+
+    def counting(x):
+        rows.append(x.shape[0])
+        return strip_law(x)
+
+    result = roa_radius(system, {"sat": counting}, n=200, T=20.0, dt=0.05)
+    stopped_rows, rows[:] = sum(rows), []
+    for scale, (ok, done) in result.probes["sat"].items():
+        x0 = uniform_states(system, 200, scaled_box(system, scale), seed=0)[:done]
+        full = score(system, "sat", counting, x0, 20.0, 0.05)[0]
+        assert int(full.success.sum()) == ok, scale
+    assert stopped_rows < 0.6 * sum(rows)  # most states rest long before 20 s
+
+
 def test_radius_without_limits_and_below_the_range():
     system = SaturatedUnstable()
     free = roa_radius(system, {"sat": strip_law}, n=50, T=20.0, dt=0.05, limits=False)

@@ -367,7 +367,8 @@ def simulate(
     stop_settled : stop integrating a row once it has been in the success box at every sample of
         the last `SUCCESS_WINDOW` seconds (`idapbc_pin.sim.metrics`); its record holds that sample
         from then on, so `success` reads True for it (settling time and peak input are those up
-        to then). For callers that need the success verdict only (the fallback gate). The batch
+        to then). For callers that need the success verdict only (the gates of `train` and
+        `recover`, the ROA radius search, the test for room under the limits). The batch
         shrinks as rows stop, and BLAS's matrix-vector kernels round a row differently in another
         batch, so the other rows agree with a run without the stop to the last bits, not bit for
         bit (a lone row is evaluated beside a copy of itself: a batch of one takes other kernels).

@@ -12,9 +12,11 @@ the half box, so an ROA already computed there is reused instead of simulated ag
 The search is a bisection per controller on those fixed states: s = 1 first, then (if it fails)
 s = 0.5, then halving the bracket [passing s, failing s] down to the resolution; the ends of the
 range (0.05, 2) are probed only when the bracket ends next to them. A probe simulates a quarter
-of its states first and stops there when more than 10 % of all its states already failed. The
-success share need not be monotone in s; the result is a scale that passes with the next probed
-scale above it failing, on the same seeds.
+of its states first and stops there when more than 10 % of all its states already failed, and it
+integrates a state no further once that state has rested in the success box for the success
+window (its verdict is then known: ``simulate(stop_settled=True)``). The success share need not be
+monotone in s; the result is a scale that passes with the next probed scale above it failing, on
+the same seeds.
 """
 
 from __future__ import annotations
@@ -152,7 +154,7 @@ class _Prober:
             return k, self.n
         ok, done = 0, 0
         for end in sorted({math.ceil(_FIRST_SHARE * self.n), self.n}):
-            res = score(self.system, self.name, self.ctrl, x0[done:end], **self.sim_kw)[0]
+            res = score(self.system, self.name, self.ctrl, x0[done:end], **self.sim_kw, stop_settled=True)[0]
             ok, done = ok + int(np.count_nonzero(res.success)), end
             if done - ok > self.n - self.need:  # too many failures already: decided
                 break

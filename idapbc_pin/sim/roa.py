@@ -165,14 +165,18 @@ def score(
     limits: bool = True,
     hold: bool = True,
     threads: int | None = None,
+    stop_settled: bool = False,
 ) -> tuple[ControllerScore, Trajectory]:
     """Simulate one controller from x0 (N, n) on `system` (the judge) and score the rollouts.
 
-    T, dt, method, saturation, limits, hold, threads : passed to `simulate` (limits: the system's
-    effort limits apply unless False). Returns the score and the rollouts.
+    T, dt, method, saturation, limits, hold, threads, stop_settled : passed to `simulate` (limits:
+    the system's effort limits apply unless False; stop_settled: for callers that read `success`
+    only, since a row's settling time and peak input then stop where the row stopped). Returns the
+    score and the rollouts.
     """
     t0 = time.perf_counter()
-    traj = simulate(system, ctrl, x0, T=T, dt=dt, method=method, saturation=saturation, limits=limits, hold=hold, threads=threads)
+    traj = simulate(system, ctrl, x0, T=T, dt=dt, method=method, saturation=saturation, limits=limits, hold=hold, threads=threads,
+                    stop_settled=stop_settled)
     wall = time.perf_counter() - t0
     result = ControllerScore(
         name=name,

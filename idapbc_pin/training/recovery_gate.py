@@ -39,10 +39,12 @@ NEAR_SCALE = 0.25
 
 
 def _successes(job) -> np.ndarray:
-    """Worker: (N,) bool, the 20 s success of `law` from x0 (N, n) on `system`, for job = (system, law, x0)."""
+    """Worker: (N,) bool, the 20 s success of `law` from x0 (N, n) on `system`, for job = (system, law, x0);
+    a row that has rested in the success box for the success window is integrated no further
+    (``simulate(stop_settled=True)``)."""
     system, law, x0 = job
     torch.set_num_threads(1)
-    return success(simulate(system, law, x0, T=20.0, dt=PLAN_STEP), system)
+    return success(simulate(system, law, x0, T=20.0, dt=PLAN_STEP, stop_settled=True), system)
 
 
 def gate_choice(run: tuple[int, int, int], candidates: dict, margin: int, half_loss: int = 0) -> tuple[float | None, bool]:
