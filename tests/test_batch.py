@@ -88,6 +88,10 @@ def test_committed_pipelines_are_valid():
     weak = load_pipeline(ROOT / "pipelines" / "weak_actuators.toml")
     assert {job.name: job.effort for job in weak.jobs} == {"pendubot_8Nm": {"shoulder": 8.0}, "acrobot_5Nm": {"elbow": 5.0}}
     seeds = load_pipeline(ROOT / "pipelines" / "zoo_seeds.toml")
+    paper_seeds = load_pipeline(ROOT / "pipelines" / "paper_seeds.toml")
+    assert sorted((job.source, job.config["seed"], job.preset) for job in paper_seeds.jobs) == sorted(
+        (nm, seed, "fast") for nm in ANALYTIC for seed in (0, 1, 2)
+    )
     for pipeline in (weak, zoo, seeds, smoke):  # committed summaries of the IDA-PBC law alone; a smoke run never plans
         assert {job.recover for job in pipeline.jobs} == {"never"}, pipeline.path.name
 
