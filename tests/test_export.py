@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -201,6 +202,36 @@ def test_standalone_applies_a_recovery_law_as_the_library_does(runs, tmp_path):
     assert 0.3 < outside.mean() < 0.9
     expected = run.controller.torque(q, v)
     assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))
+    out = _run_standalone(folder, q, v, tmp_path)
+    _close(out["batched"], expected, 1e-9)
+    _close(out["single"], expected, 1e-9)
+
+
+def test_standalone_keeps_the_ida_pbc_law_on_the_level_set_of_h_d_as_the_library_does(runs, tmp_path):
+    """A recovery law with a level c acts only where H_d(x) > c (outside its inner box): the
+    standalone evaluates H_d from desired_flow.py and gives the library's τ to 1e-9."""
+    from tests.test_recovery import random_law
+
+    from idapbc_pin.training.run import RECOVERY_FILE
+
+    path = tmp_path / "run"
+    shutil.copytree(runs["pendubot"].path, path)
+    system, nets_only = runs["pendubot"].system, runs["pendubot"].controller.with_fallback(None)
+    q, v = _states(system)
+    x = runs["pendubot"].nets.wrap(system.state_from(q, v))  # the law, and its level, see angles within π of x*
+    level = float(np.median(nets_only.H_d(x)))
+    law = random_law(system, inner_scale=0.0).with_level(level)
+    np.savez(path / RECOVERY_FILE, **law.arrays())
+    summary = json.loads((path / "summary.json").read_text()) | {"recovery": {"used": True, "inner_scale": 0.0, "level": level}}
+    (path / "summary.json").write_text(json.dumps(summary))
+    run = ip.load_run(path)
+    assert run.controller.fallback.level == level
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    assert json.loads((folder / "controller.json").read_text())["fallback"]["level"] == level
+    expected = run.controller.torque(q, v)
+    kept = nets_only.H_d(x) <= level  # the IDA-PBC law's own torque there, the recovery law's elsewhere
+    np.testing.assert_array_equal(expected[kept], nets_only.torque(q, v)[kept])
+    np.testing.assert_array_equal(expected[~kept], run.controller.with_fallback(law.with_level(math.inf)).torque(q, v)[~kept])
     out = _run_standalone(folder, q, v, tmp_path)
     _close(out["batched"], expected, 1e-9)
     _close(out["single"], expected, 1e-9)

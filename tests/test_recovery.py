@@ -104,6 +104,26 @@ def test_the_recovery_law_stays_within_the_limits_and_keeps_the_inner_box(weak_p
     np.testing.assert_array_equal(law.with_inner(0.25).inner, 0.25 * law.scale)
 
 
+def test_with_a_level_the_ida_pbc_law_also_keeps_the_sublevel_set_of_its_energy(weak_pendubot):
+    """u is the IDA-PBC law's inside the inner box or where H_d ≤ c, the recovery law's elsewhere;
+    the level needs H_d, survives a round trip, and a law saved without one has none (c = ∞)."""
+    system = weak_pendubot
+    law = random_law(system, inner_scale=0.3)
+    x = sample_domain(system, 1000)
+    energy = np.random.default_rng(0).uniform(0.0, 2.0, len(x))  # stands for H_d(x)
+    u_ida = np.full((len(x), system.m), 123.0)
+    u = law.with_level(1.0).apply(x, u_ida, energy)
+    recovering = law.outside(x) & (energy > 1.0)
+    assert 0 < recovering.sum() < law.outside(x).sum()
+    np.testing.assert_array_equal(u[~recovering], 123.0)
+    np.testing.assert_array_equal(u[recovering], law.law(x[recovering]))
+    np.testing.assert_array_equal(law.apply(x, u_ida), law.with_level(np.inf).apply(x, u_ida, energy))  # no level: the box alone
+    with pytest.raises(ValueError, match="H_d"):
+        law.with_level(1.0).apply(x, u_ida)
+    again = RecoveryLaw.from_arrays(law.with_level(1.0).arrays())
+    assert again.level == 1.0 and RecoveryLaw.from_arrays(law.arrays()).level == np.inf and "level" not in law.arrays()
+
+
 def test_arrays_round_trip_and_bad_arrays_are_refused(weak_pendubot):
     law = random_law(weak_pendubot, inner_scale=0.1)
     again = RecoveryLaw.from_arrays(law.arrays())
@@ -279,6 +299,42 @@ def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states
     assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)  # 10 fewer near x* than the run's law: not eligible
     none_kept = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, margin=50, workers=1))
     assert none_kept[0] == 0 and not none_kept[1]["used"]
+
+
+@pytest.mark.parametrize("box_kept", [True, False])
+def test_levels_of_h_d_are_tried_only_when_no_inner_box_is_kept(tiny_run, tmp_path, monkeypatch, box_kept):
+    """The gate judges the law with the IDA-PBC law keeping {H_d ≤ c} only when every inner box is
+    refused, by the same rule; a law kept that way is saved with its level and applied with it."""
+    law = random_law(tiny_run.system, 0.0)
+    config = RecoveryConfig(gate_states=100, near_states=100, workers=1)
+    levels = recovery_gate.energy_levels(tiny_run, config.levels)
+    assert levels == sorted(levels) and len(set(levels)) == 3
+    by_level = dict(zip(levels, [(40, 40, 80), (35, 35, 89), (30, 30, 90)]))  # the lowest c loses 10 near x*
+    simulated = []
+
+    def fake(job):
+        system, ctrl, x0 = job
+        fb = ctrl.fallback
+        simulated.append(fb.level if isinstance(fb, RecoveryLaw) else None)
+        box = (30, 30, 90) if box_kept else (45, 45, 70)
+        h, d, near = (25, 25, 90) if not isinstance(fb, RecoveryLaw) else by_level[fb.level] if fb.uses_level else box
+        ok = np.zeros(len(x0), bool)
+        ok[:h], ok[50 : 50 + d], ok[100 : 100 + near] = True, True, True
+        return ok
+
+    monkeypatch.setattr(recovery_gate, "_successes", fake)
+    k, gate = recovery_gate.choose_fit(tiny_run, [law], config)
+    assert gate["used"]
+    if box_kept:
+        assert all(c is None or c == np.inf for c in simulated) and "level" not in gate
+        return
+    assert gate["level"] == levels[1] and gate["inner_scale"] == 0.0 and gate["with_recovery"] == 70
+    assert gate["level_candidates"] == dict(zip(levels, [80, 70, 60]))
+    path = tmp_path / "run"
+    shutil.copytree(tiny_run.path, path)
+    run = ip.load_run(path)
+    recovery_gate.save_recovery(run, law, {"used": True, "inner_scale": 0.0, "level": gate["level"], "gate": gate})
+    assert ip.load_run(path).controller.fallback.level == levels[1]
 
 
 def _idle_law(system) -> RecoveryLaw:

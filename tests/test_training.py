@@ -218,6 +218,8 @@ def test_run_time_path_equals_the_training_path(form, energy_input, scaling, dty
     np.testing.assert_allclose(ctrl(x), u_ref, rtol=tol, atol=tol * np.abs(u_ref).max())  # 30 states: torch
     np.testing.assert_allclose(ctrl(x[3]), u_ref[3], rtol=tol, atol=tol * np.abs(u_ref).max())  # one state: numpy
     np.testing.assert_allclose(ctrl.with_damping(1.5).flow()(x), ctrl.with_damping(1.5).f_d(x), rtol=tol, atol=tol * np.abs(fd_autograd).max())
+    H = ctrl.H_d(x)  # the numpy H_d (a recovery law's level switch) is the networks' H_d
+    np.testing.assert_allclose(ctrl.flow().energy(x), H, rtol=tol, atol=tol * np.abs(H).max())
 
 
 def test_run_time_path_follows_the_weights():

@@ -229,6 +229,21 @@ class DesiredFlow:
         s = (h - self.icnn_h0 - u @ self.icnn_g0) + self.eps * (d * d).sum(-1)
         return d @ self.P + (s / (1 + s))[:, None] * ds
 
+    def energy(self, x: np.ndarray) -> np.ndarray:
+        """H_d(x): (N, n) -> (N,), float64 (`EnergyNet.forward`, the Bregman term as
+        `value_and_grad_explicit` forms it); a recovery law's level switch reads it."""
+        d = np.asarray(x, dtype=self.dtype) - self.x_star
+        u = d / self.x_scale if self.icnn_map is None else d @ self.icnn_map.T
+        width = self.icnn_out.shape[0]
+        inputs = u @ self.icnn_in[0] + self.icnn_in[1]
+        z = None
+        for k in range(len(self.icnn_x)):
+            a = inputs[:, k * width : (k + 1) * width]
+            z = softplus(a if k == 0 else z @ self.icnn_z_t[k - 1] + a)
+        s = (z @ self.icnn_out - self.icnn_h0 - u @ self.icnn_g0) + self.eps * (d * d).sum(-1)
+        H = s if self.P is None else 0.5 * ((d @ self.P) * d).sum(-1) + s - np.log1p(s)
+        return H.astype(np.float64)
+
     def _J(self, u: np.ndarray) -> np.ndarray:
         """J_d: (N, n) -> (N, n, n) from u = (x − x*)/x_scale, skew-symmetric (`InterconnectionNet.forward`)."""
         v = self.j_net(u)

@@ -7,6 +7,7 @@ recovery law is a plain state feedback fitted to torque plans within the limits
 (`training.recovery`); the IDA-PBC law keeps the neighbourhood of x*:
 
     u(x) = u_IDA-PBC(x)                 where |δ_i| ≤ r·s_i for every i   (the inner box)
+                                        or H_d(x) ≤ c                     (the level set, if c < ∞)
     u(x) = ū ⊙ tanh(MLP(δ / s))         elsewhere, inside and outside the training box
 
 with δ = wrap(x − x*), s the training box's half-widths, r the inner scale chosen on validation
@@ -14,11 +15,17 @@ states (`training.recovery_gate.choose_inner`) and ū the effort limits: the rec
 the limits by construction. The MLP has tanh hidden layers and a linear output. Like
 `fallback.BoxFallback` it acts through `apply(x, u)`, so `Controller`, `simulate`, `export` and the
 exported controller.py treat both alike; the switch is discontinuous on the inner box's faces.
+
+The level c (∞ by default: the box alone) lets the IDA-PBC law keep the sublevel set {H_d ≤ c} of
+its own energy as well. Along the matched closed loop H_d does not grow, so a trajectory that starts
+there tends to stay there and never meets the recovery law, where with a box alone a swing from
+near x* leaves the box and is handed over (docs/method.md §6, "A level set of H_d").
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -40,6 +47,7 @@ class RecoveryLaw:
     effort : (m,) ū, the effort limits (finite), N·m or N.
     angle_mask : (n,) bool, components wrapped to within π of x*.
     inner : (n,) half-widths r·s of the inner box (0: the recovery law everywhere but exactly x*).
+    level : c, the IDA-PBC law also keeps the states with H_d(x) ≤ c (∞: the inner box alone).
     """
 
     weights: tuple
@@ -49,6 +57,7 @@ class RecoveryLaw:
     effort: np.ndarray
     angle_mask: np.ndarray
     inner: np.ndarray
+    level: float = math.inf
 
     def delta(self, x) -> np.ndarray:
         """δ = wrap(x − x*): (..., n) -> (..., n)."""
@@ -65,23 +74,39 @@ class RecoveryLaw:
         """(..., n) -> (...) bool: True where the state is outside the inner box (the recovery law acts)."""
         return (np.abs(self.delta(x)) > self.inner).any(axis=-1)
 
-    def apply(self, x, u) -> np.ndarray:
-        """u inside the inner box, the recovery law outside: (N, n), (N, m) -> (N, m) (a new array)."""
+    @property
+    def uses_level(self) -> bool:
+        """True when the IDA-PBC law also keeps the sublevel set {H_d ≤ level}: `apply` needs H_d."""
+        return math.isfinite(self.level)
+
+    def apply(self, x, u, energy=None) -> np.ndarray:
+        """u inside the inner box (and where H_d ≤ `level`), the recovery law elsewhere:
+        (N, n), (N, m) -> (N, m) (a new array); energy (N,) is H_d(x), needed when `uses_level`."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         u = np.array(u, dtype=np.float64, copy=True).reshape(len(x), -1)
         out = self.outside(x)
+        if self.uses_level:
+            if energy is None:
+                raise ValueError("this recovery law switches on H_d's level: pass energy = H_d(x)")
+            out &= np.asarray(energy, dtype=np.float64).reshape(len(x)) > self.level
         if out.any():
             u[out] = self.law(x[out])
         return u
 
     def with_inner(self, inner_scale: float) -> "RecoveryLaw":
         """The same law with the inner box r·s for another r (s = `scale`)."""
-        return RecoveryLaw(self.weights, self.biases, self.x_star, self.scale, self.effort, self.angle_mask, inner_scale * self.scale)
+        return replace(self, inner=inner_scale * self.scale)
+
+    def with_level(self, level: float) -> "RecoveryLaw":
+        """The same law with the IDA-PBC law also keeping {H_d ≤ level} (∞: the inner box alone)."""
+        return replace(self, level=float(level))
 
     def arrays(self) -> dict:
-        """The law as named arrays (recovery.npz of a run): W0, b0, W1, b1, …, x_star, scale, effort, angle_mask, inner."""
+        """The law as named arrays (recovery.npz of a run): W0, b0, W1, b1, …, x_star, scale, effort,
+        angle_mask, inner, and level when it is finite."""
         out = {f"W{k}": W for k, W in enumerate(self.weights)} | {f"b{k}": b for k, b in enumerate(self.biases)}
-        return out | {k: np.asarray(getattr(self, k)) for k in ("x_star", "scale", "effort", "angle_mask", "inner")}
+        out |= {k: np.asarray(getattr(self, k)) for k in ("x_star", "scale", "effort", "angle_mask", "inner")}
+        return out | ({"level": np.asarray(self.level)} if self.uses_level else {})
 
     @classmethod
     def from_arrays(cls, arrays) -> "RecoveryLaw":
@@ -90,13 +115,14 @@ class RecoveryLaw:
         weights = tuple(np.asarray(arrays[f"W{k}"], dtype=np.float64) for k in range(depth))
         biases = tuple(np.asarray(arrays[f"b{k}"], dtype=np.float64) for k in range(depth))
         x_star, scale, effort, inner = (np.asarray(arrays[k], dtype=np.float64) for k in ("x_star", "scale", "effort", "inner"))
-        law = cls(weights, biases, x_star, scale, effort, np.asarray(arrays["angle_mask"], dtype=bool), inner)
+        level = float(np.asarray(arrays["level"], dtype=np.float64)) if "level" in arrays else math.inf  # laws saved before it had none
+        law = cls(weights, biases, x_star, scale, effort, np.asarray(arrays["angle_mask"], dtype=bool), inner, level)
         n, m = len(x_star), len(effort)
         widths = [n] + [len(b) for b in biases]
         shapes_ok = depth >= 1 and all(W.shape == (widths[k + 1], widths[k]) for k, W in enumerate(weights)) and widths[-1] == m
         if not shapes_ok or any(a.shape != (n,) for a in (scale, law.angle_mask, inner)):
             raise ValueError("the recovery law's arrays do not fit together")
-        if not all(np.isfinite(a).all() for a in (*weights, *biases, x_star, scale, effort, inner)) or not (scale > 0).all():
+        if not all(np.isfinite(a).all() for a in (*weights, *biases, x_star, scale, effort, inner)) or not (scale > 0).all() or math.isnan(level):
             raise ValueError("the recovery law has non-finite weights, limits or scales")
         return law
 

@@ -19,7 +19,8 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
                   the linear law the run uses outside its training box, half-widths s; its K is
                   the anchor's LQR gain times the fallback's "gain")
     u ← ū tanh(MLP(δ / s))  where some |δ_i| > inner_i        (instead, if the "fallback" has kind
-                  "recovery": the run's recovery law outside an inner box; tanh hidden layers)
+                  "recovery": the run's recovery law outside an inner box; tanh hidden layers;
+                  with a "level" c, only where also H_d(x) > c, H_d from desired_flow.py)
     u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
 f̃_d = (J_d − R_d)∇H_d comes from desired_flow.py with weights.npz (the same function as
@@ -138,6 +139,8 @@ class ExportedController:
             w = np.clip((r - r0) / (r1 - r0), 0.0, 1.0) if r1 > r0 else (r >= r0).astype(np.float64)
             u = fb["u_star"] + (1.0 + (k_in - 1.0) * w)[:, None] * (u - fb["u_star"])
         out = (np.abs(d) > fb["inner" if self.recovery else "half"]).any(axis=1)
+        if self.recovery and "level" in fb:  # the IDA-PBC law also keeps {H_d ≤ level}
+            out &= self.flow.energy(x) > fb["level"]
         if out.any():
             u = u.copy()
             u[out] = self.recovery_law(d[out]) if self.recovery else fb["u_star"] - d[out] @ fb["K"].T

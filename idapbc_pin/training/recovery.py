@@ -124,6 +124,9 @@ class RecoveryConfig:
     stop_when_lost : end the DAgger rounds, before labelling, when the first fit brings none of the
         first round's starts to x* and fewer than half of them end in the near box (`ends_near`; the
         gate then judges that law).
+    levels : quantiles of H_d over the half box giving the levels c the gate tries, with the same
+        rule, when it keeps no inner box: the IDA-PBC law then keeps {H_d ≤ c} (`RecoveryLaw.level`;
+        docs/method.md §6). Empty: the inner boxes alone, as before this version.
     """
 
     starts: int = 240
@@ -144,6 +147,7 @@ class RecoveryConfig:
     workers: int = 0
     plan: PlanSettings = field(default_factory=PlanSettings)
     stop_when_lost: bool = True
+    levels: tuple = (0.1, 0.25, 0.5)
 
     def __post_init__(self):
         checks = [
@@ -151,7 +155,7 @@ class RecoveryConfig:
              "starts, dagger_starts must be ≥ 1, gate_states ≥ 2 and near_states ≥ 0"),
             (self.dagger >= 0 and self.workers >= 0 and min(self.width, self.steps, self.fits) >= 1, "dagger, workers ≥ 0, width, steps and fits ≥ 1"),
             (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
-            (self.half_loss >= 0, "half_loss must be ≥ 0"),
+            (self.half_loss >= 0 and all(0 < q < 1 for q in self.levels), "half_loss must be ≥ 0 and levels quantiles in (0, 1)"),
             (self.start_box in START_BOXES, f"start_box must be one of {', '.join(START_BOXES)}"),
             (self.teacher in TEACHERS, f"teacher must be one of {', '.join(TEACHERS)}"),
         ]
@@ -409,8 +413,8 @@ def _gate_fits(run, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, config: Reco
 def _verdict(gate: dict, config: RecoveryConfig, keep: bool) -> dict:
     """The summary entry's verdict: the gate's (or forced by `keep`), its inner box, the seed of the
     law it judged (the best of `config.fits`) and the settings."""
-    return {"used": bool(gate["used"] or keep), "forced": bool(keep and not gate["used"]), "inner_scale": gate["inner_scale"],
-            "fit_seed": config.fit_seed + gate.get("fit", 0), "gate": gate, "config": asdict(config) | {"inner_scales": list(config.inner_scales)}}
+    return {"used": bool(gate["used"] or keep), "forced": bool(keep and not gate["used"]), "inner_scale": gate["inner_scale"], "level": gate.get("level"),
+            "fit_seed": config.fit_seed + gate.get("fit", 0), "gate": gate, "config": asdict(config) | {"inner_scales": list(config.inner_scales), "levels": list(config.levels)}}
 
 
 def _save_and_tell(run, law: RecoveryLaw, entry: dict, config: RecoveryConfig, progress: bool, start: float) -> dict:

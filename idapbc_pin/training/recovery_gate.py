@@ -4,16 +4,18 @@ that hold the law it judged.
 The run's law as it is, and the law with the recovery law outside an inner box of each scale in
 `RecoveryConfig.inner_scales`, run from the gate's states (half from the half box, half from the
 training box, then `near_states` from the near box of scale `NEAR_SCALE`). `gate_choice` applies the
-rule on the success counts. A kept law is written as ``recovery.npz`` and applied by every command
-on the run; a refused one as ``recovery-refused.npz``, never applied, so that `regate` (``idapbc-pin
-recover RUN --regate``) judges it again with another rule, or keeps it, without fitting it again. The
-labels the law was fitted to are kept as ``recovery-labels.npz`` (`save_labels`, `read_labels`), so
+rule on the success counts. When it keeps no inner box, the same rule judges the law acting only
+where H_d(x) > c as well, for the levels c of `energy_levels` (`RecoveryLaw.level`). A kept law is
+written as ``recovery.npz`` and applied by every command on the run; a refused one as
+``recovery-refused.npz``, never applied, so that `regate` (``idapbc-pin recover RUN --regate``)
+judges it again with another rule, or keeps it, without fitting it again. The labels the law was fitted to are kept as ``recovery-labels.npz`` (`save_labels`, `read_labels`), so
 that `refit` (``idapbc-pin recover RUN --refit``) fits another law to them without the plans.
 """
 
 from __future__ import annotations
 
 import io
+import math
 import time
 from pathlib import Path
 
@@ -30,12 +32,14 @@ from ..sim.states import uniform_states
 from .plans import PLAN_STEP
 from .run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
 
-__all__ = ["NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery"]
+__all__ = ["LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery"]
 
 #: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
 RECOVERY_GATE_SEED = 7_368_787
 #: Scale of the gate's near box around x* (x* + NEAR_SCALE·(box − x*)), where the run's law must keep its successes.
 NEAR_SCALE = 0.25
+#: Half-box states whose H_d quantiles give the level candidates (`energy_levels`).
+LEVEL_STATES = 2000
 
 
 def _successes(job) -> np.ndarray:
@@ -87,7 +91,9 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     """`choose_inner` for each of several fitted `laws` on the same gate states (the run's law
     simulated once, every law in `config.workers` processes; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
     (ties: the first), or 0 when it keeps none. With more than one law the gate also holds
-    "fits": each law's successes at its own chosen r, and "fit": k."""
+    "fits": each law's successes at its own chosen r, and "fit": k. When no inner box is kept, the
+    same rule judges each law with the IDA-PBC law keeping the sublevel sets {H_d ≤ c} instead, c
+    from `config.levels` (`energy_levels`); a law kept that way has "level": c in its gate."""
     system, seed = run.system, RECOVERY_GATE_SEED + run.config.seed
     half, n = config.gate_states // 2, config.gate_states
     x0 = np.concatenate([
@@ -95,29 +101,51 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
         uniform_states(system, config.near_states, scaled_box(system, NEAR_SCALE), seed + 2),
     ])  # fmt: skip
     ctrl = run.own_controller  # not an earlier recovery law
-
     scales = [float(r) for r in config.inner_scales]
-    ctrls = [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales]
-    counts, start = [], time.perf_counter()
-    for ok in process_map(_successes, [(system, c, x0) for c in ctrls], config.workers):
-        counts.append((int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())))
-        if progress:
-            print(f"  gate: {len(counts)}/{len(ctrls)} laws simulated from its {len(x0)} states  [{time.perf_counter() - start:.0f} s]", flush=True)
-    base, *rest = counts
-    gates = []
-    for i in range(len(laws)):
-        candidates = dict(zip(scales, rest[i * len(scales) : (i + 1) * len(scales)]))
-        best, used = gate_choice(base, candidates, config.margin, config.half_loss)
-        best = _best(candidates, candidates) if best is None else best
-        gates.append({"states": n, "run": _total(base), "candidates": {r: _total(c) for r, c in candidates.items()},
-                      "run_half": base[0], "candidates_half": {r: c[0] for r, c in candidates.items()},
-                      "near_states": int(config.near_states), "run_near": base[2], "candidates_near": {r: c[2] for r, c in candidates.items()},
-                      "inner_scale": best, "with_recovery": _total(candidates[best]), "used": used})  # fmt: skip
+    base, *rest = _counts(system, [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales], x0, half, n, config, progress)
+    gates = [_gate(base, dict(zip(scales, rest[i * len(scales) : (i + 1) * len(scales)])), n, config) for i in range(len(laws))]
+    if config.levels and not any(g["used"] for g in gates):
+        levels = energy_levels(run, config.levels)
+        counts = _counts(system, [ctrl.with_fallback(law.with_inner(0.0).with_level(c)) for law in laws for c in levels], x0, half, n, config, progress)
+        for i in range(len(laws)):
+            by_level = _gate(base, dict(zip(levels, counts[i * len(levels) : (i + 1) * len(levels)])), n, config)
+            gates[i] |= {"level_candidates": by_level["candidates"], "level_candidates_near": by_level["candidates_near"]}
+            if by_level["used"]:
+                gates[i] |= {k: by_level[k] for k in ("inner_scale", "with_recovery", "used")} | {"level": by_level["inner_scale"], "inner_scale": 0.0}
     kept = [k for k, g in enumerate(gates) if g["used"]]
     k = max(kept, key=lambda i: (gates[i]["with_recovery"], -i)) if kept else 0
     if len(laws) > 1:
         gates[k] |= {"fits": [g["with_recovery"] for g in gates], "fit": k}
     return k, gates[k]
+
+
+def _counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, config, progress: bool) -> list[tuple[int, int, int]]:
+    """(half box, training box, near box) successes of each law of `ctrls` from the gate's states x0."""
+    counts, start = [], time.perf_counter()
+    for ok in process_map(_successes, [(system, c, x0) for c in ctrls], config.workers):
+        counts.append((int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())))
+        if progress:
+            print(f"  gate: {len(counts)}/{len(ctrls)} laws simulated from its {len(x0)} states  [{time.perf_counter() - start:.0f} s]", flush=True)
+    return counts
+
+
+def _gate(base: tuple[int, int, int], candidates: dict, n: int, config) -> dict:
+    """The gate entry of one law: `gate_choice` on the run's counts `base` and {r or c: counts}."""
+    best, used = gate_choice(base, candidates, config.margin, config.half_loss)
+    best = _best(candidates, candidates) if best is None else best
+    return {"states": n, "run": _total(base), "candidates": {r: _total(c) for r, c in candidates.items()},
+            "run_half": base[0], "candidates_half": {r: c[0] for r, c in candidates.items()},
+            "near_states": int(config.near_states), "run_near": base[2], "candidates_near": {r: c[2] for r, c in candidates.items()},
+            "inner_scale": best, "with_recovery": _total(candidates[best]), "used": used}  # fmt: skip
+
+
+def energy_levels(run, quantiles) -> list[float]:
+    """The level candidates c: the `quantiles` of the run's H_d over `LEVEL_STATES` uniform half-box
+    states of a seed of their own (H_d's scale is free, so c is set by where the box's states lie)."""
+    x = uniform_states(run.system, LEVEL_STATES, "half", RECOVERY_GATE_SEED + run.config.seed + 3)
+    ctrl = run.own_controller
+    H = ctrl.flow().energy(ctrl.nets.wrap(x))
+    return [float(np.quantile(H, q)) for q in quantiles]
 
 
 def save_recovery(run, law: RecoveryLaw, entry: dict) -> None:
@@ -127,7 +155,7 @@ def save_recovery(run, law: RecoveryLaw, entry: dict) -> None:
     disk (a crash in between leaves at most a stale file that nothing reads)."""
     keep, drop = (RECOVERY_FILE, RECOVERY_REFUSED_FILE) if entry["used"] else (RECOVERY_REFUSED_FILE, RECOVERY_FILE)
     buf = io.BytesIO()
-    np.savez(buf, **law.with_inner(entry["inner_scale"]).arrays())
+    np.savez(buf, **law.with_inner(entry["inner_scale"]).with_level(math.inf if entry.get("level") is None else entry["level"]).arrays())
     atomic_write_bytes(run.path / keep, buf.getvalue())
     summary = dict(run.summary) | {"recovery": entry | {"law_file": keep}}
     write_json(run.path / "summary.json", summary)
@@ -162,9 +190,14 @@ def format_gate(gate: dict, margin: int, half_loss: int) -> str:
     """The gate's figures and verdict in one line (``gate["used"]`` the verdict of the rule)."""
     cands = ", ".join(f"r = {r:g}: {s}" for r, s in gate["candidates"].items())
     halves, nears = (", ".join(map(str, gate[k].values())) for k in ("candidates_half", "candidates_near"))
-    verdict = (f"kept, inner box r = {gate['inner_scale']:g}" if gate["used"]
+    kept_as = f"the IDA-PBC law keeping H_d ≤ {gate['level']:.3g}" if gate.get("level") is not None else f"inner box r = {gate['inner_scale']:g}"
+    verdict = (f"kept, {kept_as}" if gate["used"]
                else f"not kept (needs {margin} more than the run's law, and at most {half_loss} fewer in the half and near boxes each)")
+    levels = ""
+    if "level_candidates" in gate:  # no inner box was kept: the levels of H_d were tried
+        levels = "; or only where also H_d > " + ", ".join(
+            f"c = {c:.3g}: {t} ({gate['level_candidates_near'][c]} near x*)" for c, t in gate["level_candidates"].items())
     fits = f"; the {len(gate['fits'])} fits brought {', '.join(map(str, gate['fits']))}: fit {gate['fit'] + 1}" if "fits" in gate else ""
     return (f"gate: {gate['states']} states, the run's law brings {gate['run']} to x* ({gate['run_half']} of the {gate['states'] // 2} "
             f"half-box ones; {gate['run_near']} of {gate['near_states']} near x*), with the recovery law {cands} (half box {halves}; "
-            f"near x* {nears}){fits}: {verdict}")
+            f"near x* {nears}){levels}{fits}: {verdict}")

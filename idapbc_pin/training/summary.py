@@ -55,8 +55,10 @@ def format_train_summary(run) -> str:
     if getattr(run, "uses_recovery", False):
         gate = s["recovery"].get("gate") or {}
         why = f" (gate: {gate['with_recovery']} of {gate['states']} fresh states reach x* with it, {gate['run']} without)" if "with_recovery" in gate else ""
-        lines.append(f"outside an inner box of {s['recovery']['inner_scale']:g} × the training box around x*: the recovery law "
-                     f"(`idapbc-pin recover`){why}")
+        level = s["recovery"].get("level")
+        where = (f"where H_d > {level:.3g} (the IDA-PBC law keeps that sublevel set of its energy)" if level is not None
+                 else f"outside an inner box of {s['recovery']['inner_scale']:g} × the training box around x*")
+        lines.append(f"{where}: the recovery law (`idapbc-pin recover`){why}")
     if s["locally_exponentially_stable"]:
         lines.append("x* is locally exponentially stable (all eigenvalues have negative real part)")
     else:
