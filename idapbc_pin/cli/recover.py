@@ -36,8 +36,8 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
         description=(
             "Search torque plans within RUN's effort limits from states RUN's own law loses (half box, or --start-box domain; --teacher lqr: "
             "states saturated LQR loses), fit a small feedback law to "
-            "them (then DAgger rounds), and use it outside an inner box around x* if simulation on states of its own "
-            "shows it brings more states to x*. Writes RUN/recovery.npz (kept) or RUN/recovery-refused.npz (not kept; "
+            "them (then DAgger rounds), and use it outside an inner box around x* (or, where no box helps, only where "
+            "H_d is above a level) if simulation on states of its own shows it brings more states to x*. Writes RUN/recovery.npz (kept) or RUN/recovery-refused.npz (not kept; "
             "--regate judges it again) and summary.json → recovery. Took 15-50 minutes on 2 cores for a 2-DoF robot."
         ),
     )

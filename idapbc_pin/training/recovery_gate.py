@@ -8,8 +8,9 @@ rule on the success counts. When it keeps no inner box, the same rule judges the
 where H_d(x) > c as well, for the levels c of `energy_levels` (`RecoveryLaw.level`). A kept law is
 written as ``recovery.npz`` and applied by every command on the run; a refused one as
 ``recovery-refused.npz``, never applied, so that `regate` (``idapbc-pin recover RUN --regate``)
-judges it again with another rule, or keeps it, without fitting it again. The labels the law was fitted to are kept as ``recovery-labels.npz`` (`save_labels`, `read_labels`), so
-that `refit` (``idapbc-pin recover RUN --refit``) fits another law to them without the plans.
+judges it again with another rule, or keeps it, without fitting it again. The labels the law was
+fitted to are kept as ``recovery-labels.npz`` (`save_labels`, `read_labels`), so that `refit`
+(``idapbc-pin recover RUN --refit``) fits another law to them without the plans.
 """
 
 from __future__ import annotations
@@ -90,7 +91,8 @@ def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig, progress: bool =
 def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) -> tuple[int, dict]:
     """`choose_inner` for each of several fitted `laws` on the same gate states (the run's law
     simulated once, every law in `config.workers` processes; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
-    (ties: the first), or 0 when it keeps none. With more than one law the gate also holds
+    (ties: the first), or when it keeps none the one with the most successes at its best candidate
+    (the law ``recovery-refused.npz`` then holds, so that `regate` judges the most promising fit). With more than one law the gate also holds
     "fits": each law's successes at its own chosen r, and "fit": k. When no inner box is kept, the
     same rule judges each law with the IDA-PBC law keeping the sublevel sets {H_d ≤ c} instead, c
     from `config.levels` (`energy_levels`); a law kept that way has "level": c in its gate."""
@@ -113,7 +115,7 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
             if by_level["used"]:
                 gates[i] |= {k: by_level[k] for k in ("inner_scale", "with_recovery", "used")} | {"level": by_level["inner_scale"], "inner_scale": 0.0}
     kept = [k for k, g in enumerate(gates) if g["used"]]
-    k = max(kept, key=lambda i: (gates[i]["with_recovery"], -i)) if kept else 0
+    k = max(kept or range(len(gates)), key=lambda i: (gates[i]["with_recovery"], -i))  # none kept: the best refused (for --regate)
     if len(laws) > 1:
         gates[k] |= {"fits": [g["with_recovery"] for g in gates], "fit": k}
     return k, gates[k]
