@@ -110,14 +110,17 @@ def test_with_a_level_the_ida_pbc_law_also_keeps_the_sublevel_set_of_its_energy(
     system = weak_pendubot
     law = random_law(system, inner_scale=0.3)
     x = sample_domain(system, 1000)
-    energy = np.random.default_rng(0).uniform(0.0, 2.0, len(x))  # stands for H_d(x)
+    def energy_of(xs):  # stands for H_d, values in [0, 2]
+        return 2.0 * np.abs(np.sin(7.0 * xs.sum(axis=1)))
+
+    energy = energy_of(x)
     u_ida = np.full((len(x), system.m), 123.0)
-    u = law.with_level(1.0).apply(x, u_ida, energy)
+    u = law.with_level(1.0).apply(x, u_ida, energy_of)
     recovering = law.outside(x) & (energy > 1.0)
     assert 0 < recovering.sum() < law.outside(x).sum()
     np.testing.assert_array_equal(u[~recovering], 123.0)
     np.testing.assert_array_equal(u[recovering], law.law(x[recovering]))
-    np.testing.assert_array_equal(law.apply(x, u_ida), law.with_level(np.inf).apply(x, u_ida, energy))  # no level: the box alone
+    np.testing.assert_array_equal(law.apply(x, u_ida), law.with_level(np.inf).apply(x, u_ida, energy_of))  # no level: the box alone
     with pytest.raises(ValueError, match="H_d"):
         law.with_level(1.0).apply(x, u_ida)
     again = RecoveryLaw.from_arrays(law.with_level(1.0).arrays())

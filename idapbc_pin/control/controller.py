@@ -91,10 +91,8 @@ class Controller:
         numpy = len(xb) <= (RUNTIME_MAX_BATCH if self._device.type == "cpu" else RUNTIME_GPU_MAX_BATCH)
         f_d = self.flow()(xb) if numpy else self._np(self.nets.desired_fast(self._t(xb)))
         u = (f_d - self.system.f(xb)) @ self._g_pinv.T  # float64 whatever the networks' dtype
-        if isinstance(self.fallback, RecoveryLaw) and self.fallback.uses_level:  # it also switches on H_d's level
-            u = self.fallback.apply(xb, u, self.flow().energy(xb))
-        elif self.fallback is not None:
-            u = self.fallback.apply(xb, u)
+        if self.fallback is not None:  # a recovery law with a level reads H_d on the rows it may take
+            u = self.fallback.apply(xb, u, energy=lambda x: self.flow().energy(x))
         return u[0] if single else u
 
     def flow(self) -> DesiredFlow:

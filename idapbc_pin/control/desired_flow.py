@@ -205,8 +205,9 @@ class DesiredFlow:
         return cls(j_net=Mlp.from_arrays(arrays, "j_net"), r_net=Mlp.from_arrays(arrays, "r_net"), **values)
 
     # ------------------------------------------------------------------ evaluation
-    def _grad_H(self, d: np.ndarray, u_box: np.ndarray) -> np.ndarray:
-        """∇H_d: (N, n) -> (N, n) from δ = x − x* and δ/x_scale (`EnergyNet.value_and_grad_explicit`)."""
+    def _icnn(self, d: np.ndarray, u_box: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+        """The ICNN's forward pass from δ = x − x* and δ/x_scale: (u, its last layer z (N, width), the
+        slopes σ(a_k) of every layer for the backward pass)."""
         u = u_box if self.icnn_map is None else d @ self.icnn_map.T
         width = self.icnn_out.shape[0]
         inputs = u @ self.icnn_in[0] + self.icnn_in[1]  # W_x^k u + b^k of every layer k, (N, depth·width)
@@ -215,6 +216,15 @@ class DesiredFlow:
             a = inputs[:, k * width : (k + 1) * width]
             z, slope = softplus_and_expit(a if k == 0 else z @ self.icnn_z_t[k - 1] + a)
             slopes.append(slope)
+        return u, z, slopes
+
+    def _s(self, d: np.ndarray, u: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """s = D + ε‖δ‖² (N,): the Bregman term of Ĥ at u, from the ICNN's last layer z."""
+        return (z @ self.icnn_out - self.icnn_h0 - u @ self.icnn_g0) + self.eps * (d * d).sum(-1)
+
+    def _grad_H(self, d: np.ndarray, u_box: np.ndarray) -> np.ndarray:
+        """∇H_d: (N, n) -> (N, n) from δ = x − x* and δ/x_scale (`EnergyNet.value_and_grad_explicit`)."""
+        u, z, slopes = self._icnn(d, u_box)
         delta, dh_da = self.icnn_out, [None] * len(slopes)  # ∂Ĥ/∂z_k, then ∂Ĥ/∂a_k (N, width)
         for k in range(len(slopes) - 1, -1, -1):
             dh_da[k] = delta * slopes[k]
@@ -225,22 +235,15 @@ class DesiredFlow:
         ds = dD + 2 * self.eps * d
         if self.P is None:
             return ds
-        h = z @ self.icnn_out
-        s = (h - self.icnn_h0 - u @ self.icnn_g0) + self.eps * (d * d).sum(-1)
+        s = self._s(d, u, z)
         return d @ self.P + (s / (1 + s))[:, None] * ds
 
     def energy(self, x: np.ndarray) -> np.ndarray:
         """H_d(x): (N, n) -> (N,), float64 (`EnergyNet.forward`, the Bregman term as
         `value_and_grad_explicit` forms it); a recovery law's level switch reads it."""
         d = np.asarray(x, dtype=self.dtype) - self.x_star
-        u = d / self.x_scale if self.icnn_map is None else d @ self.icnn_map.T
-        width = self.icnn_out.shape[0]
-        inputs = u @ self.icnn_in[0] + self.icnn_in[1]
-        z = None
-        for k in range(len(self.icnn_x)):
-            a = inputs[:, k * width : (k + 1) * width]
-            z = softplus(a if k == 0 else z @ self.icnn_z_t[k - 1] + a)
-        s = (z @ self.icnn_out - self.icnn_h0 - u @ self.icnn_g0) + self.eps * (d * d).sum(-1)
+        u, z, _ = self._icnn(d, d / self.x_scale)
+        s = self._s(d, u, z)
         H = s if self.P is None else 0.5 * ((d @ self.P) * d).sum(-1) + s - np.log1p(s)
         return H.astype(np.float64)
 

@@ -109,9 +109,10 @@ class BoxFallback:
         """(..., n) -> (...) bool: True where some |δ_i| > s_i (the state is outside the training box)."""
         return (np.abs(self.delta(x)) > self.half).any(axis=-1)
 
-    def apply(self, x, u) -> np.ndarray:
+    def apply(self, x, u, energy=None) -> np.ndarray:
         """u* + k(x) (u − u*) where x is inside the box (k = `gain_at`), u* − Kδ outside:
-        (N, n), (N, m) -> (N, m) (a new array; u itself inside when k_in = 1)."""
+        (N, n), (N, m) -> (N, m) (a new array; u itself inside when k_in = 1). `energy` (H_d, which
+        `RecoveryLaw.apply` may read) is not used."""
         d = self.delta(np.atleast_2d(x))
         u = np.array(u, dtype=np.float64, copy=True).reshape(len(d), -1)
         if self.inside_gain != 1.0:

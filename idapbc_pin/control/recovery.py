@@ -81,14 +81,15 @@ class RecoveryLaw:
 
     def apply(self, x, u, energy=None) -> np.ndarray:
         """u inside the inner box (and where H_d ≤ `level`), the recovery law elsewhere:
-        (N, n), (N, m) -> (N, m) (a new array); energy (N,) is H_d(x), needed when `uses_level`."""
+        (N, n), (N, m) -> (N, m) (a new array). energy : H_d as a function (K, n) -> (K,), called on
+        the rows outside the inner box only; needed when `uses_level`."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         u = np.array(u, dtype=np.float64, copy=True).reshape(len(x), -1)
         out = self.outside(x)
-        if self.uses_level:
+        if self.uses_level and out.any():
             if energy is None:
-                raise ValueError("this recovery law switches on H_d's level: pass energy = H_d(x)")
-            out &= np.asarray(energy, dtype=np.float64).reshape(len(x)) > self.level
+                raise ValueError("this recovery law switches on H_d's level: pass energy, the function x -> H_d(x)")
+            out[out] = np.asarray(energy(x[out]), dtype=np.float64).reshape(-1) > self.level
         if out.any():
             u[out] = self.law(x[out])
         return u

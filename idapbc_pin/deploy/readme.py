@@ -132,10 +132,10 @@ def deploy_readme(record: dict) -> str:
     fallback = record.get("fallback")
     line, text = "", ""
     if fallback is not None and fallback.get("kind") == "recovery":
-        line = "    u    ← ū tanh(MLP(δ / s))  where some |δ_i| > inner_i,  δ = wrap(x − x*)  (the recovery law)\n"
+        level = f" and H_d(x) > {fallback['level']:.6g}" if "level" in fallback else ""  # the IDA-PBC law also keeps {H_d ≤ level}
+        line = f"    u    ← ū tanh(MLP(δ / s))  where some |δ_i| > inner_i{level},  δ = wrap(x − x*)  (the recovery law)\n"
         inner = "(" + ", ".join(f"{v:.4g}" for v in fallback["inner"]) + ")"
-        if "level" in fallback:  # the IDA-PBC law also keeps a sublevel set of its energy
-            line = line.replace("(the recovery law)", f"and H_d(x) > {fallback['level']:.6g}  (the recovery law)")
+        if level:
             inner += f" and where H_d(x) > {fallback['level']:.6g} (H_d from desired_flow.py)"
         text = (
             f"\nOutside an inner box (half-widths {inner} around x*) the run uses its recovery law, a small MLP fitted to "
