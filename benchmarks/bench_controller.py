@@ -3,10 +3,13 @@
 * `ctrl.torque(q, v)` in the library, fast and paper network sizes (target, issue #3: ≤ 1 ms);
 * the exported standalone `controller.torque(q, v)` (numpy + Pinocchio, `idapbc-pin export`) and
   the exported `desired_flow.onnx` (f̃_d only) under onnxruntime on one thread, fast preset
-  (target, issue #14: ≤ 0.2 ms for the standalone torque).
+  (target, issue #14: ≤ 0.2 ms for the standalone torque);
+* the same standalone torque for a run that keeps a recovery law with a level set of H_d (the
+  switch evaluates H_d on top of the law: the state is outside the inner box and inside {H_d ≤ c},
+  its slowest branch), where every actuated joint has a finite effort limit.
 
 Latency does not depend on the weights' values: the library rows use freshly initialised networks,
-the exported rows a run trained for one epoch. Prints median and 99th percentile.
+the exported rows a run trained for one epoch (its recovery law fitted for one step to random labels). Prints median and 99th percentile.
 Run: python benchmarks/bench_controller.py [names ...] [--repeat N]
 """
 
@@ -25,6 +28,8 @@ import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
 from idapbc_pin.control.controller import Controller
 from idapbc_pin.control.nets import build_nets
+from idapbc_pin.training.recovery import RecoveryConfig, fit_recovery_law
+from idapbc_pin.training.recovery_gate import save_recovery
 
 
 def latency(fn, repeat: int) -> np.ndarray:
@@ -68,7 +73,23 @@ def exported_rows(system, q: np.ndarray, v: np.ndarray, repeat: int, tmp: Path) 
     session = ort.InferenceSession(str(folder / "desired_flow.onnx"), options)
     x = system.state_from(q, v)[None].astype(run.config.dtype)
     rows.append(_row(system.name, "export: ONNX f_d", latency(lambda: session.run(None, {"x": x}), repeat)))
-    return rows
+    return rows + level_rows(run, q, v, repeat, tmp)
+
+
+def level_rows(run, q: np.ndarray, v: np.ndarray, repeat: int, tmp: Path) -> list[str]:
+    """Standalone torque latency of `run` given a recovery law that acts where H_d(x) > c, with c
+    twice H_d at the timed state: the switch evaluates H_d, then the IDA-PBC law acts."""
+    system = run.system
+    if not np.all(np.isfinite(system.effort)):
+        return []
+    rng = np.random.default_rng(0)
+    X, U = rng.uniform(*system.domain, size=(64, system.n)), rng.uniform(-1, 1, (64, system.m)) * system.effort
+    law, _ = fit_recovery_law(system, X, U, RecoveryConfig().width, steps=1)
+    x = system.state_from(q, v)[None]
+    c = 2.0 * float(run.own_controller.flow().energy(run.own_controller.nets.wrap(x))[0])
+    save_recovery(run, law, {"used": True, "inner_scale": 0.0, "level": c})
+    standalone = _load_exported(ip.export(run, tmp / f"{system.name}-level", onnx=False))
+    return [_row(system.name, "export: + level law", latency(lambda: standalone.torque(q, v), repeat))]
 
 
 def main() -> None:
