@@ -188,7 +188,7 @@ def test_standalone_applies_a_recovery_law_as_the_library_does(runs, tmp_path):
     shutil.copytree(runs["pendubot"].path, path)
     law = random_law(runs["pendubot"].system, inner_scale=0.3)
     np.savez(path / RECOVERY_FILE, **law.arrays())
-    summary = json.loads((path / "summary.json").read_text()) | {"recovery": {"used": True, "inner_scale": 0.3}}
+    summary = json.loads((path / "summary.json").read_text()) | {"recovery": {"used": True, "inner_scale": 1.5}}
     (path / "summary.json").write_text(json.dumps(summary))
     run = ip.load_run(path)
     folder = ip.export(run, tmp_path / "export", onnx=False)
@@ -235,6 +235,36 @@ def test_standalone_keeps_the_ida_pbc_law_on_the_level_set_of_h_d_as_the_library
     out = _run_standalone(folder, q, v, tmp_path)
     _close(out["batched"], expected, 1e-9)
     _close(out["single"], expected, 1e-9)
+
+
+def test_standalone_applies_a_recovery_law_within_its_plan_bound_on_an_unlimited_robot(runs, tmp_path):
+    """A robot without effort limits keeps a recovery law bounded by `plan_bound` (LQR's largest
+    demand on the box): EFFORT stays inf, the law's own ū travels in controller.json, and the
+    standalone gives the library's τ to 1e-9."""
+    from tests.test_recovery import random_law
+
+    from idapbc_pin.training.plans import plan_bound
+    from idapbc_pin.training.run import RECOVERY_FILE
+
+    path = tmp_path / "run"
+    shutil.copytree(runs["pendubot"].path, path)
+    unlimited = dataclasses.replace(runs["pendubot"].system, effort=[np.inf])
+    law = dataclasses.replace(random_law(unlimited, inner_scale=1.5), effort=plan_bound(unlimited))
+    np.savez(path / RECOVERY_FILE, **law.arrays())
+    summary = json.loads((path / "summary.json").read_text()) | {"recovery": {"used": True, "inner_scale": 1.5}}
+    (path / "summary.json").write_text(json.dumps(summary))
+    run = ip.load_run(path)
+    run = dataclasses.replace(run, system=unlimited)
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    saved = json.loads((folder / "controller.json").read_text())
+    assert saved["effort"] == [None] and saved["fallback"]["effort"] == pytest.approx(list(plan_bound(unlimited)))
+    q, v = _states(unlimited)
+    expected = run.controller.torque(q, v)
+    outside = law.outside(run.nets.wrap(unlimited.state_from(q, v)))
+    assert 0 < outside.sum() < len(q) and np.abs(expected[outside]).max() <= plan_bound(unlimited)[0] * (1 + 1e-12)
+    out = _run_standalone(folder, q, v, tmp_path)
+    assert np.isinf(out["effort"]).all()
+    _close(out["batched"], expected, 1e-9)
 
 
 def test_standalone_torque_float32_networks(runs, tmp_path):

@@ -23,7 +23,8 @@ Claims:
 * `train --recover auto` (the default) fits one exactly when saturated LQR leaves room: it fails on
   ≥ 10 % of the half box (the zoo pendubot, whose 20 N·m limit does not bind, and an 8 N·m shoulder,
   where it binds; not the cartpole), or else of the training box, and then from training-box starts
-  (the cartpole; not the reaction wheel); it never tests a robot without limits.
+  (the cartpole; not the reaction wheel); a robot without limits is tested with LQR itself, and
+  its plans and recovery law stay within the largest force LQR asks on the training box.
 (The exported controller.py applies it as the library does: tests/test_export.py.)
 """
 
@@ -51,7 +52,7 @@ from idapbc_pin.sim.radius import scaled_box
 from idapbc_pin.sim.states import evaluation_box, uniform_states
 from idapbc_pin.training import recovery as recovery_module
 from idapbc_pin.training import recovery_gate
-from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plan, search_plans
+from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, plan_bound, planning_system, search_plan, search_plans
 from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, ends_near, fit_recovery_law, gate_choice, recover, refit, regate
 from idapbc_pin.training.recovery_gate import NEAR_SCALE, read_labels, save_labels
 from idapbc_pin.training.run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
@@ -703,17 +704,33 @@ def test_a_damaged_recovery_law_is_refused_at_load_with_one_line(tiny_run, tmp_p
     assert len(err) == 1 and "recovery.npz" in err[0] and "Fix:" in err[0]
 
 
-def test_recover_refuses_a_robot_without_limits_in_one_line(tmp_path, capsys):
-    """`train --recover` (and `recover`) on an actuator without an effort limit: exit 2, one line."""
+def test_an_input_without_a_limit_plans_within_the_largest_force_lqr_asks_on_the_box():
+    """`plan_bound`: a limited input keeps its limit; an unlimited one gets the largest |u| of LQR over
+    the training box's corners (where a linear law peaks), found here by evaluating LQR at all 2^n."""
+    cartpole = ip.load_system("paper_cartpole")  # built-in: no limits; box centred on x*, u* = 0
+    lo, hi = cartpole.domain
+    corners = np.array(np.meshgrid(*zip(lo, hi))).reshape(cartpole.n, -1).T
+    np.testing.assert_allclose(plan_bound(cartpole), np.abs(LQRController(cartpole)(corners)).max(axis=0), rtol=1e-12)
+    assert planning_system(cartpole).effort == pytest.approx(plan_bound(cartpole)) and np.isinf(cartpole.effort).all()
+    pendubot = ip.load_system("pendubot")
+    assert planning_system(pendubot) is pendubot and plan_bound(pendubot) == pytest.approx(pendubot.effort)
+    free = ip.load_system("pendubot", effort={"shoulder": np.inf})
+    assert np.isfinite(plan_bound(free)).all() and plan_bound(free)[0] > pendubot.effort[0]
+
+
+def test_recover_on_a_robot_without_limits_fits_a_law_within_the_plan_bound(tmp_path):
+    """`train --recover` on an actuator without an effort limit plans within `plan_bound`; the saved
+    law's ū is that bound, while the robot itself stays unlimited."""
     argv = ["train", "pendubot", "--effort", "shoulder=inf", "--fast", "--epochs", "2", "--width", "8", "--depth", "1",
-            "--evaluate", "0", "--out", str(tmp_path), "--recover"]  # fmt: skip
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert "effort limit" in err[-1] and "Fix:" in err[-1] and not any("Traceback" in line for line in err)
+            "--evaluate", "0", "--out", str(tmp_path), "--recover", "never"]  # fmt: skip
+    assert main(argv) == 0
     (run_dir,) = tmp_path.iterdir()
-    assert main(["recover", str(run_dir), "--starts", "2"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "effort limit" in err[0]
+    entry = recover(run_dir, RecoveryConfig(**TINY), progress=False, keep=True)
+    run = ip.load_run(run_dir)
+    assert entry["used"] and np.isinf(run.system.effort).all()
+    np.testing.assert_allclose(run.fallback.effort, plan_bound(run.system), rtol=1e-12)
+    X, U = read_labels(run_dir, run.system.n, run.system.m)
+    assert np.abs(U).max() <= plan_bound(run.system)[0] * (1 + 1e-12)
 
 
 # ------------------------------------------------------------------ when `train` recovers on its own
@@ -743,9 +760,15 @@ def test_where_the_half_box_leaves_no_room_the_training_box_is_tested_and_the_pl
     assert "no room there; testing the training box" in printed and "fitting a recovery law from training-box starts" in printed
 
 
-def test_a_robot_without_limits_is_never_tested_and_never_binds():
-    for system in (ip.load_system("pendubot", effort={"shoulder": np.inf}), ip.load_system("paper_mass_spring_damper")):
-        assert limits_bind(system) == {"states": 0, "saturated": 0, "unsaturated": 0, "binds": False, "room": False}
+def test_a_robot_without_limits_is_tested_with_lqr_itself_and_never_binds():
+    """No limits: saturated and unsaturated LQR are the same law; the paper cartpole's LQR loses no
+    half-box state and ≥ 10 % of its training box (room there), the mass-spring-damper's neither."""
+    cartpole = ip.load_system("paper_cartpole")
+    half, wide = limits_bind(cartpole), limits_bind(cartpole, box="domain")
+    assert half["saturated"] == half["unsaturated"] == BIND_STATES and not half["room"] and not half["binds"]
+    assert wide["saturated"] == wide["unsaturated"] and wide["room"] and not wide["binds"]
+    msd = ip.load_system("paper_mass_spring_damper")
+    assert not limits_bind(msd)["room"] and not limits_bind(msd, box="domain")["room"]
 
 
 def test_auto_recovers_exactly_when_saturated_lqr_leaves_room(tiny_run, tmp_path, capsys, monkeypatch):

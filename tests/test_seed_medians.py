@@ -34,20 +34,20 @@ def _row(name, system, nida, lqr, **extra):
 def test_medians_group_rows_by_system_across_files(tmp_path):
     seed0 = _write(tmp_path / "zoo.csv", [_row("acrobot", "acrobot", 0.61, 0.545, fallback="yes"), _row("pendubot", "pendubot", 0.455, 0.285)])
     seeds = _write(tmp_path / "seeds.csv", [
-        _row("acrobot-seed1", "acrobot", 0.50, 0.545), _row("pendubot-seed1", "pendubot", 0.40, 0.285),
+        _row("acrobot-seed1", "acrobot", 0.50, 0.545), _row("pendubot-seed1", "pendubot", 0.40, 0.285, recovery="yes"),
         _row("acrobot-seed2", "acrobot", 0.70, 0.545, fallback="yes"), _row("pendubot-seed2", "pendubot", 0.30, 0.285, status="failed"),
     ])  # fmt: skip
     robots = seed_medians([seed0, seeds])
     assert list(robots) == ["acrobot", "pendubot"]
     assert [r["name"] for r in robots["acrobot"]["rows"]] == ["acrobot", "acrobot-seed1", "acrobot-seed2"]
     assert robots["acrobot"]["median"]["nida_success_domain"] == pytest.approx(0.61)
-    assert robots["acrobot"]["fallback"] == 2
+    assert robots["acrobot"]["fallback"] == 2 and robots["acrobot"]["recovery"] == 0 and robots["pendubot"]["recovery"] == 1
     # the failed seed-2 job is left out: the median of two rows is their mean
     assert robots["pendubot"]["median"]["nida_success_half"] == pytest.approx(0.4275)
     assert math.isnan(robots["pendubot"]["median"]["nida_radius"])
     table = seed_median_markdown([seed0, seeds])
     assert "61.0 / 50.0 / 70.0 → **61.0 %** / 54.5 %" in table
-    assert "| `pendubot` | 2 |" in table and "2 of 3" in table
+    assert "| `pendubot` | 2 |" in table and "2 of 3" in table and "| 0 of 2; a recovery law: 1 of 2 |" in table
 
 
 def test_rows_judged_on_other_states_are_refused(tmp_path):

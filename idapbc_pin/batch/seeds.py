@@ -49,7 +49,8 @@ def seed_medians(summary_csvs) -> dict[str, dict]:
     """Per robot (the ``system`` column), over every finished row of the given summary.csv files:
 
     ``{"rows": [row, ...], "median": {column: value}}`` for the `MEDIAN_COLUMNS` (nan where a column
-    is empty in every row), ``"fallback"``: how many rows used the linear law outside the box.
+    is empty in every row), ``"fallback"``: how many rows used the linear law outside the box,
+    ``"recovery"``: how many a recovery law.
     Robots keep the order in which they first appear. A missing file is an error naming it, and so
     is a robot judged differently in two rows (other states per box, horizon or effort limits): their
     success rates would not be comparable.
@@ -72,6 +73,7 @@ def seed_medians(summary_csvs) -> dict[str, dict]:
             )
         entry["median"] = {c: _median([_float(r.get(c, "")) for r in rows]) for c in MEDIAN_COLUMNS}
         entry["fallback"] = sum(r.get("fallback") == "yes" for r in rows)
+        entry["recovery"] = sum(r.get("recovery") == "yes" for r in rows)
     return robots
 
 
@@ -108,11 +110,11 @@ def seed_median_markdown(summary_csvs) -> str:
             f"{cell('nida_radius', _r)} / {cell('lqr_radius', _r)}",
             f"{cell('nida_settle_domain', _s)} / {cell('lqr_settle_domain', _s)}",
             f"{cell('sublevel_coverage')} / {cell('lqr_sublevel_coverage')}",
-            f"{entry['fallback']} of {len(rows)}",
+            f"{entry['fallback']} of {len(rows)}" + (f"; a recovery law: {entry['recovery']} of {len(rows)}" if entry["recovery"] else ""),
         ])  # fmt: skip
     head = ["robot", "seeds", "success, domain: NIDA-PBC per seed → median / LQR", "success, half box: NIDA-PBC per seed → median / LQR",
             "ROA radius: NIDA-PBC / LQR", "median settling: NIDA-PBC / LQR", "certified share: NIDA-PBC / LQR",
-            "seeds with the linear law outside the box"]  # fmt: skip
+            "seeds with the linear law (or a recovery law) outside the box"]  # fmt: skip
     files = ", ".join(f"`{Path(p).name}`" for p in summary_csvs)
     note = (
         f"Generated from {files} by `idapbc_pin.batch.seed_median_markdown`: the zoo trained with seeds 0, 1 and 2, every "

@@ -41,7 +41,7 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
             "--regate judges it again) and summary.json → recovery. Took 15-50 minutes on 2 cores for a 2-DoF robot."
         ),
     )
-    p.add_argument("run", metavar="RUN", help="run directory written by `idapbc-pin train` (effort limits on every actuated joint)")
+    p.add_argument("run", metavar="RUN", help="run directory written by `idapbc-pin train` (an actuated joint without an effort limit plans within LQR's largest demand on the training box)")
     p.add_argument("--starts", type=int, metavar="N", help=f"start states labelled by the teacher or plans (default {d.starts})")
     p.add_argument("--start-box", choices=START_BOXES, dest="start_box",
                    help=f"box of the start states and DAgger starts: the half box, or the training box (default {d.start_box})")

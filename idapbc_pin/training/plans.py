@@ -1,4 +1,5 @@
-"""Open-loop torque plans within the effort limits: `PlanSettings`, `PlanThenLaw`, `search_plan`.
+"""Open-loop torque plans within the effort limits: `PlanSettings`, `PlanThenLaw`, `search_plan`,
+`plan_bound`.
 
 Where a saturated law loses a state, a short plan may still bring it to x*: piecewise-constant
 inputs over `knots` intervals of the first `horizon` seconds, then a feedback law (saturated LQR)
@@ -7,19 +8,21 @@ iteration drawn around a mean, the best eighth refits the mean and spread, `iter
 plan is scored by the distance to x* after `score_T` seconds (wrapped angle errors plus 0.3 × the
 speeds; a diverged rollout scores 1e3). Plans are per state and open loop: they are the labels a
 recovery law is fitted to (`training.recovery`), and a lower bound on what the limited actuator can
-do (`benchmarks/bench_recoverable.py`).
+do (`benchmarks/bench_recoverable.py`). An input without an effort limit is planned within
+LQR's largest demand on the training box instead (`plan_bound`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..control.baseline import LQRController
 from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
 
-__all__ = ["PLAN_STEP", "PlanSettings", "PlanThenLaw", "search_plan", "search_plans"]
+__all__ = ["PLAN_STEP", "PlanSettings", "PlanThenLaw", "plan_bound", "planning_system", "search_plan", "search_plans"]
 
 #: The control period of a plan and of the law after it, s: the judge's (the law held at 500 Hz).
 PLAN_STEP = 0.002
@@ -62,6 +65,30 @@ class PlanThenLaw:
         if k < self.plan.shape[2]:
             return self.plan[:, :, k].copy()
         return self.law(x)
+
+
+def plan_bound(system) -> np.ndarray:
+    """ū (m,) of the plans and of a recovery law, N·m or N: the effort limit of each input, and for an
+    input without one the largest |u| that LQR (Q = I, R = I) asks in the training box,
+    |u*_i| + Σ_j |K_ij| s_j with s_j the box's larger extent from x* along j (a linear law peaks at
+    a corner; equal to that peak for a box centred on x* with u* = 0, a bound above it otherwise).
+    A robot given no limits (the paper's built-in systems) still gets plans of the size its own
+    linear law uses."""
+    effort = np.asarray(system.effort, dtype=np.float64)
+    if np.isfinite(effort).all():
+        return effort
+    lqr = LQRController(system)
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in system.domain)
+    x_star = np.asarray(system.x_star, dtype=np.float64)
+    reach = np.abs(np.atleast_1d(lqr.u_star)) + np.abs(lqr.K) @ np.maximum(hi - x_star, x_star - lo)
+    return np.where(np.isfinite(effort), effort, reach)
+
+
+def planning_system(system):
+    """`system` with every effort limit finite: its own limits, `plan_bound` where it has none (the
+    same object when every input is limited). Plans, labels and the recovery law's fit use it."""
+    bound = plan_bound(system)
+    return system if np.array_equal(bound, system.effort) else replace(system, effort=bound)
 
 
 def _score(system, traj) -> np.ndarray:

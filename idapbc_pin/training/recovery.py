@@ -6,7 +6,8 @@ The steps (`RecoveryConfig` holds every number):
    (`start_box`; seed `plan_seed`, never an evaluation seed), the `teacher` runs first: the run's
    own law (`Run.own_controller`, the default) or saturated LQR. Where it fails, a torque plan
    within the limits is searched (`plans.search_plans`, PLAN_BATCH starts at a time), then the
-   teacher takes over. Every start that reaches x* gives labels (x(t), u(t)) every 10 ms over its
+   teacher takes over (an input without an effort limit plans within `plans.plan_bound`, LQR's
+   largest demand on the training box, and the fitted law stays within it). Every start that reaches x* gives labels (x(t), u(t)) every 10 ms over its
    first 6 s. With the run's law as the teacher the fitted law imitates the IDA-PBC law on the
    states that law already brings to x*, so a trajectory that leaves the inner box meets a law
    that continues what the IDA-PBC law was doing; with LQR it met LQR's habits, and on the zoo
@@ -64,7 +65,7 @@ from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.radius import scaled_box
 from ..sim.states import uniform_states
-from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, search_plans
+from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, planning_system, search_plans
 from .recovery_gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, read_labels, save_labels, save_recovery
 from .run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
 
@@ -297,22 +298,13 @@ def ends_near(x: np.ndarray, system) -> np.ndarray:
     return np.all((d >= lo - x_star) & (d <= hi - x_star), axis=-1)
 
 
-def _check_limits(system) -> None:
-    if system.m == 0 or not np.all(np.isfinite(system.effort)):
-        raise IdapbcError(
-            f"{system.name} has an actuated joint without an effort limit; a recovery law plans within the limits. "
-            "Fix: train with the limits given (--effort JOINT=LIMIT, or <limit effort> in the URDF), then recover that run."
-        )
-
-
 def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
     """Fit, gate and save a recovery law for a run (see the module docstring); returns the summary
     entry written to summary.json → "recovery". The run directory gets ``recovery.npz`` when the
     gate keeps the law (or `keep` forces it), else ``recovery-refused.npz`` for `regate`; an earlier
     recovery law is replaced either way."""
     run = resolve_run(run_or_path)
-    system = run.system
-    _check_limits(system)
+    system = planning_system(run.system)  # an input without a limit plans within LQR's largest demand
     torch.set_num_threads(1)
     start = time.perf_counter()
     x0 = uniform_states(system, config.starts, config.start_box, config.plan_seed)
@@ -381,8 +373,7 @@ def refit(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool
     settings, error and time)."""
     run = resolve_run(run_or_path)
     last = run.summary.get("recovery") if isinstance(run.summary.get("recovery"), dict) else {}  # none after an interrupted recover
-    system = run.system
-    _check_limits(system)
+    system = planning_system(run.system)  # an input without a limit plans within LQR's largest demand
     X, U = read_labels(run.path, system.n, system.m)
     torch.set_num_threads(1)
     start = time.perf_counter()
@@ -401,7 +392,7 @@ def _gate_fits(run, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, config: Reco
     """Fit `config.fits` − 1 more laws to the labels (seeds after `config.fit_seed`, whose fit `law`
     is) and let the gate choose among all (`choose_fit`); returns (the chosen law, its gate)."""
     laws = [law]
-    jobs = [(run.system, X, U, config.width, config.steps, config.fit_seed + k) for k in range(1, config.fits)]
+    jobs = [(planning_system(run.system), X, U, config.width, config.steps, config.fit_seed + k) for k in range(1, config.fits)]
     for k, (more, mse) in enumerate(process_map(_fit_job, jobs, config.workers), start=1):
         laws.append(more)
         if progress:

@@ -11,6 +11,10 @@ printed as context, not used in the decision (with equal thresholds, binding lim
 Where the half box leaves no room, the same test runs on the training box, and where that leaves
 room the recovery law's plans and DAgger rounds start from the training box
 (`RecoveryConfig.start_box`).
+A robot given no effort limits (the paper's built-in systems, a URDF without `<limit effort>`) takes
+the same test with LQR itself, and its plans and recovery law stay within `plans.plan_bound`, the
+largest |u| LQR asks on the training box: a basin larger than LQR's is what the user comes for with
+or without limits.
 
 Measured with these defaults (successes of the 100 states, saturated / unsaturated LQR; the full
 table is in docs/method.md §6): at their URDF limits the pendubot (61 / 61), acrobot (69 / 6),
@@ -35,7 +39,7 @@ from ..errors import IdapbcError
 from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import uniform_states
-from .plans import PLAN_STEP
+from .plans import PLAN_STEP, plan_bound
 from .recovery import RecoveryConfig, recover
 
 __all__ = ["BIND_POINTS", "BIND_STATES", "RECOVER_MODES", "ROOM_POINTS", "auto_recover", "limits_bind"]
@@ -56,13 +60,20 @@ def limits_bind(system, states: int = BIND_STATES, seed: int = BIND_SEED, box: s
     the law held every 2 ms. Returns {"states", "saturated": successes, "unsaturated": successes,
     "binds": whether saturated LQR loses ≥ BIND_POINTS per cent of the states more than unsaturated
     LQR, "room": whether saturated LQR fails on ≥ ROOM_POINTS per cent of them}; "binds" and "room"
-    are False (and nothing is simulated) unless every actuated joint has a finite effort limit. A
-    state that has rested in the success box for the success window is integrated no further."""
-    if system.m == 0 or not np.all(np.isfinite(system.effort)):  # recover plans within every limit
+    are False (and nothing is simulated) for a system without inputs. Without any effort limit the two
+    are one simulation (a robot given no limits has room where LQR itself fails; `recover` then plans
+    within `plans.plan_bound`). A state that has rested in the success box for the success window is
+    integrated no further."""
+    if system.m == 0:
         return {"states": 0, "saturated": 0, "unsaturated": 0, "binds": False, "room": False}
     x0 = uniform_states(system, states, box, seed)
     lqr = LQRController(system)
-    sat, free = (int(success(simulate(system, lqr, x0, T=20.0, dt=PLAN_STEP, limits=lim, stop_settled=True), system).sum()) for lim in (True, False))
+
+    def count(limits: bool) -> int:
+        return int(success(simulate(system, lqr, x0, T=20.0, dt=PLAN_STEP, limits=limits, stop_settled=True), system).sum())
+
+    sat = count(True)
+    free = count(False) if system.limited else sat
     return {"states": int(states), "saturated": sat, "unsaturated": free, "binds": 100.0 * (free - sat) / states >= BIND_POINTS,
             "room": 100.0 * (states - sat) / states >= ROOM_POINTS}
 
@@ -81,7 +92,7 @@ def auto_recover(run, mode: str = "auto", config: RecoveryConfig = RecoveryConfi
         for box in ("half", "domain"):  # the training box only where the half box leaves no room
             test = limits_bind(run.system, box=box)
             if progress and test["states"]:
-                _tell(test, box)
+                _tell(test, box, run.system)
             if test["room"]:
                 break
         else:
@@ -91,15 +102,22 @@ def auto_recover(run, mode: str = "auto", config: RecoveryConfig = RecoveryConfi
     return recover(run, config, progress)
 
 
-def _tell(test: dict, box: str) -> None:
+def _tell(test: dict, box: str, system) -> None:
     """Print `limits_bind`'s verdict on `box` and what `auto_recover` does next."""
     n, sat = test["states"], test["saturated"]
-    if box == "half":
-        verdict = "fitting a recovery law where it fails (15-60 min on 2 cores; --recover never skips it)" if test["room"] else \
-            "no room there; testing the training box"
-        print(f"torque limits: saturated LQR brings {sat} of {n} half-box states to x*, unsaturated LQR {test['unsaturated']} "
-              f"(the limits {'bind' if test['binds'] else 'do not bind'}); it fails on {n - sat}: {verdict}", flush=True)
+    where = "half-box" if box == "half" else "training-box"
+    if system.limited:
+        law = f"saturated LQR brings {sat} of {n} {where} states to x*"
+        if box == "half":
+            law += f", unsaturated LQR {test['unsaturated']} (the limits {'bind' if test['binds'] else 'do not bind'})"
+        head = "torque limits: "
     else:
-        verdict = "fitting a recovery law from training-box starts (15-60 min on 2 cores; --recover never skips it)" if test["room"] else \
-            "no recovery law (--recover always fits one anyway)"
-        print(f"torque limits: on the training box saturated LQR brings {sat} of {n} states to x*; it fails on {n - sat}: {verdict}", flush=True)
+        bound = " ".join(f"±{b:.3g}" for b in plan_bound(system))
+        law = f"LQR brings {sat} of {n} {where} states to x*"
+        head = f"no effort limits (a recovery law plans within {bound}, LQR's largest demand on the training box): "
+    if test["room"]:
+        start = "" if box == "half" else " from training-box starts"
+        verdict = f"fitting a recovery law{start} where it fails (15-60 min on 2 cores; --recover never skips it)"
+    else:
+        verdict = "no room there; testing the training box" if box == "half" else "no recovery law (--recover always fits one anyway)"
+    print(f"{head}{law}; it fails on {n - sat}: {verdict}", flush=True)
