@@ -34,7 +34,7 @@ def _row(name, system, nida, lqr, **extra):
 def test_medians_group_rows_by_system_across_files(tmp_path):
     seed0 = _write(tmp_path / "zoo.csv", [_row("acrobot", "acrobot", 0.61, 0.545, fallback="yes"), _row("pendubot", "pendubot", 0.455, 0.285)])
     seeds = _write(tmp_path / "seeds.csv", [
-        _row("acrobot-seed1", "acrobot", 0.50, 0.545), _row("pendubot-seed1", "pendubot", 0.40, 0.285, recovery="yes"),
+        _row("acrobot-seed1", "acrobot", 0.50, 0.545), _row("pendubot-seed1", "pendubot", 0.40, 0.285, recovery="yes", fallback="yes"),
         _row("acrobot-seed2", "acrobot", 0.70, 0.545, fallback="yes"), _row("pendubot-seed2", "pendubot", 0.30, 0.285, status="failed"),
     ])  # fmt: skip
     robots = seed_medians([seed0, seeds])

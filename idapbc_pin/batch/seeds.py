@@ -49,8 +49,8 @@ def seed_medians(summary_csvs) -> dict[str, dict]:
     """Per robot (the ``system`` column), over every finished row of the given summary.csv files:
 
     ``{"rows": [row, ...], "median": {column: value}}`` for the `MEDIAN_COLUMNS` (nan where a column
-    is empty in every row), ``"fallback"``: how many rows used the linear law outside the box,
-    ``"recovery"``: how many a recovery law.
+    is empty in every row), ``"recovery"``: how many rows used a recovery law, ``"fallback"``: how
+    many of the others used the linear law outside the box.
     Robots keep the order in which they first appear. A missing file is an error naming it, and so
     is a robot judged differently in two rows (other states per box, horizon or effort limits): their
     success rates would not be comparable.
@@ -72,8 +72,8 @@ def seed_medians(summary_csvs) -> dict[str, dict]:
                 "Fix: pass batches that use the same `evaluate` settings and limits."
             )
         entry["median"] = {c: _median([_float(r.get(c, "")) for r in rows]) for c in MEDIAN_COLUMNS}
-        entry["fallback"] = sum(r.get("fallback") == "yes" for r in rows)
-        entry["recovery"] = sum(r.get("recovery") == "yes" for r in rows)
+        entry["recovery"] = sum(r.get("recovery") == "yes" for r in rows)  # it replaces the linear law outside its box
+        entry["fallback"] = sum(r.get("fallback") == "yes" and r.get("recovery") != "yes" for r in rows)
     return robots
 
 
