@@ -34,7 +34,7 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
         "recover",
         help="weak actuators: fit a recovery law to torque plans within the limits, beside the IDA-PBC law",
         description=(
-            "Search torque plans within RUN's effort limits from states RUN's own law loses (half box, or --start-box domain; --teacher lqr: "
+            "Search torque plans within RUN's effort limits (where a joint has none, within LQR's largest demand on the training box) from states RUN's own law loses (half box, or --start-box domain; --teacher lqr: "
             "states saturated LQR loses), fit a small feedback law to "
             "them (then DAgger rounds), and use it outside an inner box around x* (or, where no box helps, only where "
             "H_d is above a level) if simulation on states of its own shows it brings more states to x*. Writes RUN/recovery.npz (kept) or RUN/recovery-refused.npz (not kept; "
