@@ -7,12 +7,12 @@ The steps (`RecoveryConfig` holds every number):
    own law (`Run.own_controller`, the default) or saturated LQR. Where it fails, a torque plan
    within the limits is searched (`plans.search_plans`, PLAN_BATCH starts at a time), then the
    teacher takes over (an input without an effort limit plans within `plans.plan_bound`, LQR's
-   largest demand on the training box, and the fitted law stays within it). Every start that reaches x* gives labels (x(t), u(t)) every 10 ms over its
-   first 6 s. With the run's law as the teacher the fitted law imitates the IDA-PBC law on the
-   states that law already brings to x*, so a trajectory that leaves the inner box meets a law
-   that continues what the IDA-PBC law was doing; with LQR it met LQR's habits, and on the zoo
-   pendubot the gate refused that law for the states near x* it lost (README, "A recovery law for
-   weak actuators").
+   largest demand on the training box, and the fitted law stays within it). Every start that
+   reaches x* gives labels (x(t), u(t)) every 10 ms over its first 6 s. With the run's law as the
+   teacher the fitted law imitates the IDA-PBC law on the states that law already brings to x*,
+   so a trajectory that leaves the inner box meets a law that continues what the IDA-PBC law was
+   doing; with LQR it met LQR's habits, and on the zoo pendubot the gate refused that law for the
+   states near x* it lost (README, "A recovery law for weak actuators").
 2. **Fit.** A `control.recovery.RecoveryLaw` MLP (two tanh layers of `width`) by least squares on
    u/ū (Adam, minibatches of 4096). After the DAgger rounds, `fits` laws are fitted to the final
    labels (seeds `fit_seed`, `fit_seed` + 1, …) and the gate judges each.
@@ -332,7 +332,7 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
             print(f"recover interrupted: the labels so far are in {run.path / RECOVERY_LABELS_FILE}; "
                   f"`idapbc-pin recover {run.path} --refit` fits and gates a law on them without the plans", flush=True)
         raise
-    law, gate = _gate_fits(run, law, X, U, config, progress, start)
+    law, gate = _gate_fits(run, system, law, X, U, config, progress, start)
     entry = _verdict(gate, config, keep) | {
         "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "teacher": config.teacher, "teacher_starts": int(taught), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
         "seconds": round(time.perf_counter() - start, 1),
@@ -381,18 +381,19 @@ def refit(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool
     if progress:
         print(f"fitted again on the {len(X)} saved labels (fit seed {config.fit_seed}, width {config.width}, {config.steps} steps): "
               f"mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
-    law, gate = _gate_fits(run, law, X, U, config, progress, start)
+    law, gate = _gate_fits(run, system, law, X, U, config, progress, start)
     refitted = {"fit_seed": config.fit_seed + gate.get("fit", 0), "fits": config.fits, "width": config.width, "steps": config.steps, "labels": int(len(X)), "mse": mse,
                 "seconds": round(time.perf_counter() - start, 1)}
     earlier = {k: v for k, v in last.items() if k not in ("regated", "refit")}
     return _save_and_tell(run, law, earlier | _verdict(gate, config, keep) | {"refit": refitted}, config, progress, start)
 
 
-def _gate_fits(run, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, progress: bool, start: float):
+def _gate_fits(run, system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, progress: bool, start: float):
     """Fit `config.fits` − 1 more laws to the labels (seeds after `config.fit_seed`, whose fit `law`
-    is) and let the gate choose among all (`choose_fit`); returns (the chosen law, its gate)."""
+    is) on `system` (the run's, with `plans.plan_bound` as its limits, as `law` was fitted) and let
+    the gate choose among all (`choose_fit`); returns (the chosen law, its gate)."""
     laws = [law]
-    jobs = [(planning_system(run.system), X, U, config.width, config.steps, config.fit_seed + k) for k in range(1, config.fits)]
+    jobs = [(system, X, U, config.width, config.steps, config.fit_seed + k) for k in range(1, config.fits)]
     for k, (more, mse) in enumerate(process_map(_fit_job, jobs, config.workers), start=1):
         laws.append(more)
         if progress:
