@@ -75,6 +75,10 @@ __all__ = ["LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "START_BOXES", "TEACHE
 LABEL_EVERY, LABEL_SPAN = 5, 3000
 #: Lost starts whose plans are searched together (`plans.search_plans`): 16 × 48 candidates per batch.
 PLAN_BATCH = 16
+#: Chunks the starts of one labelling step are split into, whatever the number of workers: a batch's
+#: rounding depends on its rows, so chunks that followed the workers gave other labels (and another
+#: law) with --workers 1 than with 2 (8: what two workers made before the chunks were fixed).
+LABEL_CHUNKS = 8
 
 
 #: Boxes the recovery law's start states may be drawn from (`RecoveryConfig.start_box`).
@@ -198,11 +202,12 @@ def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfi
     """Labels (X (K, n), U (K, m)) of `system` from the start states x0 (N, n), with the counts of
     starts the teacher and the plans brought to x*: (X, U, teacher_ok, recovered). The teacher is
     `teacher` (a law (N, n) -> (N, m), picklable), or saturated LQR when None; it also catches every
-    plan after its horizon. The plan of start i draws from the stream (plan_seed, i);
-    `config.workers` processes (the system and the teacher are pickled to them)."""
+    plan after its horizon. The plan of start i draws from the stream (plan_seed, i). The starts are
+    split into `LABEL_CHUNKS` chunks for `config.workers` processes (the system and the teacher are
+    pickled to them), so the labels do not depend on the number of workers."""
     start = time.perf_counter() if start is None else start
     workers = resolve_workers(config.workers)
-    chunks = [c for c in np.array_split(np.arange(len(x0)), max(1, 4 * workers)) if c.size]
+    chunks = [c for c in np.array_split(np.arange(len(x0)), LABEL_CHUNKS) if c.size]
     jobs = [(system, x0[c], int(c[0]), plan_seed, config.plan, teacher) for c in chunks]
     parts = []
     for k, part in enumerate(process_map(_label_chunk, jobs, workers)):
