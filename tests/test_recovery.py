@@ -292,6 +292,18 @@ def test_the_default_gate_forgives_two_lost_states_near_x_star_not_six():
     assert gate_choice(pendubot_run, pendubot, margin=3, half_loss=half_loss) == (None, False)
 
 
+def test_where_the_run_s_law_brings_the_whole_half_box_the_gate_forgives_no_loss_there():
+    # the paper cartpole's seed 1 (default path): its run's law brings all 50 half-box gate states
+    # to x*; the law the forgiving rule kept lost 9 of the evaluation's 200 half-box states
+    half_loss = RecoveryConfig().half_loss
+    cartpole_run, cartpole = (50, 40, 100), {0.1: (48, 49, 100), 0.25: (48, 49, 100), 0.5: (46, 48, 100)}
+    assert gate_choice(cartpole_run, cartpole, margin=3, half_loss=half_loss) == (0.25, True)  # half_states unknown: 2 forgiven
+    assert gate_choice(cartpole_run, cartpole, margin=3, half_loss=half_loss, half_states=50) == (None, False)
+    assert gate_choice(cartpole_run, {0.5: (50, 45, 99)}, margin=3, half_loss=half_loss, half_states=50) == (0.5, True)  # near x*: still 2 forgiven
+    wheel_run, wheel = (33, 47, 98), {0.25: (49, 49, 96)}  # a run's law short of the whole half box: unchanged
+    assert gate_choice(wheel_run, wheel, margin=3, half_loss=half_loss, half_states=50) == (0.25, True)
+
+
 TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, inner_scales=(0.25,), workers=1, fits=1,
             plan=PlanSettings(population=8, iterations=2, score_T=2.0))  # fmt: skip (one fit: the tests of --fits set their own)
 

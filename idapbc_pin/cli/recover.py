@@ -52,7 +52,8 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
                         "the count changes the time, not the result)")
     p.add_argument("--margin", type=int, metavar="M", help=f"gate states the law must add to the run's law to be kept (default {d.margin})")
     p.add_argument("--half-loss", type=int, metavar="L", dest="half_loss",
-                   help=f"half-box and near-box gate states the law may lose against the run's law (default {d.half_loss})")
+                   help=f"half-box and near-box gate states the law may lose against the run's law (default {d.half_loss}; "
+                        "none in the half box where the run's law brings all of it)")
     p.add_argument("--fit-seed", type=int, metavar="S", dest="fit_seed", help=f"seed of each fit (default {d.fit_seed})")
     p.add_argument("--fits", type=int, metavar="K", help=f"laws fitted to the final labels (seeds S, S+1, …); the gate keeps the best (default {d.fits})")
     p.add_argument("--width", type=int, metavar="W", help=f"width of the law's two tanh layers (default {d.width})")

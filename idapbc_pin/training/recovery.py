@@ -27,10 +27,10 @@ The steps (`RecoveryConfig` holds every number):
 4. **Gate.** The run's law as it is, and the law with the recovery law outside an inner box of
    each scale in `inner_scales`, run from `gate_states` states of their own (half from the half
    box, half from the training box). Of the inner boxes that bring at most `half_loss` fewer of the
-   half-box states, and at most `half_loss` fewer of `near_states` further states of the near box
-   (scale NEAR_SCALE = 0.25), to x* than the run's law, the best is kept if it brings at least
-   `margin` more of the `gate_states`;
-   otherwise the run is left as it was (`gate_choice`).
+   half-box states (none fewer where the run's law brings them all), and at most `half_loss` fewer
+   of `near_states` further states of the near box (scale NEAR_SCALE = 0.25), to x* than the run's
+   law, the best is kept if it brings at least `margin` more of the `gate_states`; otherwise the run
+   is left as it was (`gate_choice`).
 
 What it buys, measured (README, "Can one feedback law learn the plans?"): on a pendubot with an
 8 N·m shoulder the distilled law brought 53 % of the half box to x* where saturated LQR and the
@@ -121,7 +121,8 @@ class RecoveryConfig:
     half_loss : half-box and near-box gate states a candidate may lose against the run's law and stay
         eligible: the recovery law must not shrink the basin the IDA-PBC law already has, beyond a
         loss of 2 states in either part (the 2 N·m reaction wheel's law lost 2 of 100 near x* and
-        added 18 of 100; the zoo pendubot's lost 6 to 11 near x*). 0: no loss at all.
+        added 18 of 100; the zoo pendubot's lost 6 to 11 near x*). 0: no loss at all. None is
+        forgiven in the half box where the run's law brings all of its gate states there.
     workers : processes that search the plans, fit the laws and run the gate's simulations (0: one
         per available core, at most 16). Each process does what a loop would, so this changes the
         time only, never a plan, label, law or verdict.
