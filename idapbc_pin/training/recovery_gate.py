@@ -58,10 +58,10 @@ def gate_choice(run: tuple[int, int, int], candidates: dict, margin: int, half_l
     box r. A candidate is eligible when it brings no fewer of the half-box states, and no fewer of
     the near-box states, to x* than the run's law, less `half_loss` each (the recovery law must not
     shrink the basin the IDA-PBC law already has); where the run's law brings all `half_states`
-    half-box states to x*, a candidate must too (a basin the IDA-PBC law holds entirely: the paper
-    cartpole's 2 forgiven of 50 became 9 lost of 200 in its evaluation); the eligible one with the most half-box and
-    training-box successes wins (ties: the larger r, more IDA-PBC), and is kept when it adds at
-    least `margin` of those. Returns (r or None, kept)."""
+    half-box states to x*, a candidate must too (a basin the IDA-PBC law holds entirely: on the
+    paper cartpole 2 forgiven of 50 became 9 lost of 200 in the evaluation). The eligible one with
+    the most half-box and training-box successes wins (ties: the larger r, more IDA-PBC), and is
+    kept when it adds at least `margin` of those. Returns (r or None, kept)."""
     half_floor = run[0] if half_states is not None and run[0] >= half_states else run[0] - half_loss
     eligible = [r for r, (h, _, near) in candidates.items() if h >= half_floor and near >= run[2] - half_loss]
     if not eligible:
