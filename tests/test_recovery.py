@@ -304,7 +304,7 @@ def test_where_the_run_s_law_brings_the_whole_half_box_the_gate_forgives_no_loss
     assert gate_choice(wheel_run, wheel, margin=3, half_loss=half_loss, half_states=50) == (0.25, True)
 
 
-TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, inner_scales=(0.25,), workers=1, fits=1,
+TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, confirm_states=2, inner_scales=(0.25,), workers=1, fits=1,
             plan=PlanSettings(population=8, iterations=2, score_T=2.0))  # fmt: skip (one fit: the tests of --fits set their own)
 
 
@@ -328,6 +328,71 @@ def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states
     assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)  # 10 fewer near x* than the run's law: not eligible
     none_kept = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, margin=50, workers=1))
     assert none_kept[0] == 1 and not none_kept[1]["used"]  # none kept: the refused law saved is the one that brought most
+
+
+@pytest.mark.parametrize("lost", [2, 3])
+@pytest.mark.parametrize("run_half", [50, 49])
+def test_where_the_run_s_law_holds_the_whole_half_box_a_kept_law_is_checked_again_on_half_box_states_of_their_own(tiny_run, monkeypatch, lost, run_half):
+    """Paper cartpole seed 4: the kept law brought all 50 half-box gate states to x* and 189 of the
+    evaluation's 200. Where the run's law brings every half-box gate state to x*, each law the rule
+    keeps runs again from `confirm_states` half-box states the choice never saw, and is refused if it
+    brings more than `half_loss` fewer of them to x* than the run's law; elsewhere nothing more runs."""
+    laws = [random_law(tiny_run.system, 0.0, seed=k) for k in range(2)]
+    gate_counts = {id(laws[0].weights): (50, 40, 100), id(laws[1].weights): (50, 35, 100)}  # the rule keeps both; the first brings more
+    confirm_lost = {None: 0, id(laws[0].weights): lost, id(laws[1].weights): 0}
+    config = RecoveryConfig(gate_states=100, near_states=100, confirm_states=60, workers=1)
+    confirm_x0 = []
+
+    def fake(job):
+        system, ctrl, x0 = job
+        key = id(ctrl.fallback.weights) if isinstance(ctrl.fallback, RecoveryLaw) else None
+        ok = np.zeros(len(x0), bool)
+        if len(x0) == config.confirm_states:
+            confirm_x0.append(x0)
+            ok[: len(x0) - confirm_lost[key]] = True
+            return ok
+        h, d, near = gate_counts[key] if key else (run_half, 25, 100)
+        ok[:h], ok[50 : 50 + d], ok[100 : 100 + near] = True, True, True
+        return ok
+
+    monkeypatch.setattr(recovery_gate, "_successes", fake)
+    k, gate = recovery_gate.choose_fit(tiny_run, laws, config)
+    assert gate["used"]
+    if run_half < 50:  # the run's law misses a half-box gate state: the rule alone decides
+        assert k == 0 and not confirm_x0 and "confirm" not in gate
+        return
+    assert len(confirm_x0) == 3  # the run's law once, then each kept law
+    assert k == (0 if lost <= config.half_loss else 1)
+    assert gate["confirm"] == [{"states": 60, "run": 60, "law": 60 - confirm_lost[id(laws[k].weights)], "inner_scale": 0.5}]
+    lo, hi = evaluation_box(tiny_run.system, "half")
+    assert np.all((confirm_x0[0] >= lo) & (confirm_x0[0] <= hi))
+    assert f"on 60 other half-box states the run's law brings 60, with the recovery law {gate['confirm'][0]['law']} (r = 0.5)" in recovery_gate.format_gate(gate, config.margin, config.half_loss)
+
+
+def test_a_law_the_check_refuses_at_every_inner_box_is_judged_at_the_levels_of_h_d_and_checked_again(tiny_run, monkeypatch):
+    """Paper cartpole seed 4 again: its law lost states of the check at r = 0.5, and the IDA-PBC law
+    keeping {H_d ≤ c} lost none; the gate keeps the level, and its line names both checks."""
+    law = random_law(tiny_run.system, 0.0)
+    config = RecoveryConfig(gate_states=100, near_states=100, confirm_states=60, workers=1)
+
+    def fake(job):
+        system, ctrl, x0 = job
+        fb = ctrl.fallback
+        ok = np.zeros(len(x0), bool)
+        if len(x0) == config.confirm_states:
+            ok[: len(x0) - (5 if isinstance(fb, RecoveryLaw) and not fb.uses_level else 0)] = True
+            return ok
+        h, d, near = (50, 25, 100) if not isinstance(fb, RecoveryLaw) else (50, 45, 100) if fb.uses_level else (50, 40, 100)
+        ok[:h], ok[50 : 50 + d], ok[100 : 100 + near] = True, True, True
+        return ok
+
+    monkeypatch.setattr(recovery_gate, "_successes", fake)
+    _, gate = recovery_gate.choose_fit(tiny_run, [law], config)
+    levels = recovery_gate.energy_levels(tiny_run, config.levels)
+    assert gate["used"] and gate["level"] == max(levels)  # ties: the largest c, the most IDA-PBC
+    assert [c["law"] for c in gate["confirm"]] == [55, 60] and gate["confirm"][0]["inner_scale"] == 0.5 and gate["confirm"][1]["level"] == gate["level"]
+    line = recovery_gate.format_gate(gate, config.margin, config.half_loss)
+    assert f"with the recovery law 55 (r = 0.5), 60 (H_d > {gate['level']:.3g}): kept, the IDA-PBC law keeping H_d ≤ {gate['level']:.3g}" in line
 
 
 @pytest.mark.parametrize("box_kept", [True, False])

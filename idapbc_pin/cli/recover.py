@@ -10,7 +10,7 @@ __all__ = ["add_recover_command"]
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    keys = ("starts", "start_box", "teacher", "dagger", "workers", "margin", "half_loss", "fit_seed", "fits", "width", "steps")
+    keys = ("starts", "start_box", "teacher", "dagger", "workers", "margin", "half_loss", "confirm_states", "fit_seed", "fits", "width", "steps")
     config = RecoveryConfig(**{k: getattr(args, k) for k in keys if getattr(args, k) is not None})
     if args.regate:
         entry = regate(args.run, config, keep=args.keep)
@@ -54,6 +54,9 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--half-loss", type=int, metavar="L", dest="half_loss",
                    help=f"half-box and near-box gate states the law may lose against the run's law (default {d.half_loss}; "
                         "none in the half box where the run's law brings all of it)")
+    p.add_argument("--confirm-states", type=int, metavar="N", dest="confirm_states",
+                   help=f"where the run's law brings the whole half box of the gate to x*, other half-box states on which a kept law is checked "
+                        f"again, losing at most L of them (default {d.confirm_states}; 0: no check)")
     p.add_argument("--fit-seed", type=int, metavar="S", dest="fit_seed", help=f"seed of each fit (default {d.fit_seed})")
     p.add_argument("--fits", type=int, metavar="K", help=f"laws fitted to the final labels (seeds S, S+1, …); the gate keeps the best (default {d.fits})")
     p.add_argument("--width", type=int, metavar="W", help=f"width of the law's two tanh layers (default {d.width})")

@@ -30,7 +30,8 @@ The steps (`RecoveryConfig` holds every number):
    half-box states (none fewer where the run's law brings them all), and at most `half_loss` fewer
    of `near_states` further states of the near box (scale NEAR_SCALE = 0.25), to x* than the run's
    law, the best is kept if it brings at least `margin` more of the `gate_states`; otherwise the run
-   is left as it was (`gate_choice`).
+   is left as it was (`gate_choice`). Where the run's law brings all those half-box states to x*,
+   a kept law is checked again on `confirm_states` half-box states of their own.
 
 What it buys, measured (README, "Can one feedback law learn the plans?"): on a pendubot with an
 8 N·m shoulder the distilled law brought 53 % of the half box to x* where saturated LQR and the
@@ -123,6 +124,9 @@ class RecoveryConfig:
         loss of 2 states in either part (the 2 N·m reaction wheel's law lost 2 of 100 near x* and
         added 18 of 100; the zoo pendubot's lost 6 to 11 near x*). 0: no loss at all. None is
         forgiven in the half box where the run's law brings all of its gate states there.
+    confirm_states : where the run's law brings all of the half-box gate states to x*, half-box
+        states of their own from which a law the rule keeps must bring no more than `half_loss`
+        fewer to x* than the run's law (`recovery_gate._Confirmation`; 0: no such check).
     workers : processes that search the plans, fit the laws and run the gate's simulations (0: one
         per available core, at most 16). Each process does what a loop would, so this changes the
         time only, never a plan, label, law or verdict.
@@ -150,6 +154,7 @@ class RecoveryConfig:
     inner_scales: tuple = (0.1, 0.25, 0.5)
     margin: int = 3
     half_loss: int = 2
+    confirm_states: int = 200
     workers: int = 0
     plan: PlanSettings = field(default_factory=PlanSettings)
     stop_when_lost: bool = True
@@ -157,8 +162,8 @@ class RecoveryConfig:
 
     def __post_init__(self):
         checks = [
-            (self.starts >= 1 and self.dagger_starts >= 1 and self.gate_states >= 2 and self.near_states >= 0,
-             "starts, dagger_starts must be ≥ 1, gate_states ≥ 2 and near_states ≥ 0"),
+            (self.starts >= 1 and self.dagger_starts >= 1 and self.gate_states >= 2 and min(self.near_states, self.confirm_states) >= 0,
+             "starts, dagger_starts must be ≥ 1, gate_states ≥ 2, near_states and confirm_states ≥ 0"),
             (self.dagger >= 0 and self.workers >= 0 and min(self.width, self.steps, self.fits) >= 1, "dagger, workers ≥ 0, width, steps and fits ≥ 1"),
             (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
             (self.half_loss >= 0 and all(0 < q < 1 for q in self.levels), "half_loss must be ≥ 0 and levels quantiles in (0, 1)"),
