@@ -426,6 +426,25 @@ def test_a_worker_that_cannot_see_the_batch_directory_ships_its_files_back(tmp_p
     assert "cuda" in (tmp_path / "batch" / "far" / "job.log").read_text()
 
 
+def test_a_batch_running_one_job_at_a_time_gives_its_recover_stage_every_core(tmp_path, monkeypatch):
+    # the recovery law does not depend on its worker count (recovery.LABEL_CHUNKS), so a job that has
+    # the machine to itself need not plan on one core; jobs run side by side keep one each
+    from idapbc_pin.batch import job as job_module
+
+    workers = []
+
+    def recover_stage(run, mode, config):  # note the workers, and end the job there (the stages after it cost time)
+        workers.append(config.workers)
+        raise RuntimeError("recover stage reached")
+
+    monkeypatch.setattr(job_module, "auto_recover", recover_stage)
+    path = _pipeline(tmp_path, '[[job]]\nname = "wheel"\nsource = "reaction_wheel"\n')
+    run_batch(path, workers=1, out=tmp_path / "b", progress=False)
+    assert workers == [0]  # 0: one process per core
+    record = job_module.run_job(load_pipeline(path).jobs[0], tmp_path / "alone")
+    assert record["error"] == "recover: RuntimeError: recover stage reached" and workers == [0, 1]  # the default, as a pool worker runs it
+
+
 @pytest.mark.slow
 def test_ray_local_instance_gives_the_local_executors_rows(smoke_batch, tmp_path):
     pytest.importorskip("ray", reason="Ray is an optional extra (pip install 'idapbc-pin[ray]'): not installed here")

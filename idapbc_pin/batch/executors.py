@@ -51,10 +51,10 @@ def run_jobs(jobs: list[Job], batch_dir: Path, tracker: Tracker, workers: int | 
     n_workers = _local_workers(workers, len(jobs))
     if ray:
         _run_ray(jobs, batch_dir, tracker, ray, workers, token)
-    elif n_workers == 1:
+    elif n_workers == 1:  # one job at a time: its recover stage may take every core
         for job in jobs:
             tracker.started(job)
-            tracker.finished(job, run_job(job, batch_dir / job.name))
+            tracker.finished(job, run_job(job, batch_dir / job.name, recover_workers=0))
     else:
         _run_pool(jobs, batch_dir, tracker, n_workers)
 

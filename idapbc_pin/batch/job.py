@@ -70,7 +70,7 @@ def _train_or_resume(system, config, workdir: Path):
     return train(system, config, out=workdir, progress=False), None
 
 
-def run_job(job: Job, job_dir: str | Path, batch_token: str | None = None) -> dict:
+def run_job(job: Job, job_dir: str | Path, batch_token: str | None = None, recover_workers: int = 1) -> dict:
     """Run one job into `job_dir` and return its record (also written to ``job_dir/job.json``).
 
     Stages: load → train (or resume) → recover (`training.weak_actuators.auto_recover`) → evaluate
@@ -81,6 +81,9 @@ def run_job(job: Job, job_dir: str | Path, batch_token: str | None = None) -> di
     `batch_token` is for executors whose workers may not see the batch directory (Ray clusters):
     when ``job_dir/../batch.json`` does not hold that token, the job runs in a temporary folder and
     the record carries it as ``_archive`` (tar.gz bytes) for the driver to unpack.
+
+    `recover_workers` : processes of the recover stage (`RecoveryConfig.workers`; 0: one per core),
+    1 where other jobs share the cores. The count changes the stage's time, never its law.
     """
     job_dir = Path(job_dir)
     shipped = not sees_batch_dir(job_dir, batch_token)
@@ -95,7 +98,7 @@ def run_job(job: Job, job_dir: str | Path, batch_token: str | None = None) -> di
         with open(workdir / "job.log", "a") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
             print(f"=== {job.name}: attempt started {record['started_at']} on {record['host']} (pid {record['pid']})", flush=True)
             try:
-                run, evaluation, cert = _stages(job, workdir, record)
+                run, evaluation, cert = _stages(job, workdir, record, recover_workers)
                 record["status"] = "done"
             except KeyboardInterrupt:
                 record["status"], interrupted = "interrupted", True
@@ -119,7 +122,7 @@ def run_job(job: Job, job_dir: str | Path, batch_token: str | None = None) -> di
     return record
 
 
-def _stages(job: Job, workdir: Path, record: dict):
+def _stages(job: Job, workdir: Path, record: dict, recover_workers: int = 1):
     """The job's stages, each timed into ``record["timings"]`` (s); returns (run, evaluation, certificate)."""
     timings = record["timings"]
 
@@ -143,7 +146,7 @@ def _stages(job: Job, workdir: Path, record: dict):
             raise IdapbcError(f"training ended with status {run.summary.get('status')!r}")
     with stage("recover"):  # where saturated LQR leaves room (as `train`); a reused run keeps the law it has
         if "recovery" not in run.summary:
-            auto_recover(run, job.recover, RecoveryConfig(workers=1))  # one core per job, as training
+            auto_recover(run, job.recover, RecoveryConfig(workers=recover_workers))
         record["recovery"] = bool(run.uses_recovery)
     ev = job.evaluate
     with stage("evaluate"):
