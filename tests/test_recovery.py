@@ -304,6 +304,21 @@ def test_where_the_run_s_law_brings_the_whole_half_box_the_gate_forgives_no_loss
     assert gate_choice(wheel_run, wheel, margin=3, half_loss=half_loss, half_states=50) == (0.25, True)
 
 
+@pytest.mark.parametrize("effort, head", [
+    ({"shoulder": 20.0, "elbow": 20.0}, "torque limits: saturated LQR"),
+    ({"shoulder": 20.0, "elbow": np.inf}, "torque limits on 1 of 2 inputs (a recovery law plans the others within ±"),
+    ({"shoulder": np.inf, "elbow": np.inf}, "no effort limits (a recovery law plans within ±"),
+])
+def test_train_says_which_inputs_plan_within_their_limit_and_which_within_lqr_s_demand(capsys, effort, head):
+    system = ip.load_system("double_pendulum", effort=effort)
+    bound = plan_bound(system)
+    weak_actuators._tell({"states": 100, "saturated": 80, "unsaturated": 90, "binds": True, "room": True}, "half", system)
+    line = capsys.readouterr().out
+    assert line.startswith(head) and "it fails on 20: fitting a recovery law" in line
+    free = [f"±{b:.3g}" for b, e in zip(bound, effort.values()) if not np.isfinite(e)]
+    assert all(b in line for b in free) and line.count("±") == len(free)  # a limited input is not listed as planned within LQR's demand
+
+
 TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, confirm_states=2, inner_scales=(0.25,), workers=1, fits=1,
             plan=PlanSettings(population=8, iterations=2, score_T=2.0))  # fmt: skip (one fit: the tests of --fits set their own)
 

@@ -106,13 +106,16 @@ def _tell(test: dict, box: str, system) -> None:
     """Print `limits_bind`'s verdict on `box` and what `auto_recover` does next."""
     n, sat = test["states"], test["saturated"]
     where = "half-box" if box == "half" else "training-box"
+    free = ~np.isfinite(np.asarray(system.effort, dtype=np.float64))  # inputs without a limit
+    bound = " ".join(f"±{b:.3g}" for b in plan_bound(system)[free]) if free.any() else ""
     if system.limited:
         law = f"saturated LQR brings {sat} of {n} {where} states to x*"
         if box == "half":
             law += f", unsaturated LQR {test['unsaturated']} (the limits {'bind' if test['binds'] else 'do not bind'})"
-        head = "torque limits: "
+        head = "torque limits: " if not free.any() else (
+            f"torque limits on {int((~free).sum())} of {free.size} inputs (a recovery law plans the others within {bound}, "
+            "LQR's largest demand on the training box): ")
     else:
-        bound = " ".join(f"±{b:.3g}" for b in plan_bound(system))
         law = f"LQR brings {sat} of {n} {where} states to x*"
         head = f"no effort limits (a recovery law plans within {bound}, LQR's largest demand on the training box): "
     if test["room"]:
