@@ -99,7 +99,9 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     (the law ``recovery-refused.npz`` then holds, so that `regate` judges the most promising fit). With more than one law the gate also holds
     "fits": each law's successes at its own chosen r, and "fit": k. When no inner box is kept, the
     same rule judges each law with the IDA-PBC law keeping the sublevel sets {H_d ≤ c} instead, c
-    from `config.levels` (`energy_levels`); a law kept that way has "level": c in its gate."""
+    from `config.levels` (`energy_levels`); a law kept that way has "level": c in its gate. Where
+    the run's law brings every half-box gate state to x*, each law the rule keeps (at its box, then
+    at its level) must pass `_Confirmation` too."""
     system, seed = run.system, RECOVERY_GATE_SEED + run.config.seed
     half, n = config.gate_states // 2, config.gate_states
     x0 = np.concatenate([
