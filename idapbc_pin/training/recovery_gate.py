@@ -236,10 +236,7 @@ def format_gate(gate: dict, margin: int, half_loss: int) -> str:
     cands = ", ".join(f"r = {r:g}: {s}" for r, s in gate["candidates"].items())
     halves, nears = (", ".join(map(str, gate[k].values())) for k in ("candidates_half", "candidates_near"))
     kept_as = f"the IDA-PBC law keeping H_d ≤ {gate['level']:.3g}" if gate.get("level") is not None else f"inner box r = {gate['inner_scale']:g}"
-    confirm = gate.get("confirm", [])
-    checked = "; on {} other half-box states the run's law brings {}, with the recovery law {}".format(
-        confirm[0]["states"], confirm[0]["run"], ", ".join(
-            f"{c['law']} (H_d > {c['level']:.3g})" if "level" in c else f"{c['law']} (r = {c['inner_scale']:g})" for c in confirm)) if confirm else ""
+    checked = _format_confirm(gate.get("confirm", []))
     verdict = (f"kept, {kept_as}" if gate["used"]
                else f"not kept (needs {margin} more than the run's law, and at most {half_loss} fewer in the half and near boxes each, "
                     f"none in the half box where the run's law brings all of it, and then at most {half_loss} fewer on other half-box states)")
@@ -251,3 +248,11 @@ def format_gate(gate: dict, margin: int, half_loss: int) -> str:
     return (f"gate: {gate['states']} states, the run's law brings {gate['run']} to x* ({gate['run_half']} of the {gate['states'] // 2} "
             f"half-box ones; {gate['run_near']} of {gate['near_states']} near x*), with the recovery law {cands} (half box {halves}; "
             f"near x* {nears}){levels}{fits}{checked}: {verdict}")
+
+
+def _format_confirm(confirm: list) -> str:
+    """The half-box check's part of the gate line ("" where it did not run)."""
+    if not confirm:
+        return ""
+    laws = ", ".join(f"{c['law']} (H_d > {c['level']:.3g})" if "level" in c else f"{c['law']} (r = {c['inner_scale']:g})" for c in confirm)
+    return f"; on {confirm[0]['states']} other half-box states the run's law brings {confirm[0]['run']}, with the recovery law {laws}"
