@@ -341,6 +341,8 @@ def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states
     k, gate = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, workers=1))
     assert gate["fits"] == [60, 80, 70] and gate["used"]
     assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)  # 10 fewer near x* than the run's law: not eligible
+    assert [g["with_recovery"] for g in gate["fit_gates"]] == gate["fits"]  # every fit's own gate is kept, not only the chosen one
+    assert [g["candidates_near"][0.25] for g in gate["fit_gates"]][1] == near_of_the_best
     none_kept = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, margin=50, workers=1))
     assert none_kept[0] == 1 and not none_kept[1]["used"]  # none kept: the refused law saved is the one that brought most
 
@@ -725,6 +727,8 @@ def test_refit_fits_the_saved_labels_again_without_plans_and_the_same_seed_gives
     assert not np.array_equal(ip.load_run(path).controller.fallback.weights[0], expected.weights[0])
     best = refit(path, replace(config, fit_seed=1, fits=2), progress=False)  # seeds 1 and 2, the gate keeps one
     assert best["fit_seed"] in (1, 2) and best["gate"]["fits"] and best["gate"]["fit"] == best["fit_seed"] - 1
+    saved = json.loads((path / "summary.json").read_text())["recovery"]["gate"]
+    assert [g["with_recovery"] for g in saved["fit_gates"]] == saved["fits"]  # both fits' gates on disk
     chosen, _ = fit_recovery_law(system, X, U, config.width, config.steps, seed=best["fit_seed"])
     np.testing.assert_array_equal(ip.load_run(path).controller.fallback.weights[0], chosen.weights[0])
 

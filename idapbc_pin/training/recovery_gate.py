@@ -97,7 +97,8 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     simulated once, every law in `config.workers` processes; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
     (ties: the first), or when it keeps none the one with the most successes at its best candidate
     (the law ``recovery-refused.npz`` then holds, so that `regate` judges the most promising fit). With more than one law the gate also holds
-    "fits": each law's successes at its own chosen r, and "fit": k. When no inner box is kept, the
+    "fits": each law's successes at its own chosen r, "fit": k, and "fit_gates": every law's own gate
+    (its candidates, and its check where one ran; summary.json keeps them). When no inner box is kept, the
     same rule judges each law with the IDA-PBC law keeping the sublevel sets {H_d ≤ c} instead, c
     from `config.levels` (`energy_levels`); a law kept that way has "level": c in its gate. Where
     the run's law brings every half-box gate state to x*, each law the rule keeps (at its box, then
@@ -128,7 +129,7 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     kept = [k for k, g in enumerate(gates) if g["used"]]
     k = max(kept or range(len(gates)), key=lambda i: (gates[i]["with_recovery"], -i))  # none kept: the best refused (for --regate)
     if len(laws) > 1:
-        gates[k] |= {"fits": [g["with_recovery"] for g in gates], "fit": k}
+        gates[k] |= {"fits": [g["with_recovery"] for g in gates], "fit": k, "fit_gates": [dict(g) for g in gates]}
     return k, gates[k]
 
 
