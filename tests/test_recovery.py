@@ -342,7 +342,7 @@ def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states
     assert gate["fits"] == [60, 80, 70] and gate["used"]
     assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)  # 10 fewer near x* than the run's law: not eligible
     assert [g["with_recovery"] for g in gate["fit_gates"]] == gate["fits"]  # every fit's own gate is kept, not only the chosen one
-    assert [g["candidates_near"][0.25] for g in gate["fit_gates"]][1] == near_of_the_best
+    assert gate["fit_gates"][1]["candidates_near"][0.25] == near_of_the_best  # the second fit's own near-box count
     none_kept = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, margin=50, workers=1))
     assert none_kept[0] == 1 and not none_kept[1]["used"]  # none kept: the refused law saved is the one that brought most
 
