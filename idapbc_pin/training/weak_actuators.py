@@ -120,7 +120,7 @@ def _tell(test: dict, box: str, system) -> None:
         head = f"no effort limits (a recovery law plans within {bound}, LQR's largest demand on the training box): "
     if test["room"]:
         start = "" if box == "half" else " from training-box starts"
-        verdict = f"fitting a recovery law{start} where it fails (15-60 min on 2 cores; --recover never skips it)"
+        verdict = f"fitting a recovery law{start} where it fails (15-60 min on 2 cores for a 2-DoF robot, up to about 2 h for a 3-DoF one; --recover never skips it)"
     else:
         verdict = "no room there; testing the training box" if box == "half" else "no recovery law (--recover always fits one anyway)"
     print(f"{head}{law}; it fails on {n - sat}: {verdict}", flush=True)
