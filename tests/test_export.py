@@ -177,16 +177,18 @@ def test_standalone_switches_to_the_linear_law_outside_the_box_as_the_library_do
     _close(out["single"], expected, 1e-9)
 
 
-def test_standalone_applies_a_recovery_law_as_the_library_does(runs, tmp_path):
-    """A run with a recovery law (`control.recovery`): controller.json carries its weights and inner
-    box, and the standalone τ equals the library's to 1e-9 on states mostly outside the inner box."""
+@pytest.mark.parametrize("residual", [False, True])
+def test_standalone_applies_a_recovery_law_as_the_library_does(runs, tmp_path, residual):
+    """A run with a recovery law (`control.recovery`, direct or residual form): controller.json carries
+    its weights and inner box, and the standalone τ equals the library's to 1e-9 on states mostly
+    outside the inner box."""
     from tests.test_recovery import random_law
 
     from idapbc_pin.training.run import RECOVERY_FILE
 
     path = tmp_path / "run"
     shutil.copytree(runs["pendubot"].path, path)
-    law = random_law(runs["pendubot"].system, inner_scale=0.3)
+    law = random_law(runs["pendubot"].system, inner_scale=0.3, residual=residual)
     np.savez(path / RECOVERY_FILE, **law.arrays())
     summary = json.loads((path / "summary.json").read_text()) | {"recovery": {"used": True, "inner_scale": 1.5}}
     (path / "summary.json").write_text(json.dumps(summary))
@@ -194,7 +196,8 @@ def test_standalone_applies_a_recovery_law_as_the_library_does(runs, tmp_path):
     folder = ip.export(run, tmp_path / "export", onnx=False)
     record = json.loads((folder / "controller.json").read_text())
     assert record["fallback"]["kind"] == "recovery" and record["fallback"]["inner"] == pytest.approx(list(law.inner))
-    assert "recovery law" in (folder / "README.md").read_text()
+    assert "recovery law" in (folder / "README.md").read_text() and record["fallback"].get("residual", False) == residual
+    assert ("correction added to the IDA-PBC law's input" in (folder / "README.md").read_text()) == residual
     q, v = _states(run.system)
     q_star = run.system.x_star[: run.system.nq]
     q[:500], v[:500] = q_star + 0.08 * (q[:500] - q_star), 0.08 * v[:500]  # half of them near x*, in the inner box

@@ -5,6 +5,8 @@ Claims:
 * the recovery law stays within the effort limits everywhere, leaves the IDA-PBC law in charge
   inside its inner box, and sees angles wrapped to within π of x*;
 * a fit recovers a saturated linear law from its own labels, the same for the same seed;
+* the residual form adds its MLP to the IDA-PBC law's saturated input, within the limits, and where
+  the labels are that law's own inputs its fit reproduces them, closer than the direct form;
 * labels are torques within the limits of trajectories that reach x*;
 * a torque plan within the limits brings a pendubot with an 8 N·m shoulder to x* from a half-box
   state saturated LQR loses; plans searched together equal plans searched one start at a time;
@@ -54,6 +56,7 @@ from idapbc_pin.training import recovery as recovery_module
 from idapbc_pin.training import recovery_gate
 from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, plan_bound, planning_system, search_plan, search_plans
 from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, ends_near, fit_recovery_law, gate_choice, recover, refit, regate
+from idapbc_pin.training.recovery_fit import base_inputs
 from idapbc_pin.training.recovery_gate import NEAR_SCALE, read_labels, save_labels
 from idapbc_pin.training.run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
 from idapbc_pin.training import weak_actuators
@@ -62,8 +65,9 @@ from idapbc_pin.training.weak_actuators import BIND_POINTS, BIND_STATES, ROOM_PO
 from .conftest import sample_domain
 
 
-def random_law(system, inner_scale: float, seed: int = 0, width: int = 16) -> RecoveryLaw:
-    """A recovery law with random weights (large enough that the output saturates somewhere)."""
+def random_law(system, inner_scale: float, seed: int = 0, width: int = 16, residual: bool = False) -> RecoveryLaw:
+    """A recovery law with random weights (large enough that the output saturates somewhere), in the
+    direct form or the residual one."""
     rng = np.random.default_rng(seed)
     sizes = [system.n, width, width, system.m]
     weights = tuple(2.0 * rng.standard_normal((b, a)) for a, b in zip(sizes[:-1], sizes[1:]))
@@ -71,7 +75,7 @@ def random_law(system, inner_scale: float, seed: int = 0, width: int = 16) -> Re
     lo, hi = system.domain
     scale = (hi - lo) / 2
     effort = np.where(np.isfinite(system.effort), system.effort, 5.0)
-    return RecoveryLaw(weights, biases, system.x_star, scale, effort, np.asarray(system.angle_mask), inner_scale * scale)
+    return RecoveryLaw(weights, biases, system.x_star, scale, effort, np.asarray(system.angle_mask), inner_scale * scale, residual=residual)
 
 
 @pytest.fixture(scope="module")
@@ -138,6 +142,62 @@ def test_arrays_round_trip_and_bad_arrays_are_refused(weak_pendubot):
         RecoveryLaw.from_arrays(bad)
     with pytest.raises(ValueError, match="non-finite"):
         RecoveryLaw.from_arrays(law.arrays() | {"b0": np.full(16, np.nan)})
+
+
+def _mlp(law: RecoveryLaw, x: np.ndarray) -> np.ndarray:
+    """The MLP's output of `law` at x (N, n), layer by layer: a reference for both forms."""
+    z = wrap_angles(x - law.x_star, law.angle_mask) / law.scale
+    for W, b in zip(law.weights[:-1], law.biases[:-1]):
+        z = np.tanh(z @ W.T + b)
+    return z @ law.weights[-1].T + law.biases[-1]
+
+
+def test_the_residual_form_corrects_the_ida_pbc_input_and_stays_within_the_limits(weak_pendubot):
+    """Outside the inner box: ū clip(clip(u/ū, ±1) + MLP(δ/s), ±1) (residual) and ū tanh(MLP(δ/s))
+    (direct); a zero output layer leaves the IDA-PBC law's saturated input; the residual law needs
+    that input; the flag survives a round trip, and a law saved without it is direct."""
+    system = weak_pendubot
+    law = random_law(system, inner_scale=0.3, residual=True)
+    x = sample_domain(system, 1000)
+    u_ida = 3.0 * law.effort * np.sin(np.arange(len(x)))[:, None]  # stands for the IDA-PBC law, often beyond the limit
+    u, out = law.apply(x, u_ida), law.outside(x)
+    assert 0 < out.sum() < len(x)
+    expected = law.effort * np.clip(np.clip(u_ida / law.effort, -1.0, 1.0) + _mlp(law, x), -1.0, 1.0)
+    np.testing.assert_allclose(u[out], expected[out], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(u[~out], u_ida[~out])
+    assert np.abs(u[out]).max() <= law.effort.max() and (np.abs(u[out]) < 0.99 * law.effort).any()
+    zero = replace(law, weights=law.weights[:-1] + (0.0 * law.weights[-1],), biases=law.biases[:-1] + (0.0 * law.biases[-1],))
+    np.testing.assert_array_equal(zero.law(x, u_ida), np.clip(u_ida, -law.effort, law.effort))
+    with pytest.raises(ValueError, match="pass u"):
+        law.law(x)
+    np.testing.assert_allclose(replace(law, residual=False).law(x), law.effort * np.tanh(_mlp(law, x)), rtol=0, atol=1e-12)
+    assert RecoveryLaw.from_arrays(law.arrays()).residual and not RecoveryLaw.from_arrays(replace(law, residual=False).arrays()).residual
+    assert "residual" not in replace(law, residual=False).arrays()  # what laws saved before the residual form hold
+
+
+def test_a_residual_fit_reproduces_labels_that_are_the_ida_pbc_law_s_own_inputs(weak_pendubot):
+    """Labels of a law that saturates on much of the box (the IDA-PBC law's inputs, as the run's law
+    teaches them): the residual fit only has to learn zero and is within 1 % of ū on new states,
+    where the direct fit of the same size and steps is not."""
+    system = weak_pendubot
+    K = 4.0 * LQRController(system).K
+
+    def ida(x):  # stands for the IDA-PBC law, unsaturated
+        return -wrap_angles(x - system.x_star, system.angle_mask) @ K.T
+
+    X = sample_domain(system, 4000, seed=1)
+    U = system.saturate(ida(X))
+    assert (np.abs(U) >= system.effort).mean() > 0.2
+    residual, _ = fit_recovery_law(system, X, U, width=32, steps=300, seed=3, base=U)
+    direct, _ = fit_recovery_law(system, X, U, width=32, steps=300, seed=3)
+    x_new = sample_domain(system, 1000, seed=2)
+    target = system.saturate(ida(x_new))
+
+    def rms(u):
+        return float(np.sqrt(np.mean(((u - target) / system.effort) ** 2)))
+
+    assert residual.residual and not direct.residual
+    assert rms(residual.law(x_new, ida(x_new))) < 0.01 < rms(direct.law(x_new)), (rms(residual.law(x_new, ida(x_new))), rms(direct.law(x_new)))
 
 
 def test_a_fit_recovers_a_saturated_linear_law_from_its_labels(weak_pendubot):
@@ -495,7 +555,7 @@ def test_a_first_fit_that_loses_every_start_but_rests_near_x_star_gets_its_dagge
     config = RecoveryConfig(**(TINY | {"dagger_starts": 3}))
     X, U = np.zeros((4, system.n)), np.zeros((4, system.m))
     for bias, stops in ((0.2, False), (0.5, True)):
-        law = SimpleNamespace(law=lambda x, b=bias: lqr(x) + b)
+        law = SimpleNamespace(law=lambda x, b=bias: lqr(x) + b, residual=False)
         _, _, _, info = recovery_module.dagger_round(system, law, X, U, 0, config, progress=False)
         assert info["failed"] == 3 and info.get("stopped", False) == stops
     assert labelled == [9]  # only the 0.2 N law's round: 3 failures × 3 visited times
@@ -731,6 +791,28 @@ def test_refit_fits_the_saved_labels_again_without_plans_and_the_same_seed_gives
     assert [g["with_recovery"] for g in saved["fit_gates"]] == saved["fits"]  # both fits' gates on disk
     chosen, _ = fit_recovery_law(system, X, U, config.width, config.steps, seed=best["fit_seed"])
     np.testing.assert_array_equal(ip.load_run(path).controller.fallback.weights[0], chosen.weights[0])
+
+
+def test_refit_in_the_residual_form_fits_corrections_to_the_run_s_own_inputs_and_the_run_applies_them(tiny_run, tmp_path, monkeypatch):
+    path, _ = _with_refused(tiny_run, tmp_path)
+    system, networks = tiny_run.system, tiny_run.controller.with_fallback(None)
+    X = sample_domain(system, 300, seed=4)
+    U = system.saturate(-wrap_angles(X - system.x_star, system.angle_mask) @ LQRController(system).K.T)
+    save_labels(path, X, U)
+    _short_gate(monkeypatch)
+    config = RecoveryConfig(**TINY | {"steps": 200}, margin=-4, half_loss=2, fit_seed=1, form="residual")  # kept whatever the gate sees
+    entry = refit(path, config, progress=False)
+    assert entry["used"] and entry["config"]["form"] == "residual"
+    run = ip.load_run(path)
+    law = run.controller.fallback
+    base = base_inputs(networks, X, system.effort)
+    np.testing.assert_array_equal(base, system.saturate(networks(X)))
+    expected, mse = fit_recovery_law(system, X, U, config.width, config.steps, seed=1, base=base)
+    assert law.residual and entry["refit"]["mse"] == mse
+    np.testing.assert_array_equal(law.weights[0], expected.weights[0])
+    x = uniform_states(system, 300, "domain", seed=3)
+    energy = networks.flow().energy
+    np.testing.assert_allclose(run.controller(x), law.apply(x, networks(x), energy), atol=1e-12)
 
 
 def test_an_interrupted_recover_keeps_its_labels_and_refit_finishes_it(tiny_run, tmp_path, monkeypatch, capsys):

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from ..training.recovery import START_BOXES, TEACHERS, RecoveryConfig, recover, refit, regate
+from ..training.recovery import FORMS, START_BOXES, TEACHERS, RecoveryConfig, recover, refit, regate
 
 __all__ = ["add_recover_command"]
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    keys = ("starts", "start_box", "teacher", "dagger", "workers", "margin", "half_loss", "confirm_states", "fit_seed", "fits", "width", "steps")
+    keys = ("starts", "start_box", "teacher", "dagger", "workers", "margin", "half_loss", "confirm_states", "fit_seed", "fits", "width", "steps", "form")
     config = RecoveryConfig(**{k: getattr(args, k) for k in keys if getattr(args, k) is not None})
     if args.regate:
         entry = regate(args.run, config, keep=args.keep)
@@ -59,6 +59,8 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
                         f"again, losing at most L of them (default {d.confirm_states}; 0: no check)")
     p.add_argument("--fit-seed", type=int, metavar="S", dest="fit_seed", help=f"seed of each fit (default {d.fit_seed})")
     p.add_argument("--fits", type=int, metavar="K", help=f"laws fitted to the final labels (seeds S, S+1, …); the gate keeps the best (default {d.fits})")
+    p.add_argument("--form", choices=FORMS,
+                   help=f"the fitted law's output: the input itself (direct) or a correction added to the IDA-PBC law's input (residual) (default {d.form})")
     p.add_argument("--width", type=int, metavar="W", help=f"width of the law's two tanh layers (default {d.width})")
     p.add_argument("--steps", type=int, metavar="N", help=f"Adam steps of each fit (default {d.steps})")
     again = p.add_mutually_exclusive_group()

@@ -8,11 +8,16 @@ recovery law is a plain state feedback fitted to torque plans within the limits
 
     u(x) = u_IDA-PBC(x)                 where |δ_i| ≤ r·s_i for every i   (the inner box)
                                         or H_d(x) ≤ c                     (the level set, if c < ∞)
-    u(x) = ū ⊙ tanh(MLP(δ / s))         elsewhere, inside and outside the training box
+    u(x) = ū ⊙ tanh(MLP(δ / s))         elsewhere, inside and outside the training box  (direct form)
+    u(x) = ū ⊙ clip(clip(u_IDA-PBC(x)/ū, ±1) + MLP(δ / s), ±1)  elsewhere            (residual form)
 
 with δ = wrap(x − x*), s the training box's half-widths, r the inner scale chosen on validation
 states (`training.recovery_gate.choose_inner`) and ū the effort limits: the recovery law stays within
-the limits by construction. The MLP has tanh hidden layers and a linear output. Like
+the limits by construction. The MLP has tanh hidden layers and a linear output. The residual form
+adds the MLP to the IDA-PBC law's own input instead of replacing it: where the labels are that
+law's inputs (every start the run's law brings to x*, and every plan after its horizon) the fit
+only has to learn zero, so a trajectory that swings out of the level set near x* keeps the IDA-PBC
+law's inputs up to the fitted correction (docs/method.md §6, "The residual form"). Like
 `fallback.BoxFallback` it acts through `apply(x, u)`, so `Controller`, `simulate`, `export` and the
 exported controller.py treat both alike; the switch is discontinuous on the inner box's faces.
 
@@ -48,6 +53,8 @@ class RecoveryLaw:
     angle_mask : (n,) bool, components wrapped to within π of x*.
     inner : (n,) half-widths r·s of the inner box (0: the recovery law everywhere but exactly x*).
     level : c, the IDA-PBC law also keeps the states with H_d(x) ≤ c (∞: the inner box alone).
+    residual : True: the MLP corrects the IDA-PBC law's input (the residual form); False: it
+        replaces it (the direct form, every law saved before the residual form existed).
     """
 
     weights: tuple
@@ -58,17 +65,25 @@ class RecoveryLaw:
     angle_mask: np.ndarray
     inner: np.ndarray
     level: float = math.inf
+    residual: bool = False
 
     def delta(self, x) -> np.ndarray:
         """δ = wrap(x − x*): (..., n) -> (..., n)."""
         return wrap_angles(np.asarray(x, dtype=np.float64) - self.x_star, self.angle_mask)
 
-    def law(self, x) -> np.ndarray:
-        """The recovery law alone, ū ⊙ tanh(MLP(δ/s)): (N, n) -> (N, m), within ±ū."""
+    def law(self, x, u=None) -> np.ndarray:
+        """The recovery law alone: (N, n) -> (N, m), within ±ū. Direct form: ū ⊙ tanh(MLP(δ/s)).
+        Residual form: ū ⊙ clip(clip(u/ū, ±1) + MLP(δ/s), ±1), with u (N, m) the IDA-PBC law's
+        input at x (required)."""
         z = self.delta(np.atleast_2d(x)) / self.scale
         for W, b in zip(self.weights[:-1], self.biases[:-1]):
             z = np.tanh(z @ W.T + b)
-        return self.effort * np.tanh(z @ self.weights[-1].T + self.biases[-1])
+        z = z @ self.weights[-1].T + self.biases[-1]
+        if not self.residual:
+            return self.effort * np.tanh(z)
+        if u is None:
+            raise ValueError("a residual recovery law corrects the IDA-PBC law's input: pass u, that input at x")
+        return self.effort * np.clip(np.clip(np.asarray(u, dtype=np.float64).reshape(z.shape) / self.effort, -1.0, 1.0) + z, -1.0, 1.0)
 
     def outside(self, x) -> np.ndarray:
         """(..., n) -> (...) bool: True where the state is outside the inner box (the recovery law acts)."""
@@ -91,7 +106,7 @@ class RecoveryLaw:
                 raise ValueError("this recovery law switches on H_d's level: pass energy, the function x -> H_d(x)")
             out[out] = np.asarray(energy(x[out]), dtype=np.float64).reshape(-1) > self.level
         if out.any():
-            u[out] = self.law(x[out])
+            u[out] = self.law(x[out], u[out])
         return u
 
     def with_inner(self, inner_scale: float) -> "RecoveryLaw":
@@ -104,10 +119,11 @@ class RecoveryLaw:
 
     def arrays(self) -> dict:
         """The law as named arrays (recovery.npz of a run): W0, b0, W1, b1, …, x_star, scale, effort,
-        angle_mask, inner, and level when it is finite."""
+        angle_mask, inner, level when it is finite, and residual when it is set."""
         out = {f"W{k}": W for k, W in enumerate(self.weights)} | {f"b{k}": b for k, b in enumerate(self.biases)}
         out |= {k: np.asarray(getattr(self, k)) for k in ("x_star", "scale", "effort", "angle_mask", "inner")}
-        return out | ({"level": np.asarray(self.level)} if self.uses_level else {})
+        out |= {"level": np.asarray(self.level)} if self.uses_level else {}
+        return out | ({"residual": np.asarray(True)} if self.residual else {})
 
     @classmethod
     def from_arrays(cls, arrays) -> "RecoveryLaw":
@@ -117,7 +133,8 @@ class RecoveryLaw:
         biases = tuple(np.asarray(arrays[f"b{k}"], dtype=np.float64) for k in range(depth))
         x_star, scale, effort, inner = (np.asarray(arrays[k], dtype=np.float64) for k in ("x_star", "scale", "effort", "inner"))
         level = float(np.asarray(arrays["level"], dtype=np.float64)) if "level" in arrays else math.inf  # laws saved before it had none
-        law = cls(weights, biases, x_star, scale, effort, np.asarray(arrays["angle_mask"], dtype=bool), inner, level)
+        residual = bool(np.asarray(arrays["residual"])) if "residual" in arrays else False  # laws saved before it: the direct form
+        law = cls(weights, biases, x_star, scale, effort, np.asarray(arrays["angle_mask"], dtype=bool), inner, level, residual)
         n, m = len(x_star), len(effort)
         widths = [n] + [len(b) for b in biases]
         shapes_ok = depth >= 1 and all(W.shape == (widths[k + 1], widths[k]) for k, W in enumerate(weights)) and widths[-1] == m

@@ -20,7 +20,8 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
                   the anchor's LQR gain times the fallback's "gain")
     u ← ū tanh(MLP(δ / s))  where some |δ_i| > inner_i        (instead, if the "fallback" has kind
                   "recovery": the run's recovery law outside an inner box; tanh hidden layers;
-                  with a "level" c, only where also H_d(x) > c, H_d from desired_flow.py)
+                  with a "level" c, only where also H_d(x) > c, H_d from desired_flow.py;
+                  with "residual": u ← ū clip(clip(u / ū, ±1) + MLP(δ / s), ±1) there instead)
     u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
 f̃_d = (J_d − R_d)∇H_d comes from desired_flow.py with weights.npz (the same function as
@@ -143,16 +144,20 @@ class ExportedController:
             out &= self.flow.energy(x) > fb["level"]
         if out.any():
             u = u.copy()
-            u[out] = self.recovery_law(d[out]) if self.recovery else fb["u_star"] - d[out] @ fb["K"].T
+            u[out] = self.recovery_law(d[out], u[out]) if self.recovery else fb["u_star"] - d[out] @ fb["K"].T
         return u
 
-    def recovery_law(self, d: np.ndarray) -> np.ndarray:
-        """ū tanh(MLP(δ / s)) for δ (N, n) -> (N, m): W0, b0, W1, b1, … of controller.json's "fallback"."""
+    def recovery_law(self, d: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """For δ (N, n) and the learned law's u (N, m) -> (N, m): ū tanh(MLP(δ / s)), or with "residual"
+        ū clip(clip(u / ū, ±1) + MLP(δ / s), ±1); W0, b0, W1, b1, … of controller.json's "fallback"."""
         fb = self.fallback
         z, depth = d / fb["scale"], sum(1 for k in fb if k.startswith("W"))
         for k in range(depth - 1):
             z = np.tanh(z @ fb[f"W{k}"].T + fb[f"b{k}"])
-        return fb["effort"] * np.tanh(z @ fb[f"W{depth - 1}"].T + fb[f"b{depth - 1}"])
+        z = z @ fb[f"W{depth - 1}"].T + fb[f"b{depth - 1}"]
+        if "residual" in fb and bool(fb["residual"]):
+            return fb["effort"] * np.clip(np.clip(u / fb["effort"], -1.0, 1.0) + z, -1.0, 1.0)
+        return fb["effort"] * np.tanh(z)
 
     def torque(self, q, v) -> np.ndarray:
         """τ = B clip(u, ±EFFORT): (N, nv) ×2 -> (N, nv), or (nv,) ×2 -> (nv,)."""
