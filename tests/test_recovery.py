@@ -813,6 +813,9 @@ def test_refit_in_the_residual_form_fits_corrections_to_the_run_s_own_inputs_and
     x = uniform_states(system, 300, "domain", seed=3)
     energy = networks.flow().energy
     np.testing.assert_allclose(run.controller(x), law.apply(x, networks(x), energy), atol=1e-12)
+    assert main(["recover", str(path), "--refit", "--form", "direct", "--width", "8", "--steps", "20", "--fits", "1", "--workers", "1", "--keep"]) == 0
+    assert not ip.load_run(path).controller.fallback.residual
+    assert json.loads((path / "summary.json").read_text())["recovery"]["config"]["form"] == "direct"
 
 
 def test_an_interrupted_recover_keeps_its_labels_and_refit_finishes_it(tiny_run, tmp_path, monkeypatch, capsys):

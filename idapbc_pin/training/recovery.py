@@ -139,9 +139,9 @@ class RecoveryConfig:
         first round's starts to x* and fewer than half of them end in the near box (`ends_near`; the
         gate then judges that law).
     form : ``"direct"`` (the MLP's output is the input, ū tanh(MLP)) or ``"residual"`` (the MLP
-        corrects the IDA-PBC law's own input, `recovery_fit`): on the zoo cart-double-pendulum's
-        seed 1 labels the residual form kept the IDA-PBC law's 90.5 % at scale 0.1625 (90.0 %)
-        where the direct law brought 82.5 % (docs/method.md §6, "The residual form").
+        corrects the IDA-PBC law's own input, `recovery_fit`). Refits of saved labels: the 8 N·m
+        pendubot's ROA radius 0.13 → 0.16 (LQR 0.11), the cart-double-pendulum's 0.13 either way
+        (docs/method.md §6, "The residual form"); a full `recover` in this form is unmeasured.
     levels : quantiles of H_d over the half box giving the levels c the gate tries, with the same
         rule, when it keeps no inner box: the IDA-PBC law then keeps {H_d ≤ c} (`RecoveryLaw.level`;
         docs/method.md §6). Empty: the inner boxes alone, as before this version.
