@@ -265,7 +265,7 @@ def test_worker_processes_change_the_time_of_recover_never_its_plans_fits_or_gat
         config = RecoveryConfig(**(small | {"workers": workers}))
         X, U, lqr_ok, recovered = collect_labels(system, x0, 101, config, progress=False)
         first, _ = fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed)
-        law, gate = recovery_module._gate_fits(tiny_run, tiny_run.system, first, X, U, config, False, 0.0)
+        law, gate = recovery_module._gate_fits(tiny_run, tiny_run.system, first, X, U, config, False, 0.0, tiny_run.controller.with_fallback(None))
         results.append((X, U, lqr_ok, recovered, law, gate))
     (X1, U1, *counts1, law1, gate1), (X2, U2, *counts2, law2, gate2) = results
     assert recovered + lqr_ok >= 1 and counts1 == counts2

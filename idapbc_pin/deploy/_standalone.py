@@ -155,7 +155,7 @@ class ExportedController:
         for k in range(depth - 1):
             z = np.tanh(z @ fb[f"W{k}"].T + fb[f"b{k}"])
         z = z @ fb[f"W{depth - 1}"].T + fb[f"b{depth - 1}"]
-        if "residual" in fb and bool(fb["residual"]):
+        if bool(fb.get("residual", False)):
             return fb["effort"] * np.clip(np.clip(u / fb["effort"], -1.0, 1.0) + z, -1.0, 1.0)
         return fb["effort"] * np.tanh(z)
 

@@ -319,7 +319,7 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
             print(f"recover interrupted: the labels so far are in {run.path / RECOVERY_LABELS_FILE}; "
                   f"`idapbc-pin recover {run.path} --refit` fits and gates a law on them without the plans", flush=True)
         raise
-    law, gate = _gate_fits(run, system, law, X, U, config, progress, start)
+    law, gate = _gate_fits(run, system, law, X, U, config, progress, start, networks)
     entry = _verdict(gate, config, keep) | {
         "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "teacher": config.teacher, "teacher_starts": int(taught), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
         "seconds": round(time.perf_counter() - start, 1),
@@ -364,23 +364,24 @@ def refit(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool
     X, U = read_labels(run.path, system.n, system.m)
     torch.set_num_threads(1)
     start = time.perf_counter()
-    law, mse = _fit(system, X, U, config, run.own_controller.with_fallback(None))
+    networks = run.own_controller.with_fallback(None)  # the input a recovery law's apply gets
+    law, mse = _fit(system, X, U, config, networks)
     if progress:
         print(f"fitted again on the {len(X)} saved labels (fit seed {config.fit_seed}, width {config.width}, {config.steps} steps): "
               f"mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
-    law, gate = _gate_fits(run, system, law, X, U, config, progress, start)
+    law, gate = _gate_fits(run, system, law, X, U, config, progress, start, networks)
     refitted = {"fit_seed": config.fit_seed + gate.get("fit", 0), "fits": config.fits, "width": config.width, "steps": config.steps, "labels": int(len(X)), "mse": mse,
                 "seconds": round(time.perf_counter() - start, 1)}
     earlier = {k: v for k, v in last.items() if k not in ("regated", "refit")}
     return _save_and_tell(run, law, earlier | _verdict(gate, config, keep) | {"refit": refitted}, config, progress, start)
 
 
-def _gate_fits(run, system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, progress: bool, start: float):
+def _gate_fits(run, system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, progress: bool, start: float, networks):
     """Fit `config.fits` − 1 more laws to the labels (seeds after `config.fit_seed`, whose fit `law`
     is) on `system` (the run's, with `plans.plan_bound` as its limits, as `law` was fitted) and let
-    the gate choose among all (`choose_fit`); returns (the chosen law, its gate)."""
+    the gate choose among all (`choose_fit`); returns (the chosen law, its gate). `networks`: as in `_fit`."""
     laws = [law]
-    base = base_inputs(run.own_controller.with_fallback(None), X, system.effort) if config.form == "residual" else None
+    base = base_inputs(networks, X, system.effort) if config.form == "residual" else None
     jobs = [(system, X, U, config.width, config.steps, config.fit_seed + k, base) for k in range(1, config.fits)]
     for k, (more, mse) in enumerate(process_map(fit_job, jobs, config.workers), start=1):
         laws.append(more)

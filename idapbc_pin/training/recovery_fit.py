@@ -21,7 +21,7 @@ import torch
 from ..control.recovery import RecoveryLaw
 from ..model.angles import wrap_angles
 
-__all__ = ["base_inputs", "fit_recovery_law"]
+__all__ = ["base_inputs", "fit_job", "fit_recovery_law"]
 
 #: Chunk of states per call of the IDA-PBC law in `base_inputs`.
 _BASE_CHUNK = 20_000
