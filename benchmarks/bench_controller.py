@@ -28,8 +28,8 @@ import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
 from idapbc_pin.control.controller import Controller
 from idapbc_pin.control.nets import build_nets
-from idapbc_pin.training.recovery import RecoveryConfig, fit_recovery_law
-from idapbc_pin.training.recovery_gate import save_recovery
+from idapbc_pin.recovery.stage import RecoveryConfig, fit_recovery_law
+from idapbc_pin.recovery.gate import save_recovery
 
 
 def latency(fn, repeat: int) -> np.ndarray:

@@ -7,7 +7,7 @@ so the default training box follows the variant's own masses), trains it with ev
 where saturated LQR fails from ≥ 10 of 100 half-box states, 15-60 min per robot; `--recover never`
 judges the IDA-PBC law alone, as this benchmark did before that default) and judges NIDA-PBC and LQR (Q = I, R = I) with MuJoCo from the same
 uniform states (their own seed, not the evaluation's seed 0), with the URDF's effort limits on both,
-and prints NIDA-PBC's lead with its 95 % interval (`idapbc_pin.sim.paired`).
+and prints NIDA-PBC's lead with its 95 % interval (`idapbc_pin.evaluation.paired`).
 Run: python benchmarks/bench_outside_zoo.py [--n 200] [--seed 0] [--judge-seed 1] [--recover auto|always|never] [--only NAME ...]
 """
 
@@ -25,8 +25,8 @@ import torch
 
 import idapbc_pin as ip
 from idapbc_pin.control.baseline import LQRController
-from idapbc_pin.sim.roa import roa
-from idapbc_pin.training.weak_actuators import RECOVER_MODES
+from idapbc_pin.evaluation.roa import roa
+from idapbc_pin.recovery.trigger import RECOVER_MODES
 
 URDF_DIR = Path(__file__).resolve().parents[1] / "urdf"
 
@@ -105,7 +105,7 @@ def main() -> None:
         system = ip.load_system(write_variant(v, out), actuated=list(v.actuated))
         t0 = time.perf_counter()
         run = ip.train(system, ip.TrainConfig.fast(seed=args.seed), out=out / v.name, progress=False)
-        ip.auto_recover(run, args.recover, progress=False)
+        ip.recovery.auto_recover(run, args.recover, progress=False)
         seconds = time.perf_counter() - t0
         judge = ip.mujoco_judge(system)
         ctrls = {"NIDA-PBC": run.controller, "LQR": LQRController(system)}

@@ -19,8 +19,8 @@ import time
 import idapbc_pin as ip
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.sim.judge import DEFAULT_THREADS
-from idapbc_pin.sim.radius import roa_radius
-from idapbc_pin.sim.roa import roa
+from idapbc_pin.evaluation.radius import roa_radius
+from idapbc_pin.evaluation.roa import roa
 
 
 def main() -> None:

@@ -21,8 +21,8 @@ import time
 
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
-from idapbc_pin.control.fallback import box_fallback
-from idapbc_pin.training.fallback_gate import fallback_gate
+from idapbc_pin.recovery.box_law import box_fallback
+from idapbc_pin.recovery.box_gate import fallback_gate
 from idapbc_pin.training.train import train
 
 

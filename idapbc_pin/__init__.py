@@ -8,14 +8,12 @@ Public API (see the README and docs/method.md)::
     run = ip.train(sys, ip.TrainConfig.fast(), out="runs/cartpole")
     ctrl = run.controller; ip.simulate(sys, ctrl, x0, T=20.0); ip.certify(run); ip.view(run)
     ip.export(run, "deploy/")                           # standalone controller (numpy + pin), ONNX f̃_d
-    ip.recover(run)                                     # weak actuators: a recovery law beside the IDA-PBC one
-    ip.auto_recover(run)                                # ... only where saturated LQR leaves room (`train`'s default)
-    ip.regate(run, ip.RecoveryConfig(half_loss=4))      # judge the fitted law again with another gate (minutes)
-    ip.refit(run, ip.RecoveryConfig(fit_seed=1))        # fit a law again to the saved labels, and gate it (minutes)
+    ip.recovery.recover(run)                            # weak actuators: a recovery law beside the IDA-PBC one
+    ip.recovery.auto_recover(run)                       # ... only where saturated LQR leaves room (`train`'s default)
 
 Evaluations apply the actuators' effort limits (``sys.effort``) to every controller unless
-``limits=False``. The subpackages follow the data flow: model → control → training → sim →
-certificate → evaluation / reporting / viewer → deploy → batch → cli.
+``limits=False``. The subpackages follow the data flow: model → control → sim → training → run →
+recovery → evaluation → certificate → reporting / viewer → deploy → batch → cli.
 """
 
 from .batch.runner import run_batch
@@ -28,16 +26,15 @@ from .reporting.report import figure, report
 from .evaluation.robustness import perturbed_system, robustness_table
 from .control.baseline import LQRController
 from .sim.integrate import simulate
-from .sim.invariance import invariant_share
+from .evaluation.invariance import invariant_share
 from .sim.mujoco_plant import mujoco_judge
-from .sim.paired import paired_comparison
-from .sim.radius import roa_radius
-from .sim.roa import roa
+from .evaluation.paired import paired_comparison
+from .evaluation.radius import roa_radius
+from .evaluation.roa import roa
 from .model import System, load_system
-from .training.recovery import RecoveryConfig, recover, refit, regate
-from .training.run import Run, load_run
-from .training.weak_actuators import auto_recover, limits_bind
+from .run import Run, load_run
 from .training.train import train
+from . import recovery
 from .viewer import view, write_html
 
 __version__ = "0.1.0"
@@ -45,25 +42,19 @@ __version__ = "0.1.0"
 __all__ = [
     "IdapbcError",
     "LQRController",
-    "RecoveryConfig",
     "Run",
     "System",
     "TrainConfig",
-    "auto_recover",
     "certify",
     "evaluate_run",
     "export",
     "figure",
     "invariant_share",
-    "limits_bind",
     "load_run",
     "load_system",
     "mujoco_judge",
     "paired_comparison",
     "perturbed_system",
-    "recover",
-    "refit",
-    "regate",
     "report",
     "robustness_table",
     "roa",

@@ -2,11 +2,10 @@
 
 `process_map` gives exactly what a loop over the same jobs gives (each job is the same computation
 in another process), so the number of workers changes the time, never a result. Each worker limits
-itself to one thread in every OpenMP / BLAS pool (threadpoolctl) and in torch: a worker forked
-with the parent's pools ran, two on 2 cores, the recovery gate's simulations slower than one
-process did (281 s against 198 s). Each job travels as plain pickle bytes: `concurrent.futures`
-would otherwise pickle torch tensors with torch.multiprocessing's reductions, which move the
-caller's own tensors to shared memory.
+itself to one thread in every OpenMP / BLAS pool (threadpoolctl) and in torch: workers that keep
+the parent's thread pools oversubscribe the cores and can run slower than one process. Each job
+travels as plain pickle bytes: `concurrent.futures` would otherwise pickle torch tensors with
+torch.multiprocessing's reductions, which move the caller's own tensors to shared memory.
 """
 
 from __future__ import annotations

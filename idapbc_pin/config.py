@@ -2,17 +2,15 @@
 
 Defaults are the paper's (Table I: 2000 epochs, 512 fresh uniform samples per epoch, networks
 n×3×300, γ = 0.9999, α = 0.01, Adam), plus what this project adds on top (LQR anchor, decay and effort terms; docs/method.md).
-The paper gives no learning rate: 5e-4 (measured). `TrainConfig.fast()` is the `--fast` preset.
+The paper gives no learning rate: 5e-4 (docs/results-history.md). `TrainConfig.fast()` is the `--fast` preset.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import tomllib
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
+from ._settings import Settings, read_table
 from .errors import IdapbcError
 
 __all__ = ["TrainConfig", "FIELD_HELP"]
@@ -22,21 +20,20 @@ FIELD_HELP = {
     "samples": "uniform samples of the training box per epoch (paper: 512)",
     "width": "hidden width of every network (paper: 300)",
     "depth": "hidden layers of every network (paper: 3)",
-    "lr": "Adam learning rate (the paper gives none). 5e-4 in both presets: 1e-3 put the paper's 3×300 networks below "
-    "LQR on the paper cartpole and cost the fast preset points on the zoo (measured; see docs/results-history.md)",
+    "lr": "Adam learning rate (the paper gives none). 5e-4 in both presets: a larger rate makes the paper-size "
+    "networks close the loop worse (docs/results-history.md)",
     "gamma": "adaptive-weight decay γ in r_i ← γ r_i + α f_i / max_j f_j (paper: 0.9999)",
     "alpha": "adaptive-weight update rate α (paper: 0.01)",
     "form": "'anchored': networks pinned to the exact LQR solution at x* (locally exponentially stable by "
     "construction); 'free': the paper's free form (Bregman-shifted ICNN, skew NN, L Lᵀ + ρS)",
     "anchor_q": "state weight of the LQR anchor, Q = anchor_q·I (R = I; see `anchor_weight` for its units); larger values "
     "give a faster local loop (anchored form only). 0 = automatic: the largest of 10, 1, 0.1, 0.01 whose anchor has "
-    "no pole faster than 15 1/s (a stiffer loop asks for torques the actuators saturate on: the Furuta pendulum's "
-    "17 1/s anchor gave 78 % of the half box under its 10 N·m limit, its 13 1/s anchor 88 %); 1, the LQR baseline's "
+    "no pole faster than 15 1/s (a stiffer loop asks for torques the actuators saturate on); 1, the LQR baseline's "
     "weight, when the plant itself has a pole faster than 15 1/s (no weight can meet the cap then)",
     "anchor_weight": "units of the anchor's LQR state weight: 'physical' Q = anchor_q·I in the state's own units (the LQR "
     "baseline's weight when anchor_q = 1), whatever `scaling` is; 'box' Q = anchor_q·diag(1/s²) under box scaling, "
-    "which weights the light links' tiny momenta by 1/s² ≈ 1e4 and leaves a 0.5 1/s pole (settling 5× slower than LQR "
-    "on the Furuta pendulum and the reaction wheel)",
+    "which weights the light links' tiny momenta by 1/s² ≈ 1e4 and can leave a pole far slower than "
+    "LQR's on robots with light links",
     "anchor_p": "Hessian P of H_d at x* (anchored form): 'box' solves A_clᵀP + PA_cl = −diag(1/half-width²) of the "
     "training box (well conditioned in box units), 'lyapunov' the same with −I, 'riccati' takes the Riccati solution, "
     "'fit' the Lyapunov matrix (of the same LQR loop) whose ellipsoid fills the largest share of the training box",
@@ -59,9 +56,9 @@ FIELD_HELP = {
     "(half the LQR anchor's local rate, or 0.5 1/s in the free form); 0 disables the term",
     "local_stability": "train the third-order term f_dm = ‖∂μ/∂x‖ on samples inside H_ε",
     "dtype": "'float64' or 'float32' for the networks (plant data is always computed in float64)",
-    "device": "'cpu' or 'cuda' (or 'cuda:0' …); on an H200 the GPU trained paper-size networks 1.3× faster and the fast preset 2.3× slower (README, Benchmarks); commands on a finished RUN load it on the CPU",
+    "device": "'cpu' or 'cuda' (or 'cuda:0' …); a GPU pays off for paper-size networks, not for the small fast preset; commands on a finished RUN load it on the CPU",
     "seed": "random seed (weights and samples); same seed, same machine → same weights",
-    "threads": "torch CPU threads (1 is fastest on 2 cores when anything else runs)",
+    "threads": "torch CPU threads (1 avoids oversubscribing the cores when other work runs beside training)",
     "checkpoint_every": "epochs between 'last' checkpoints",
     "effort_term": "train the `effort` term: |u| beyond the actuators' effort limits, penalised on the samples of the "
     "largest sublevel set of H_d that stays in the box (the set a certificate with the saturated law can cover); "
@@ -69,7 +66,7 @@ FIELD_HELP = {
     "rollout_epochs": "the last K epochs train on the `rollout` term instead of the residuals: back-propagation through "
     "short Euler simulations of the true closed loop f + g·sat(u) (the plant's exact ∂f/∂x in the backward pass), from "
     "start states in the `rollout_box`, cost log(1 + ‖(x − x*)/s‖²) over the last `rollout_tail` seconds. 0 = off. "
-    "About 3 s per epoch for a 2-DoF robot on one core (64 rollouts of 300 steps)",
+    "Each such epoch simulates `rollout_samples` rollouts of rollout_horizon / rollout_step steps, far slower than a residual epoch",
     "rollout_samples": "rollouts per `rollout` epoch (start states drawn uniformly, fresh each epoch)",
     "rollout_horizon": "length T of each rollout (s)",
     "rollout_step": "explicit Euler step h of the rollouts (s)",
@@ -85,19 +82,20 @@ FIELD_HELP = {
     "fallback is used if it brings strictly more of them to x*; summary.json → fallback). Inside the box nothing changes",
     "fallback_gain": "gain factor k of the linear law outside the training box, u* − k·Kδ (K: the anchor's LQR gain); "
     "0 = automatic: 3 for a robot with effort limits, whose law there then saturates on most of its course and switches "
-    "on the sign of Kδ like a bang-bang law (fast preset, seed 0, limits on both, 100 half-box states of seed 7 reaching "
-    "x*: acrobot 84 with k = 1, 92 / 94 / 91 with k = 3 / 5 / 10; Furuta pendulum 80 with k = 1, 94 with k = 3), and "
+    "on the sign of Kδ like a bang-bang law (docs/results-history.md), and "
     "1 for a robot without limits (a stiffer linear law would only ask for larger torques)",
     "bounded_structure": "J_d and R_d see the state clamped to the training box: outside it they keep their values on the "
-    "box's boundary (still skew / positive definite) instead of extrapolating their networks, which made R_d's "
-    "exponential diagonal grow without bound at the speeds a saturated swing reaches. H_d is not clamped (its "
+    "box's boundary (still skew / positive definite) instead of extrapolating their networks, where R_d's "
+    "exponential diagonal would grow without bound at the speeds a saturated swing reaches. H_d is not clamped (its "
     "convexity is kept); inside the box nothing changes",
 }
 
 
 @dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(Settings):
     """Neural IDA-PBC training settings (see `FIELD_HELP` for each field)."""
+
+    _what, _table, _fix = "training config", "train", "see `idapbc-pin train --help`"
 
     epochs: int = 2000
     samples: int = 512
@@ -175,59 +173,17 @@ class TrainConfig:
 
     @classmethod
     def fast(cls, **overrides) -> "TrainConfig":
-        """The `--fast` preset: width 64 × 3 layers, float32, 1200 epochs (width 64 trained 5× faster than 3 × 300 and closed the loop as well).
+        """The `--fast` preset: width 64 × 3 layers, float32, 1200 epochs; `overrides` replace any field.
 
-        Measured on the paper cartpole's training domain (200 states, LQR 69.0 %), anchored form, lr
-        5e-4: 80.5 / 82.0 / 76.0 % success (seeds 0/1/2) in 33–38 s of training, against the paper
-        setting's 81.0 / 75.5 % (seeds 0/1) in about 360 s. At lr 1e-3 the preset gave 76.5 / 75.0 /
-        75.5 % and the paper setting fell below LQR (68.0 / 63.5 %).
-        See "Fast preset vs paper setting" in docs/results-history.md.
+        It trains several times faster than the paper's 3 × 300 networks and closes the loop about as
+        well ("Fast preset vs paper setting" in docs/results-history.md).
         """
         base = {"width": 64, "depth": 3, "dtype": "float32", "epochs": 1200}
         return cls(**{**base, **overrides})
 
-    def replace(self, **changes) -> "TrainConfig":
-        """A copy with `changes` applied (validated)."""
-        return dataclasses.replace(self, **changes)
-
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict) -> "TrainConfig":
-        """Build from a mapping; unknown keys are an error naming them."""
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise IdapbcError(f"unknown training config key(s) {', '.join(unknown)}. Valid keys: {', '.join(sorted(names))}.")
-        types = {f.name: f.type for f in fields(cls)}
-        clean = {}
-        for key, value in data.items():
-            kind = {"int": int, "float": float, "bool": bool, "str": str}[types[key]]
-            if kind is float and isinstance(value, int) and not isinstance(value, bool):
-                value = float(value)
-            if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-                raise IdapbcError(f"training config key '{key}' must be {kind.__name__}, got {value!r}.")
-            clean[key] = value
-        return cls(**clean)
-
-    @classmethod
-    def from_file(cls, path: str | Path) -> "TrainConfig":
-        """Read a TOML (``[train]`` table or top level) or JSON config file."""
-        return cls(**cls.file_values(path))
-
     @classmethod
     def file_values(cls, path: str | Path) -> dict:
         """The keys a config file sets, validated and typed (so a preset can be laid under them)."""
-        path = Path(path)
-        if not path.is_file():
-            raise IdapbcError(f"config file '{path}' not found. Fix: check the path.")
-        try:
-            data = tomllib.loads(path.read_text()) if path.suffix == ".toml" else json.loads(path.read_text())
-        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
-            raise IdapbcError(f"cannot parse config file '{path}': {exc}. Fix: repair its syntax.") from None
-        data = data.get("train", data) if isinstance(data, dict) else data
-        if not isinstance(data, dict):
-            raise IdapbcError(f"config file '{path}' must hold a table of training settings. Fix: see `idapbc-pin train --help`.")
+        data = read_table(path, cls._table, "config", cls._fix)
         config = cls.from_dict(data)
         return {k: getattr(config, k) for k in data}

@@ -51,7 +51,7 @@ def _short_fallback_gate():
     simulates 100 states for 20 s (`training.fallback_gate`). Here it simulates 4 states for 0.5 s;
     tests/test_fallback.py puts the real values back where the gate's decision is the claim.
     Session scope: module-scoped fixtures that train are set up before function-scoped ones."""
-    from idapbc_pin.training import fallback_gate
+    from idapbc_pin.recovery import box_gate as fallback_gate
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(fallback_gate, "GATE_STATES", 4)

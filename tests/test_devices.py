@@ -19,7 +19,7 @@ import torch
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
 from idapbc_pin.control.nets import build_nets
-from idapbc_pin.training.run import load_run
+from idapbc_pin.run import load_run
 from idapbc_pin.training.train import train
 
 from .test_reliability import cli, snapshot

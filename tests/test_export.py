@@ -184,7 +184,7 @@ def test_standalone_applies_a_recovery_law_as_the_library_does(runs, tmp_path, r
     outside the inner box."""
     from tests.test_recovery import random_law
 
-    from idapbc_pin.training.run import RECOVERY_FILE
+    from idapbc_pin.run import RECOVERY_FILE
 
     path = tmp_path / "run"
     shutil.copytree(runs["pendubot"].path, path)
@@ -215,7 +215,7 @@ def test_standalone_keeps_the_ida_pbc_law_on_the_level_set_of_h_d_as_the_library
     standalone evaluates H_d from desired_flow.py and gives the library's τ to 1e-9."""
     from tests.test_recovery import random_law
 
-    from idapbc_pin.training.run import RECOVERY_FILE
+    from idapbc_pin.run import RECOVERY_FILE
 
     path = tmp_path / "run"
     shutil.copytree(runs["pendubot"].path, path)
@@ -246,8 +246,8 @@ def test_standalone_applies_a_recovery_law_within_its_plan_bound_on_an_unlimited
     standalone gives the library's τ to 1e-9."""
     from tests.test_recovery import random_law
 
-    from idapbc_pin.training.plans import plan_bound
-    from idapbc_pin.training.run import RECOVERY_FILE
+    from idapbc_pin.recovery.plans import plan_bound
+    from idapbc_pin.run import RECOVERY_FILE
 
     path = tmp_path / "run"
     shutil.copytree(runs["pendubot"].path, path)

@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 
 import idapbc_pin as ip
-from idapbc_pin.control.fallback import BoxFallback, box_fallback
+from idapbc_pin.recovery.box_law import BoxFallback, box_fallback
 from idapbc_pin.control.baseline import LQRController
-from idapbc_pin.training import fallback_gate as gate_module
+from idapbc_pin.recovery import box_gate as gate_module
 from idapbc_pin.sim.step import DEFAULT_STEP, POLE_STEP, step_for_pole
-from idapbc_pin.training.fallback_gate import GATE_STEP, fallback_gate, gate_step
+from idapbc_pin.recovery.box_gate import GATE_STEP, fallback_gate, gate_step
 from idapbc_pin.training.summary import format_train_summary
 
 
@@ -341,7 +341,9 @@ def test_a_bad_fallback_value_is_refused_with_the_fix():
 def test_the_cli_trains_with_the_fallback_named_and_prints_the_law_outside_the_box(tmp_path, capsys):
     from idapbc_pin.cli.main import main
 
-    main(["train", "pendubot", "--fast", "--epochs", "3", "--width", "8", "--depth", "1", "--fallback", "linear",
+    config = tmp_path / "linear.toml"
+    config.write_text('[train]\nwidth = 8\ndepth = 1\nfallback = "linear"\n')  # expert keys live in the config file
+    main(["train", "pendubot", "--fast", "--epochs", "3", "--config", str(config),
           "--evaluate", "0", "--recover", "never", "--out", str(tmp_path)])  # fmt: skip
     printed = capsys.readouterr().out
     assert "outside the training box: the anchor's linear law u* − 3·Kδ" in printed
@@ -354,7 +356,9 @@ def test_train_prints_how_many_states_only_one_law_brings_home(tmp_path, capsys)
     """The gate's verdict comes with its evidence: the states where the two laws disagree."""
     from idapbc_pin.cli.main import main
 
-    main(["train", "pendubot", "--fast", "--epochs", "3", "--width", "8", "--depth", "1", "--evaluate", "0",
+    config = tmp_path / "tiny.toml"
+    config.write_text("[train]\nwidth = 8\ndepth = 1\n")
+    main(["train", "pendubot", "--fast", "--epochs", "3", "--config", str(config), "--evaluate", "0",
           "--recover", "never", "--out", str(tmp_path)])  # fmt: skip
     printed = capsys.readouterr().out
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]

@@ -1,6 +1,6 @@
 """A certified sublevel set is invariant and inside the box, so the invariant share bounds it.
 
-`idapbc_pin.sim.invariance` measures, by simulation, the share of the training box whose trajectory
+`idapbc_pin.evaluation.invariance` measures, by simulation, the share of the training box whose trajectory
 reaches x* without ever leaving the box: the most any certificate of that closed loop (a sublevel
 set inside the box on which V decreases) could cover.
 """
@@ -15,7 +15,7 @@ from idapbc_pin.certificate.baseline import QuadraticLyapunov, certify_baseline
 from idapbc_pin.certificate.checks import face_samples
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.sim.integrate import simulate
-from idapbc_pin.sim.invariance import invariant_share, stays_inside
+from idapbc_pin.evaluation.invariance import invariant_share, stays_inside
 from idapbc_pin.sim.metrics import success
 
 from .conftest import sample_domain

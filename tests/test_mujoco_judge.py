@@ -18,7 +18,7 @@ import idapbc_pin as ip
 from idapbc_pin.cli.main import main
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.model.zoo import zoo_names
-from idapbc_pin.sim.roa import roa
+from idapbc_pin.evaluation.roa import roa
 
 pytest.importorskip("mujoco", reason="the MuJoCo judge needs `pip install mujoco` (the [dev] extra)")
 

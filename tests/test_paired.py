@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import idapbc_pin as ip
-from idapbc_pin.sim.paired import paired_comparison
+from idapbc_pin.evaluation.paired import paired_comparison
 
 
 def _outcomes(rng, n, p_only_a, p_only_b, p_both):
@@ -87,7 +87,7 @@ def test_roa_tables_state_the_lead_of_the_first_controller():
 
 def test_settling_is_compared_on_the_states_both_controllers_reach():
     # each controller's own median times it on its own successes, the common one on the same starts
-    from idapbc_pin.sim.roa import ControllerScore, RoaResult
+    from idapbc_pin.evaluation.roa import ControllerScore, RoaResult
 
     def scored(name, t):
         t = np.array(t, float)

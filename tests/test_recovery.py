@@ -45,22 +45,22 @@ import idapbc_pin as ip
 from idapbc_pin._io import DamagedFileError
 from idapbc_pin.cli.main import main
 from idapbc_pin.control.baseline import LQRController
-from idapbc_pin.control.recovery import RecoveryLaw
+from idapbc_pin.recovery.law import RecoveryLaw
 from idapbc_pin.errors import IdapbcError
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
-from idapbc_pin.sim.radius import scaled_box
+from idapbc_pin.sim.states import scaled_box
 from idapbc_pin.sim.states import evaluation_box, uniform_states
-from idapbc_pin.training import recovery as recovery_module
-from idapbc_pin.training import recovery_gate
-from idapbc_pin.training.plans import PLAN_STEP, PlanSettings, PlanThenLaw, plan_bound, planning_system, search_plan, search_plans
-from idapbc_pin.training.recovery import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, ends_near, fit_recovery_law, gate_choice, recover, refit, regate
-from idapbc_pin.training.recovery_fit import base_inputs
-from idapbc_pin.training.recovery_gate import NEAR_SCALE, read_labels, save_labels
-from idapbc_pin.training.run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
-from idapbc_pin.training import weak_actuators
-from idapbc_pin.training.weak_actuators import BIND_POINTS, BIND_STATES, ROOM_POINTS, auto_recover, limits_bind
+from idapbc_pin.recovery import stage as recovery_module
+from idapbc_pin.recovery import gate as recovery_gate
+from idapbc_pin.recovery.plans import PLAN_STEP, PlanSettings, PlanThenLaw, plan_bound, planning_system, search_plan, search_plans
+from idapbc_pin.recovery.stage import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, ends_near, fit_recovery_law, gate_choice, recover, refit, regate
+from idapbc_pin.recovery.fit import base_inputs
+from idapbc_pin.recovery.gate import NEAR_SCALE, read_labels, save_labels
+from idapbc_pin.run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
+from idapbc_pin.recovery import trigger as weak_actuators
+from idapbc_pin.recovery.trigger import BIND_POINTS, BIND_STATES, ROOM_POINTS, auto_recover, limits_bind
 
 from .conftest import sample_domain
 
@@ -256,7 +256,7 @@ def test_labels_are_torques_within_the_limits_of_trajectories_that_reach_the_tar
 
 
 def test_worker_processes_change_the_time_of_recover_never_its_plans_fits_or_gate(tiny_run, monkeypatch):
-    _short_gate(monkeypatch)  # the workers get the 1 s gate too: `process_map` sends the function itself
+    _short_gate(monkeypatch)
     system = tiny_run.system
     small = dict(TINY, steps=60, fits=2, inner_scales=(0.1, 0.5))
     x0 = uniform_states(system, 3, "half", 101)
@@ -321,7 +321,7 @@ def test_the_gate_s_verdicts_are_the_full_rollouts_though_rows_at_rest_stop_earl
         rows.append(x.shape[0])
         return lqr(x)
 
-    verdicts = recovery_gate._successes((system, counting, x0))
+    [(verdicts, _)] = list(recovery_gate.compare_laws(system, [(counting, x0)], T=recovery_gate.GATE_HORIZON, dt=PLAN_STEP))
     gate_rows, rows[:] = sum(rows), []
     full = success(simulate(system, counting, x0, T=20.0, dt=PLAN_STEP), system)
     np.testing.assert_array_equal(verdicts, full)
@@ -397,7 +397,7 @@ def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states
         ok[:h], ok[50 : 50 + d], ok[100 : 100 + near] = True, True, True
         return ok
 
-    monkeypatch.setattr(recovery_gate, "_successes", fake)
+    monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
     k, gate = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, workers=1))
     assert gate["fits"] == [60, 80, 70] and gate["used"]
     assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)  # 10 fewer near x* than the run's law: not eligible
@@ -432,7 +432,7 @@ def test_where_the_run_s_law_holds_the_whole_half_box_a_kept_law_is_checked_agai
         ok[:h], ok[50 : 50 + d], ok[100 : 100 + near] = True, True, True
         return ok
 
-    monkeypatch.setattr(recovery_gate, "_successes", fake)
+    monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
     k, gate = recovery_gate.choose_fit(tiny_run, laws, config)
     assert gate["used"]
     if run_half < 50:  # the run's law misses a half-box gate state: the rule alone decides
@@ -463,7 +463,7 @@ def test_a_law_the_check_refuses_at_every_inner_box_is_judged_at_the_levels_of_h
         ok[:h], ok[50 : 50 + d], ok[100 : 100 + near] = True, True, True
         return ok
 
-    monkeypatch.setattr(recovery_gate, "_successes", fake)
+    monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
     _, gate = recovery_gate.choose_fit(tiny_run, [law], config)
     levels = recovery_gate.energy_levels(tiny_run, config.levels)
     assert gate["used"] and gate["level"] == max(levels)  # ties: the largest c, the most IDA-PBC
@@ -493,7 +493,7 @@ def test_levels_of_h_d_are_tried_only_when_no_inner_box_is_kept(tiny_run, tmp_pa
         ok[:h], ok[50 : 50 + d], ok[100 : 100 + near] = True, True, True
         return ok
 
-    monkeypatch.setattr(recovery_gate, "_successes", fake)
+    monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
     k, gate = recovery_gate.choose_fit(tiny_run, [law], config)
     assert gate["used"]
     if box_kept:
@@ -729,7 +729,8 @@ def test_regate_judges_the_saved_law_again_without_fitting_and_keeps_it_exactly_
     assert not dropped["used"] and not (path / RECOVERY_FILE).exists() and (path / RECOVERY_REFUSED_FILE).is_file()
     assert not ip.load_run(path).uses_recovery
 
-    assert main(["recover", str(path), "--regate", "--margin", "5", "--keep"]) == 0
+    (tmp_path / "margin.toml").write_text("[recovery]\nmargin = 5\n")
+    assert main(["recover", str(path), "--regate", "--config", str(tmp_path / "margin.toml"), "--keep"]) == 0
     assert "kept anyway (--keep)" in capsys.readouterr().out
     entry = json.loads((path / "summary.json").read_text())["recovery"]
     assert entry["used"] and entry["forced"] and entry["gate"]["used"] is False
@@ -749,16 +750,20 @@ def test_regate_without_a_saved_law_says_what_to_run_in_one_line(tiny_run, tmp_p
     assert len(err) == 1 and RECOVERY_REFUSED_FILE in err[0] and "again" in err[0]
 
 
+def _as_compare(fake):
+    """A stand-in for `compare_laws` in the gate, from ``fake((system, law, x0)) -> (N,) bool``."""
+
+    def compare(system, runs, **_):
+        for law, x0 in runs:
+            yield fake((system, law, x0)), None
+
+    return compare
+
+
 def _short_gate(monkeypatch):
     """The gate's runs last 1 s instead of 20 s: these tests claim what is kept and where, and their
     margins decide whatever the counts (the gate's rule has tests of its own)."""
-    monkeypatch.setattr(recovery_gate, "_successes", _one_second_successes)
-
-
-def _one_second_successes(job) -> np.ndarray:
-    """`recovery_gate._successes` over 1 s (a module-level function: the gate's worker processes get it)."""
-    system, law, x0 = job
-    return success(simulate(system, law, x0, T=1.0, dt=PLAN_STEP), system)
+    monkeypatch.setattr(recovery_gate, "GATE_HORIZON", 1.0)  # read in this process: the workers get it with their jobs
 
 
 def test_refit_fits_the_saved_labels_again_without_plans_and_the_same_seed_gives_the_same_law(tiny_run, tmp_path, monkeypatch):
@@ -813,7 +818,8 @@ def test_refit_in_the_residual_form_fits_corrections_to_the_run_s_own_inputs_and
     x = uniform_states(system, 300, "domain", seed=3)
     energy = networks.flow().energy
     np.testing.assert_allclose(run.controller(x), law.apply(x, networks(x), energy), atol=1e-12)
-    assert main(["recover", str(path), "--refit", "--form", "direct", "--width", "8", "--steps", "20", "--fits", "1", "--workers", "1", "--keep"]) == 0
+    (tmp_path / "direct.toml").write_text('[recovery]\nform = "direct"\nwidth = 8\nsteps = 20\nfits = 1\n')
+    assert main(["recover", str(path), "--refit", "--config", str(tmp_path / "direct.toml"), "--workers", "1", "--keep"]) == 0
     assert not ip.load_run(path).controller.fallback.residual
     assert json.loads((path / "summary.json").read_text())["recovery"]["config"]["form"] == "direct"
 
@@ -915,10 +921,12 @@ def test_an_input_without_a_limit_plans_within_the_largest_force_lqr_asks_on_the
 def test_recover_on_a_robot_without_limits_fits_a_law_within_the_plan_bound(tmp_path):
     """`train --recover` on an actuator without an effort limit plans within `plan_bound`; the saved
     law's ū is that bound, while the robot itself stays unlimited."""
-    argv = ["train", "pendubot", "--effort", "shoulder=inf", "--fast", "--epochs", "2", "--width", "8", "--depth", "1",
-            "--evaluate", "0", "--out", str(tmp_path), "--recover", "never"]  # fmt: skip
+    config, out = tmp_path / "tiny.toml", tmp_path / "runs"
+    config.write_text("[train]\nwidth = 8\ndepth = 1\n")
+    argv = ["train", "pendubot", "--effort", "shoulder=inf", "--fast", "--epochs", "2", "--config", str(config),
+            "--evaluate", "0", "--out", str(out), "--recover", "never"]  # fmt: skip
     assert main(argv) == 0
-    (run_dir,) = tmp_path.iterdir()
+    (run_dir,) = out.iterdir()
     entry = recover(run_dir, RecoveryConfig(**TINY), progress=False, keep=True)
     run = ip.load_run(run_dir)
     assert entry["used"] and np.isinf(run.system.effort).all()
@@ -976,7 +984,8 @@ def test_auto_recovers_exactly_when_saturated_lqr_leaves_room(tiny_run, tmp_path
     assert "(the limits bind)" in printed and "fitting a recovery law" in printed
     assert entry["used"] and (path / RECOVERY_FILE).is_file()
     strong = tmp_path / "strong"
-    main(["train", "reaction_wheel", "--fast", "--epochs", "2", "--width", "8", "--depth", "1", "--evaluate", "0", "--out", str(strong)])
+    (tmp_path / "tiny.toml").write_text("[train]\nwidth = 8\ndepth = 1\n")
+    main(["train", "reaction_wheel", "--fast", "--epochs", "2", "--config", str(tmp_path / "tiny.toml"), "--evaluate", "0", "--out", str(strong)])
     printed = capsys.readouterr().out
     assert "(the limits do not bind)" in printed and "testing the training box" in printed and "no recovery law" in printed
     (run_dir,) = strong.iterdir()

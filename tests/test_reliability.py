@@ -117,7 +117,7 @@ COMMANDS = {
     "train --resume": lambda run, tmp: ["train", "--resume", run, "--evaluate", "0", "--recover", "never"],
     "simulate": lambda run, tmp: ["simulate", run, "--n", "2", "--T", "0.1", "--no-radius"],
     "certify": lambda run, tmp: ["certify", run, "--n", "16", "--settle", "0"],
-    "report": lambda run, tmp: ["report", run, "--n", "2", "--T", "0.1", "--n-figure", "1", "--no-html", "--no-radius"],
+    "report": lambda run, tmp: ["report", run, "--n", "2", "--T", "0.1", "--no-radius"],
     "view --html": lambda run, tmp: ["view", run, "--html", tmp / "replay.html", "--n", "1", "--T", "0.1"],
     "robustness": lambda run, tmp: ["robustness", run, "--n", "2", "--T", "0.1"],
 }
@@ -193,9 +193,11 @@ def test_a_folder_that_is_not_a_run_is_named_as_such(tmp_path):
 def test_a_diverging_learning_rate_ends_in_one_line_and_the_suggested_resume_completes(lr, tmp_path):
     """Training either finishes, or stops with one error line whose Fix is a resume command with a
     smaller learning rate; that command completes, and every reader accepts the run."""
-    status, _, err, _ = cli("train", "cartpole", "--fast", "--epochs", "8", "--width", "8", "--depth", "1",
-                            "--lr", lr, "--out", tmp_path, "--evaluate", "0", "--recover", "never")
-    (run_dir,) = tmp_path.iterdir()
+    config, out = tmp_path / "tiny.toml", tmp_path / "runs"
+    config.write_text("[train]\nwidth = 8\ndepth = 1\n")
+    status, _, err, _ = cli("train", "cartpole", "--fast", "--epochs", "8", "--config", config,
+                            "--lr", lr, "--out", out, "--evaluate", "0", "--recover", "never")
+    (run_dir,) = out.iterdir()
     if status != 0:
         assert status == 2 and "Traceback" not in err
         last = err.strip().splitlines()[-1]  # the progress bar's lines come before it

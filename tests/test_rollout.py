@@ -16,7 +16,7 @@ from idapbc_pin.control.controller import Controller
 from idapbc_pin.control.nets import build_nets
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.training.rollout import PlantDrift, rollout_cost, rollout_gate, saturated_field
-from idapbc_pin.training.run import read_checkpoint
+from idapbc_pin.run import read_checkpoint
 from idapbc_pin.training.train import train
 
 from .conftest import sample_domain
@@ -108,11 +108,13 @@ def test_the_gate_keeps_rollout_weights_only_when_the_real_loop_does_as_well():
 def test_the_cli_passes_rollout_epochs_to_the_config_and_refuses_more_than_the_epochs(tmp_path, capsys):
     from idapbc_pin.cli.main import main
 
-    args = ["train", "acrobot", "--epochs", "3", "--width", "8", "--depth", "1", "--out", str(tmp_path), "--evaluate", "0"]
-    assert main([*args, "--rollout-epochs", "4"]) == 2
+    config, out = tmp_path / "rollout.toml", tmp_path / "runs"
+    config.write_text("[train]\nwidth = 8\ndepth = 1\nrollout_epochs = 4\n")  # an expert key: set in the config file
+    args = ["train", "acrobot", "--epochs", "3", "--config", str(config), "--out", str(out), "--evaluate", "0"]
+    assert main(args) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "rollout_epochs must be in [0, epochs = 3]" in err
-    assert not any(tmp_path.iterdir())  # refused before any run directory is made
+    assert not out.exists() or not any(out.iterdir())  # refused before any run directory is made
 
 
 def test_a_rollout_epoch_whose_gradient_overflows_takes_no_step_and_the_run_goes_on(tmp_path, monkeypatch):

@@ -20,8 +20,9 @@ from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import equilibrium_offset, peak_input, settling_time, success
 from idapbc_pin.sim.limits import input_limits
-from idapbc_pin.sim.radius import roa_radius, scaled_box
-from idapbc_pin.sim.roa import roa, score
+from idapbc_pin.evaluation.radius import roa_radius
+from idapbc_pin.sim.states import scaled_box
+from idapbc_pin.evaluation.roa import roa, score
 from idapbc_pin.sim.states import evaluation_box, half_box, uniform_states
 from idapbc_pin.sim.trajectory import Trajectory
 

@@ -16,7 +16,7 @@ from idapbc_pin.control.controller import Controller
 from idapbc_pin.control.nets import build_nets
 from idapbc_pin.sim.step import step_for_pole
 from idapbc_pin.training.loss import TERMS
-from idapbc_pin.training.run import load_run
+from idapbc_pin.run import load_run
 from idapbc_pin.training.train import TrainingDiverged, train
 
 TINY = dict(width=16, depth=2, samples=64, checkpoint_every=5)

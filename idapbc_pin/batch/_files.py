@@ -4,7 +4,7 @@ A batch resumes by reading what an earlier, possibly killed, invocation left beh
 that is missing or damaged simply means "run that job again", and a ``batch.json`` that cannot be
 read is one that belongs to no batch. `read_json_or_none` is that reading (through
 `idapbc_pin._io.read_json`, the one JSON reader); files whose damage must be reported are read
-with `read_json` itself, or through `idapbc_pin.training.run`.
+with `read_json` itself, or through `idapbc_pin.run`.
 """
 
 from __future__ import annotations

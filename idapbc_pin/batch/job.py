@@ -22,10 +22,10 @@ from ..errors import IdapbcError
 from ..evaluation.evaluate import evaluate_run
 from ..model import load_system
 from ..reporting.report import figure
-from ..training.run import load_run, read_checkpoint, read_config
-from ..training.recovery import RecoveryConfig
+from ..run import load_run, read_checkpoint, read_config
+from ..recovery.stage import RecoveryConfig
 from ..training.train import resolved_config, train
-from ..training.weak_actuators import auto_recover
+from ..recovery.trigger import auto_recover
 from ..viewer import view
 from ._files import read_json_or_none, timestamp
 from ._shipping import pack_dir, sees_batch_dir
@@ -73,7 +73,7 @@ def _train_or_resume(system, config, workdir: Path):
 def run_job(job: Job, job_dir: str | Path, batch_token: str | None = None, recover_workers: int = 1) -> dict:
     """Run one job into `job_dir` and return its record (also written to ``job_dir/job.json``).
 
-    Stages: load → train (or resume) → recover (`training.weak_actuators.auto_recover`) → evaluate
+    Stages: load → train (or resume) → recover (`recovery.trigger.auto_recover`) → evaluate
     (ROA of NIDA-PBC and LQR on the domain and half boxes) → certify → figure → html. Any exception stops the job and is recorded with its stage;
     it is never raised (Ctrl-C is: the job is recorded as interrupted first). Sets one torch thread
     (restored afterwards) so that N workers use N cores.

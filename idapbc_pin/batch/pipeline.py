@@ -33,26 +33,39 @@ its ``[[job]]`` header (tomllib reports no line numbers, so the headers are foun
 from __future__ import annotations
 
 import hashlib
+import inspect
 import json
 import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..certificate.certify import certify
 from ..config import TrainConfig
 from ..errors import IdapbcError
+from ..evaluation.evaluate import evaluate_run
 from ..model import load_system
-from ..training.weak_actuators import RECOVER_MODES
+from ..recovery.trigger import RECOVER_MODES
+from ..reporting.report import figure
+from ..viewer import view
 
 __all__ = ["Job", "Pipeline", "PipelineError", "load_pipeline", "SMOKE_TRAIN", "SMOKE_EVALUATE", "SMOKE_CERTIFY", "SMOKE_FIGURE", "SMOKE_VIEW"]
 
 PRESETS = ("paper", "fast")
 TOP_KEYS = ("description", "defaults", "job")
 JOB_KEYS = ("name", "source", "actuated", "target", "domain", "effort", "preset", "train", "recover", "evaluate", "certify", "figure", "view", "description")
-EVALUATE_DEFAULTS = {"n": 200, "T": 20.0, "seed": 0, "limits": True}
-CERTIFY_DEFAULTS = {"n": 20000, "settle": 4, "T": 20.0}
-FIGURE_DEFAULTS = {"n": 4, "T": 20.0}
-VIEW_DEFAULTS = {"n": 3, "T": 10.0}
+
+
+def _defaults_of(function, **names) -> dict:
+    """{key: default of `function`'s parameter names[key]}: a stage's defaults are its function's own."""
+    parameters = inspect.signature(function).parameters
+    return {key: parameters[name].default for key, name in names.items()}
+
+
+EVALUATE_DEFAULTS = _defaults_of(evaluate_run, n="n", T="T", seed="seed", limits="limits")
+CERTIFY_DEFAULTS = _defaults_of(certify, n="n", settle="settle", T="settle_T")
+FIGURE_DEFAULTS = _defaults_of(figure, n="n", T="T")
+VIEW_DEFAULTS = _defaults_of(view, n="n", T="T")
 _SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int, "limits": bool}, "certify": {"n": int, "settle": int, "T": float}, "figure": {"n": int, "T": float}, "view": {"n": int, "T": float}}
 
 #: What ``--smoke`` does to every job: a few epochs of tiny networks (and no `fallback` gate, which

@@ -24,10 +24,10 @@ __all__ = ["SUMMARY_COLUMNS", "VOLATILE_COLUMNS", "crash_record", "new_record", 
 #: the trainer's eigenvalue check), lqr_sublevel_coverage from its LQR baseline (δᵀSδ); limit is the
 #: actuators' effort limits applied in the evaluation ("none" when unlimited or lifted); *_radius the
 #: ROA radii; *_lead_low / *_lead_high the 95 % interval of NIDA-PBC's success rate minus LQR's on the
-#: box's states and *_lead_p McNemar's exact p-value (`sim.paired`); *_peak_half the median peak |u| on the half box; fallback whether NIDA-PBC switches to
-#: the anchor's linear law outside the training box (`control.fallback`); inside_gain the factor on the
+#: box's states and *_lead_p McNemar's exact p-value (`evaluation.paired`); *_peak_half the median peak |u| on the half box; fallback whether NIDA-PBC switches to
+#: the anchor's linear law outside the training box (`recovery.box_law`); inside_gain the factor on the
 #: learned law's deviation from u* inside the box (1: as trained; the fallback gate's choice); recovery whether a recovery law
-#: (`control.recovery`, fitted where saturated LQR leaves room) replaces the networks outside its inner box;
+#: (`recovery.law`, fitted where saturated LQR leaves room) replaces the networks outside its inner box;
 #: loss_* the final epoch's loss terms.
 SUMMARY_COLUMNS = (
     "name", "system", "source", "actuated", "preset", "status",

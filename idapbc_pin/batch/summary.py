@@ -206,7 +206,7 @@ def zoo_table_markdown(summary_csv) -> str:
         f"T = {T} s, the law {_judge_phrase(judge)}, success = within 0.05 of x* over the last 2 s, with the effort limits "
         "applied to both controllers; "
         "NIDA-PBC − LQR = the lead on the same states with its 95 % interval (Tango's score interval, from the states where the "
-        "two laws disagree; `idapbc_pin.sim.paired`): an interval that contains 0 is no evidence of a lead; "
+        "two laws disagree; `idapbc_pin.evaluation.paired`): an interval that contains 0 is no evidence of a lead; "
         "ROA radius = largest scale s of the training box around x* at which ≥ 90 % of the states succeed; certified "
         "share = share of the box inside the largest sampled sublevel set of H_d (NIDA-PBC) or of δᵀSδ (LQR) that stays "
         "in the box with a decreasing value on every sample (see docs/method.md): sampled, not proofs. NIDA-PBC outside "

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..deploy.export import EXPORTED_FILES, export
-from ..training.run import CHECKPOINTS, DEFAULT_CHECKPOINT
+from ._args import add_checkpoint_argument, add_run_argument
 
 __all__ = ["add_export_command"]
 
@@ -29,10 +29,10 @@ def add_export_command(subparsers) -> argparse.ArgumentParser:
             "the URDF, controller.json and a README on wiring it into a 1 kHz loop or a ROS 2 node."
         ),
     )
-    p.add_argument("run", metavar="RUN", help="run directory written by `idapbc-pin train` (a URDF robot)")
+    add_run_argument(p, "run directory written by `idapbc-pin train` (a URDF robot)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder to write (created; must be empty unless --force)")
     p.add_argument("--force", action="store_true", help="overwrite the exported files in a non-empty DIR")
-    p.add_argument("--checkpoint", choices=list(CHECKPOINTS), help=f"checkpoint to export (default: {DEFAULT_CHECKPOINT}, the final weights that train --evaluate measured)")
+    add_checkpoint_argument(p, "export")
     p.add_argument("--no-onnx", action="store_true", help="skip desired_flow.onnx (no onnx/onnxscript needed)")
     p.set_defaults(func=_cmd_export)
     return p

@@ -6,7 +6,8 @@ import argparse
 
 from ..config import FIELD_HELP, TrainConfig
 from ..errors import IdapbcError
-from ._args import add_effort_argument, add_system_arguments, add_workers_argument, key_range, key_value, system_kwargs, workers_of
+from ..recovery.config import RecoveryConfig
+from ._args import add_limits_argument, add_seed_argument, add_system_arguments, add_workers_argument, config_keys, system_kwargs, workers_of
 
 __all__ = ["add_model_commands", "add_train_command"]
 
@@ -36,23 +37,34 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+#: TrainConfig fields that are also flags (help from `FIELD_HELP`); every other field is set in the --config file.
+FLAGS = ("epochs", "lr", "device")
+
+
+def _recovery_config(args: argparse.Namespace) -> RecoveryConfig:
+    """The recovery stage's settings: the --recover-config file's (or the defaults), with --workers when given."""
+    config = RecoveryConfig.from_file(args.recover_config) if args.recover_config else RecoveryConfig()
+    return config if args.workers is None else config.replace(workers=workers_of(args))
+
+
 def _cmd_train(args: argparse.Namespace) -> int:
     from ..model import load_system
-    from ..training.run import load_run_system, read_config
+    from ..run import load_run_system, read_config
     from ..training.summary import format_train_summary
     from ..training.train import train
 
     workers = workers_of(args)
-    overrides = {k: getattr(args, k) for k in ("epochs", "seed", "device", "form", "damping", "rho", "kappa", "lr", "width", "depth", "rollout_epochs", "fallback", "fallback_gain") if getattr(args, k) is not None}
+    recovery = _recovery_config(args)  # a bad file is refused before training
     if args.resume:
         saved = read_config(args.resume)
-        config = saved.replace(**{k: v for k, v in (("epochs", args.epochs), ("lr", args.lr), ("device", args.device)) if v is not None})
+        config = saved.replace(**{k: getattr(args, k) for k in FLAGS if getattr(args, k) is not None})
         system = load_run_system(args.resume)
         run = train(system, config, resume=args.resume, workers=workers)  # checks the device and both checkpoints before anything is written
     else:
         if args.source is None:
             raise IdapbcError("train needs SOURCE (or --resume RUN). Fix: see `idapbc-pin train --help`.")
         given = TrainConfig.file_values(args.config) if args.config else {}  # only the keys the file sets
+        overrides = {k: getattr(args, k) for k in (*FLAGS, "seed") if getattr(args, k) is not None}
         config = (TrainConfig.fast(**given) if args.fast else TrainConfig(**given)).replace(**overrides)
         system = load_system(args.source, **system_kwargs(args))
         run = train(system, config, out=args.out, workers=workers)
@@ -61,9 +73,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
         print(f"interrupted: resume with  idapbc-pin train --resume {run.path}")
         return 130
     if args.recover != "never":
-        from ..training.weak_actuators import auto_recover
+        from ..recovery.trigger import auto_recover
 
-        auto_recover(run, args.recover)
+        auto_recover(run, args.recover, recovery)
     if args.evaluate > 0:
         from ..evaluation.evaluate import evaluate_run, format_evaluation
 
@@ -85,36 +97,35 @@ def add_model_commands(sub) -> None:
 
 
 def add_train_command(sub) -> None:
-    """`train`, its options named after `TrainConfig`'s fields (help from `FIELD_HELP`)."""
+    """`train`: the system, the run's place, and the few `TrainConfig` fields a user sets on the command
+    line (`FLAGS`, seed); every field can be set in the --config file (help from `FIELD_HELP`)."""
+    fast = TrainConfig.fast()
     p = sub.add_parser(
         "train", help="train Neural IDA-PBC; writes a run directory",
-        epilog="The networks, the anchored form and the loss terms are described in docs/method.md (in the source repository).",
+        epilog=f"--config FILE keys (TrainConfig fields, described in FIELD_HELP of idapbc_pin/config.py; the defaults, "
+               f"which --fast changes to width {fast.width}, depth {fast.depth}, dtype {fast.dtype!r}, epochs {fast.epochs}): "
+               f"{config_keys(TrainConfig(), 'train')}. --recover-config FILE: see `idapbc-pin recover --help`. "
+               "The networks, the anchored form and the loss terms are described in docs/method.md (in the source repository).",
     )
-    p.add_argument("source", metavar="SOURCE", nargs="?", help="URDF path, zoo name, built-in name or erd:<stem>")
-    p.add_argument("--actuated", nargs="+", action="extend", metavar="JOINT", help="actuated joint(s); default: the zoo entry's")
-    p.add_argument("--target", type=key_value, action="append", metavar="JOINT=VALUE", help="target joint value, repeatable")
-    p.add_argument("--domain", type=key_range, action="append", metavar="NAME=LO:HI", help="training-box bounds, repeatable")
-    add_effort_argument(p)
-    p.add_argument("--config", metavar="FILE", help="TOML ([train] table) or JSON training config")
-    fast = TrainConfig.fast()
+    add_system_arguments(p, optional=True)
+    p.add_argument("--config", metavar="FILE", help="TOML ([train] table, or top-level keys) or JSON training config: any TrainConfig field "
+                                                   "(width, depth, form, fallback, rollout_epochs, …; listed below); flags override it")
     p.add_argument("--fast", action="store_true", help=f"fast preset: width {fast.width} × {fast.depth} layers, {fast.dtype}, {fast.epochs} epochs")
+    for name in FLAGS:
+        kind = type(getattr(fast, name))
+        p.add_argument(f"--{name}", type=kind, metavar=name.upper() if kind is not str else None, help=FIELD_HELP[name])
+    add_seed_argument(p, what=FIELD_HELP["seed"])
     p.add_argument("--out", metavar="DIR", help="parent of the run directory (default runs/<system>)")
-    p.add_argument("--resume", metavar="RUN", help="continue RUN from its last checkpoint (same result as uninterrupted)")
+    p.add_argument("--resume", metavar="RUN", help="continue RUN from its last checkpoint (same result as uninterrupted; --epochs, --lr, --device apply)")
     p.add_argument("--evaluate", type=int, default=100, metavar="N", help="closed-loop check vs LQR from N random states after training (0: skip)")
-    p.add_argument("--no-limits", action="store_true", help="evaluate without the actuators' effort limits (they apply to both controllers by default)")
-    add_workers_argument(p)
-    for name, kind in (("epochs", int), ("seed", int), ("lr", float), ("width", int), ("depth", int), ("rho", float), ("kappa", float)):
-        p.add_argument(f"--{name}", type=kind, help=FIELD_HELP[name])
-    p.add_argument("--rollout-epochs", dest="rollout_epochs", type=int, metavar="K", help=FIELD_HELP["rollout_epochs"])
-    p.add_argument("--device", help=FIELD_HELP["device"])
-    p.add_argument("--form", choices=["anchored", "free"], help=FIELD_HELP["form"])
-    p.add_argument("--damping", choices=["full", "actuated"], help=FIELD_HELP["damping"])
-    p.add_argument("--fallback", choices=["auto", "linear", "none"], help=FIELD_HELP["fallback"])
-    p.add_argument("--fallback-gain", dest="fallback_gain", type=float, metavar="K", help=FIELD_HELP["fallback_gain"])
+    add_limits_argument(p, "evaluate without the actuators' effort limits")
+    add_workers_argument(p, "the simulations (the two controllers side by side, train's gate and the recovery stage)")
     p.add_argument("--recover", nargs="?", const="always", default="auto", choices=["auto", "always", "never"],
                    help="weak actuators: after training, fit a recovery law to torque plans within the limits and keep it "
                         "if simulation shows it helps (`idapbc-pin recover`; 15-50 min on 2 cores for a 2-DoF robot, an hour for a 3-DoF one). "
                         "auto (default): only where saturated LQR leaves room, i.e. fails from at least 10 of 100 half-box "
                         "states, or else of 100 training-box states (then the plans start from the training box: the cartpole; "
                         "reaction wheel and double pendulum leave no room at their URDF limits); --recover alone: always; never: skip")
+    p.add_argument("--recover-config", metavar="FILE", dest="recover_config",
+                   help="the recovery stage's settings: a TOML file with a [recovery] table, as `idapbc-pin recover --config` reads")
     p.set_defaults(func=_cmd_train)

@@ -1,11 +1,11 @@
 """`snapshot`: the trained torch networks' weights as a numpy `DesiredFlow` (the run-time path of f̃_d).
 
 The control law needs f̃_d(x) once per control period. In torch each small operation costs 5–10 µs
-of dispatch, and one evaluation of the three networks is about 70 of them: 0.65 ms for width-64
-networks and 1.2 ms for the paper's 3×300 (`benchmarks/bench_controller.py`, one state), above a
-1 kHz loop's budget. The same arithmetic in numpy (`desired_flow.DesiredFlow`) costs about 1 µs per
-operation. A snapshot is only valid for the weights it was taken from; `Controller` takes a new one
-whenever a parameter changes, and `idapbc_pin.deploy.export` saves one next to the exported controller.
+of dispatch, and one evaluation of the three networks is about 70 of them, around a millisecond per
+state (`benchmarks/bench_controller.py`), above a 1 kHz loop's budget. The same arithmetic in numpy
+(`desired_flow.DesiredFlow`) costs about 1 µs per operation. A snapshot is only valid for the weights
+it was taken from; `Controller` takes a new one whenever a parameter changes, and
+`idapbc_pin.deploy.export` saves one next to the exported controller.
 """
 
 from __future__ import annotations

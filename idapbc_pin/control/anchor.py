@@ -39,27 +39,22 @@ def half_widths(system: System) -> np.ndarray:
 #: ``scaling="auto"`` picks box units when the training box's half-widths span more than this ratio.
 AUTO_BOX_RATIO = 20.0
 #: ``anchor_q=0`` (automatic) tries these weights in turn and keeps the first whose anchor has no pole
-#: faster than ``AUTO_MAX_POLE`` 1/s. Under actuator limits a stiffer loop saturates sooner: with physical
-#: weights the Furuta pendulum (10 N·m) reached 78 / 77 / 82 % of the half box (seeds 0–2, 100 states) with
-#: its 17 1/s anchor (anchor_q = 10) and 88 / 89 / 90 % with its 13 1/s one (anchor_q = 1); saturated LQR 77 %.
-#: The cap also keeps |λ|·dt ≪ 0.5 for the judge's 2 ms step (`idapbc_pin.sim.step.DEFAULT_STEP`).
+#: faster than ``AUTO_MAX_POLE`` 1/s. Under actuator limits a stiffer loop saturates sooner
+#: (docs/results-history.md). The cap also keeps |λ|·dt ≪ 0.5 for the judge's 2 ms step
+#: (`idapbc_pin.sim.step.DEFAULT_STEP`).
 AUTO_ANCHOR_Q = (10.0, 1.0, 0.1, 0.01)
 AUTO_MAX_POLE = 15.0
 #: When the plant's own linearisation at x* already has a pole faster than ``AUTO_MAX_POLE`` (joint
 #: damping on light links), no weight meets the cap and the rule says nothing: the LQR baseline's own
-#: weight is taken. On example-robot-data's double_pendulum_simple acting on joint2 (a 153 1/s damping
-#: pole, no effort limits; 100 half-box states of seed 7, judged with 2 ms RK4 steps) NIDA-PBC reached
-#: 24 / 42 / 36 % with anchor_q = 0.01 (the former choice) / 1 / 10, LQR 42 %.
+#: weight is taken.
 AUTO_STIFF_PLANT_Q = 1.0
 
 
 def anchor_settings(system: System, config: TrainConfig) -> tuple[str, float]:
     """The resolved ``(scaling, anchor_q)`` of `config` for `system` (see `TrainConfig`'s "auto" values).
 
-    Measured (the earlier 64 × 2, 600-epoch fast preset, 200 domain states): box units took the zoo
-    cartpole (half-widths spanning 65×) from 9 % to 86.5 % success and cost the paper cartpole (2×)
-    70 % → 54.5 %; the Furuta pendulum in box units reached 0 / 44.5 / 51 % with anchor_q = 10 / 1 /
-    0.1 (fastest anchor pole 253 / 80 / 25 1/s).
+    Box units pay off only where the training box's half-widths span a wide range (``AUTO_BOX_RATIO``);
+    on a box of similar sides they lose success (docs/results-history.md).
     """
     scaling = config.scaling
     if scaling == "auto":

@@ -5,8 +5,7 @@ G⁻¹, in torch) with the `System` for numpy, float64 use at run time:
 
     ctrl(x) -> u (N, m);  ctrl.torque(q, v) -> τ (N, nv);  ctrl.with_damping(ρ) -> Controller
     ctrl.H_d(x), ctrl.J_d(x), ctrl.R_d(x), ctrl.f_d(x), ctrl.mismatch(x)
-    ctrl.fallback: the law used where the networks' does not act, or None: the linear law outside the
-        training box (`fallback.BoxFallback`) or a recovery law outside an inner box (`recovery.RecoveryLaw`)
+    ctrl.fallback: the outer law used where the networks' does not act (`OuterLaw`), or None
 
 Desired closed loop (eq. CLPH): f̃_d = (J_d − R_d)∇H_d. Mismatch (eq. mismatch): μ = −g⊥(f − f̃_d);
 the closed loop is ẋ = f̃_d + ξ with ξ = G⁻¹(0; μ) (Proposition 1). g is constant for every system
@@ -16,6 +15,8 @@ target before the law is evaluated (`IdaPbcNets.wrap`), as the LQR baseline does
 
 from __future__ import annotations
 
+from typing import Callable, Protocol, runtime_checkable
+
 import numpy as np
 import torch
 from torch import Tensor, nn
@@ -23,22 +24,31 @@ from torch import Tensor, nn
 from ..model import System
 from ._runtime import snapshot
 from .desired_flow import DesiredFlow
-from .fallback import BoxFallback
-from .recovery import RecoveryLaw
 from .nets import IdaPbcNets
 
-__all__ = ["Controller"]
+__all__ = ["Controller", "OuterLaw"]
+
+
+@runtime_checkable
+class OuterLaw(Protocol):
+    """What the controller knows of a law that replaces the networks' input where they do not act.
+
+    ``apply(x, u, energy)`` takes states x (N, n), the networks' inputs u (N, m) in N or N·m and a
+    callable ``energy(x) -> H_d(x)`` (N,), and returns the inputs to apply (N, m). The run's outer
+    laws (the linear law outside the training box, a recovery law) live in `idapbc_pin.recovery`.
+    An optional ``gain_at_target`` (float) scales the networks' part of the loop's linearisation at x*.
+    """
+
+    def apply(self, x: np.ndarray, u: np.ndarray, energy: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray: ...
 
 
 #: `Controller.__call__` evaluates f̃_d in numpy (`flow`) for at most this many states on the CPU and in
-#: torch (`IdaPbcNets.desired_fast`) above, or whenever the networks sit on a GPU. Measured with one
-#: thread (the judge's setting), float64 networks, numpy / torch per call: fast preset (width 64)
-#: 0.31 / 1.57 ms for 16 states, 0.60 / 1.92 ms for 100, 2.1 / 3.4 ms for 400; the paper's 3×300
-#: 1.8 / 4.4, 7.3 / 8.3 and 22.5 / 29.2 ms; float32 width 64, 1000 states: 5.5 / 4.7 ms. The
-#: simulations batch 100–200 states, so numpy runs them.
+#: torch (`IdaPbcNets.desired_fast`) above, or whenever the networks sit on a GPU: with one thread numpy
+#: is the faster of the two up to a few hundred states (`benchmarks/bench_controller.py`), which covers
+#: the simulations' batches.
 RUNTIME_MAX_BATCH = 512
 #: The same bound for networks on a GPU, where a batch pays the device round trip but large products are
-#: cheap: one state took 0.13 ms in numpy against 0.56 ms in torch on the CPU (width 64).
+#: cheap, so only small batches are copied to the CPU for numpy.
 RUNTIME_GPU_MAX_BATCH = 16
 
 
@@ -49,13 +59,12 @@ class Controller:
     ----------
     system : the plant (its f(x) enters the control law).
     nets : trained `IdaPbcNets`.
-    fallback : the law that replaces the learned one where it does not act, through its
-        ``apply(x, u)``: the linear law outside the training box (`fallback.BoxFallback`) or a
-        recovery law outside an inner box (`recovery.RecoveryLaw`); a run's own comes from
+    fallback : the `OuterLaw` that replaces the learned one where it does not act, through its
+        ``apply(x, u, energy)``; a run's own comes from
         `Run.controller`. None: the learned law everywhere.
     """
 
-    def __init__(self, system: System, nets: IdaPbcNets, fallback: BoxFallback | RecoveryLaw | None = None):
+    def __init__(self, system: System, nets: IdaPbcNets, fallback: OuterLaw | None = None):
         self.system = system
         self.nets = nets.eval()
         self.fallback = fallback
@@ -99,7 +108,7 @@ class Controller:
         """f̃_d as a numpy `DesiredFlow` of the current weights (retaken when a parameter changes).
 
         The run-time path of `__call__` and `torque` for up to `RUNTIME_MAX_BATCH` states: numpy on
-        the CPU, 2.5–4.5× faster than torch for one state (`_runtime`), equal to `f_d` to rounding.
+        the CPU, several times faster than torch for one state (`_runtime`), equal to `f_d` to rounding.
         """
         key = tuple((p._version, p.data_ptr()) for p in self._params)
         if self._flow is None or self._flow[0] != key:
@@ -160,7 +169,7 @@ class Controller:
             nets.register_buffer(name, buf, persistent=name not in self.nets._non_persistent_buffers_set)
         return Controller(self.system, nets, self.fallback)
 
-    def with_fallback(self, fallback: BoxFallback | RecoveryLaw | None) -> "Controller":
+    def with_fallback(self, fallback: OuterLaw | None) -> "Controller":
         """Same networks, another law where they do not act (None: the learned law everywhere)."""
         return Controller(self.system, self.nets, fallback)
 
@@ -171,9 +180,9 @@ class Controller:
     def closed_loop_jacobian(self, x=None) -> np.ndarray:
         """∂/∂x of the true closed loop f + g u at x (default x*): (n, n).
 
-        With u = gᵀ(f̃_d − f) and gᵀg = I: ẋ = (I − ggᵀ)f + ggᵀf̃_d. A box fallback with an inside
-        gain k_in (`BoxFallback.inside_gain`) scales u − u* by k_in inside the training box, where x*
-        lies: ∂ẋ/∂x = A + k_in ggᵀ(∂f̃_d/∂x − A); a ramped one is 1 at x* (`BoxFallback.gain_at_target`).
+        With u = gᵀ(f̃_d − f) and gᵀg = I: ẋ = (I − ggᵀ)f + ggᵀf̃_d. An outer law that scales
+        the networks' u − u* by k_in at x* (its ``gain_at_target``, 1 when it has none) gives
+        ∂ẋ/∂x = A + k_in ggᵀ(∂f̃_d/∂x − A).
         """
         x = self.system.x_star if x is None else np.asarray(x, dtype=np.float64)
         A = self.system.df_dx(x)
@@ -181,7 +190,7 @@ class Controller:
         Jfd = torch.autograd.functional.jacobian(lambda z: self.nets.desired(z[None], create_graph=True)[4][0], xt)
         g = self.system.g(x)
         Pg = g @ np.linalg.solve(g.T @ g, g.T)
-        k_in = getattr(self.fallback, "gain_at_target", 1.0)  # a recovery law has none: the networks act at x*
+        k_in = getattr(self.fallback, "gain_at_target", 1.0)
         return A + k_in * Pg @ (self._np(Jfd) - A)
 
     def eigenvalues_at_target(self) -> np.ndarray:

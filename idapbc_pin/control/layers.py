@@ -52,7 +52,7 @@ class _Softplus(torch.autograd.Function):
     def apply(cls, x: Tensor) -> Tensor:
         """`autograd.Function.apply` without its argument binding where no functorch transform is
         active: with a `setup_context`, torch binds the arguments through `inspect.signature` at
-        every call (~0.3 ms, ~4 % of a fast-preset epoch), which a one-argument forward does not need."""
+        every call (a visible share of a fast-preset epoch), which a one-argument forward does not need."""
         if torch._C._are_functorch_transforms_active():
             return super().apply(x)
         return super(torch.autograd.Function, cls).apply(x)  # torch._C._FunctionBase.apply, bound to cls
@@ -61,8 +61,8 @@ class _Softplus(torch.autograd.Function):
 def softplus(x: Tensor) -> Tensor:
     """Smooth softplus log(1 + eˣ), derivative sigmoid(x), for any x (see :class:`_Softplus`).
 
-    Without autograd (inference) the same formula runs directly: `autograd.Function.apply` costs
-    ~0.5 ms per call in Python overhead, which dominated the run-time controller.
+    Without autograd (inference) the same formula runs directly: the Python overhead of
+    `autograd.Function.apply` would dominate the run-time controller.
     """
     if not (torch.is_grad_enabled() and x.requires_grad) and not torch._C._functorch.is_functorch_wrapped_tensor(x):
         return torch.relu(x) + torch.log1p(torch.exp(-x.abs()))

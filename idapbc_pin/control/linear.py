@@ -25,8 +25,8 @@ from typing import Literal
 import numpy as np
 import scipy.linalg as sla
 
-from ._matrices import _PD_RTOL, _as_matrix, _check_system, _is_spd, _sym
-from .controllability import controllability_rank, is_stabilisable, uncontrollable_eigenvalues
+from ..model._matrices import _PD_RTOL, _as_matrix, _check_system, _is_spd, _sym
+from ..model.controllability import controllability_rank, is_stabilisable, uncontrollable_eigenvalues
 
 __all__ = [
     "LinearAnchor",

@@ -25,7 +25,7 @@ import numpy as np
 from .._io import atomic_write_bytes, write_json
 from ..control import desired_flow
 from ..errors import IdapbcError
-from ..training.run import resolve_run
+from ..run import resolve_run
 from .onnx_flow import onnx_model
 from .readme import deploy_readme
 

@@ -3,9 +3,8 @@
 applied to both unless lifted, judged by Pinocchio or (``judge="mujoco"``) by MuJoCo; the
 ``idapbc-pin simulate`` command.
 
-Writes ``simulation.json`` (settings, scores and both ROA radii under the same conditions) and
-``simulation.png`` (the figure's panels for the first few states, Neural IDA-PBC) into the run
-directory.
+Writes ``simulation.json`` (settings, scores and both ROA radii under the same conditions) into the
+run directory; `idapbc_pin.reporting.simulation_figure` draws ``simulation.png`` from the result.
 """
 
 from __future__ import annotations
@@ -18,16 +17,14 @@ from .._io import write_json
 from .._parallel import process_map
 from ..control.baseline import LQRController
 from ..errors import IdapbcError
-from ..reporting.figure_data import figure_data, horizon
-from ..reporting.plot import plot, save_png
 from ..sim.limits import input_limits
 from ..sim.mujoco_plant import mujoco_judge
-from ..sim.radius import RadiusResult, roa_radius
-from ..sim.roa import RoaResult, score
+from .radius import RadiusResult, roa_radius
+from .roa import RoaResult, score
 from ..sim.states import evaluation_box, initial_states, uniform_states
-from ..sim.step import judge_step
+from ..sim.step import horizon, judge_step
 from ..sim.trajectory import Trajectory
-from ..training.run import resolve_run
+from ..run import resolve_run
 from .robustness import MeasuredController, parse_mismatch, perturbed_system
 
 __all__ = ["JUDGES", "SimulationResult", "simulate_run"]
@@ -43,8 +40,10 @@ class SimulationResult:
     roa: object  #: `RoaResult` (NIDA-PBC, LQR)
     settings: dict
     json_path: Path | None
-    figure_path: Path | None
     radius: RadiusResult | None = None  #: both ROA radii under the same conditions (None: skipped)
+    controller: object = None  #: the Neural IDA-PBC law simulated (with its extra damping)
+    trajectory: Trajectory | None = None  #: its rollouts, (N, ...) per field
+    label: str = ""  #: the system and the conditions, for a figure's title
 
     def table(self) -> str:
         s = self.settings
@@ -58,21 +57,20 @@ class SimulationResult:
             lines.append(self.radius.line())
         if conds:
             lines.append("conditions: " + ", ".join(conds))
-        for p in (self.json_path, self.figure_path):
-            if p is not None:
-                lines.append(f"wrote {p}")
+        if self.json_path is not None:
+            lines.append(f"wrote {self.json_path}")
         return "\n".join(lines)
 
 
 def _score_job(job):
-    """Worker: `idapbc_pin.sim.roa.score` of one controller and its rollouts, for
+    """Worker: `idapbc_pin.evaluation.roa.score` of one controller and its rollouts, for
     job = (system, name, ctrl, x0, T, dt, saturation, limits)."""
     system, name, ctrl, x0, T, dt, saturation, limits = job
     return score(system, name, ctrl, x0, T, dt, saturation=saturation, limits=limits)
 
 
 def _scores(system, controllers, x0, T, dt, saturation, limits, box_name, box, seed, workers: int = 1):
-    """Every controller from x0 on the judge `system`, scored by `idapbc_pin.sim.roa.score`, side by
+    """Every controller from x0 on the judge `system`, scored by `idapbc_pin.evaluation.roa.score`, side by
     side in `workers` processes (`idapbc_pin._parallel.process_map`; each controller's batch whole, so
     the count changes the time, never a score); -> (RoaResult, {name: Trajectory})."""
     jobs = [(system, name, ctrl, x0, T, dt, saturation, limits) for name, ctrl in controllers.items()]
@@ -113,9 +111,8 @@ def _check_conditions(saturation, noise, rho) -> None:
         raise IdapbcError(f"ρ must be finite and ≥ 0, got {rho}. Fix: e.g. --rho 1.")
 
 
-def _write(run, res: RoaResult, trajs, settings: dict, x0, nida, n_figure: int, radius: RadiusResult | None):
-    """simulation.json (settings, scores, radii, x0) and simulation.png (the first `n_figure`
-    rollouts of Neural IDA-PBC); -> (json path, png path or None)."""
+def _write(run, res: RoaResult, settings: dict, x0, radius: RadiusResult | None) -> Path:
+    """simulation.json (settings, scores, radii, x0) in the run directory; -> its path."""
     record = dict(settings)
     if radius is not None:
         record["radius"], record["radius_search"] = dict(radius.radius), radius.to_dict()
@@ -126,18 +123,15 @@ def _write(run, res: RoaResult, trajs, settings: dict, x0, nida, n_figure: int, 
             "success": s.success.tolist(), "settling_time": s.settling_time.tolist(),
         }
     record["x0"] = x0.tolist()
-    json_path = write_json(run.path / "simulation.json", record, sort_keys=False)
-    k = min(int(n_figure), x0.shape[0])
-    if k <= 0:
-        return json_path, None
-    tr = trajs["NIDA-PBC"]
-    sub = Trajectory(t=tr.t, x=tr.x[:k], q=tr.q[:k], v=tr.v[:k], u=tr.u[:k], diverged=tr.diverged[:k])
+    return write_json(run.path / "simulation.json", record, sort_keys=False)
+
+
+def _label(run, res: RoaResult, settings: dict, nida) -> str:
+    """The system, ρ and the conditions, as a figure's title."""
     scales, noise = settings["mismatch"], settings["noise"]
     bound = res.limits.bound_text() if res.limits is not None else ""
     conds = ", ".join([f"{a}×{b:g}" for a, b in scales.items()] + ([f"|u|≤{bound}"] if bound else []) + ([f"σ={noise:g}"] if noise else []))
-    label = f"{run.system.name}, ρ = {nida.rho:g}" + (f", {conds}" if conds else "")
-    row = figure_data(nida, traj=sub, epsilon=run.summary.get("epsilon"), label=label)
-    return json_path, save_png(plot([row]), run.path / "simulation.png")
+    return f"{run.system.name}, ρ = {nida.rho:g}" + (f", {conds}" if conds else "")
 
 
 def simulate_run(
@@ -154,7 +148,6 @@ def simulate_run(
     seed: int = 0,
     box: str = "domain",
     write: bool = True,
-    n_figure: int = 4,
     limits: bool = True,
     radius: bool = True,
     judge: str = "pinocchio",
@@ -162,8 +155,8 @@ def simulate_run(
 ) -> SimulationResult:
     """Closed loop of a run's controller next to LQR from the same states, under optional conditions.
 
-    Writes ``simulation.json`` (settings, scores and radii) and ``simulation.png`` (the figure's
-    panels for the first `n_figure` states, Neural IDA-PBC) into the run directory.
+    Writes ``simulation.json`` (settings, scores and radii) into the run directory (`write`); the
+    result carries Neural IDA-PBC's rollouts for `idapbc_pin.reporting.simulation_figure`.
 
     Parameters
     ----------
@@ -205,5 +198,5 @@ def simulate_run(
                            workers=workers)
     settings = {"n": int(x0.shape[0]), "T": T, "dt": dt, "hold": res.hold, "seed": seed, "box": box_name, "rho": float(nida.rho),
                 "mismatch": scales, "saturation": saturation, "noise": noise, "limits": res.limits.to_json(), "judge": judge}
-    json_path, fig_path = _write(run, res, trajs, settings, x0, nida, n_figure, found) if write else (None, None)
-    return SimulationResult(res, settings, json_path, fig_path, found)
+    json_path = _write(run, res, settings, x0, found) if write else None
+    return SimulationResult(res, settings, json_path, found, nida, trajs["NIDA-PBC"], _label(run, res, settings, nida))

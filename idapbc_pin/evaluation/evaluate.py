@@ -3,7 +3,7 @@
 `evaluate_run` simulates the true plant (DESIGN §4) from the same uniform states of the training
 domain and of its half-size box under the learned controller and the LQR baseline (Q = I, R = I),
 with the actuators' effort limits applied to both unless lifted, finds both ROA radii
-(`idapbc_pin.sim.radius`, reusing those two boxes' rollouts) and writes ``evaluation.json`` into the
+(`idapbc_pin.evaluation.radius`, reusing those two boxes' rollouts) and writes ``evaluation.json`` into the
 run directory.
 """
 
@@ -13,12 +13,12 @@ from dataclasses import dataclass
 
 from .._io import finite_or_none, write_json
 from ..control.baseline import LQRController
-from ..control.recovery import RecoveryLaw
+from ..recovery.law import RecoveryLaw
 from ..sim.limits import input_limits
-from ..sim.radius import RadiusResult, roa_radius
-from ..sim.roa import RoaResult, roa
+from .radius import RadiusResult, roa_radius
+from .roa import RoaResult, roa
 from ..sim.step import judge_step
-from ..training.run import Run
+from ..run import Run
 
 __all__ = ["Evaluation", "evaluate_run", "format_evaluation"]
 
@@ -37,7 +37,7 @@ class Evaluation:
 
     def record(self) -> dict:
         """JSON-ready summary: per box and controller, success rate and medians, and NIDA-PBC's lead over
-        LQR on the box's states (``"paired"``: counts, interval, McNemar's p; `sim.paired`) and both
+        LQR on the box's states (``"paired"``: counts, interval, McNemar's p; `evaluation.paired`) and both
         median settling times on the states both reach (``"common_settling"``); the radii
         ``"radius": {controller: s}`` (with ``"radius_search"``: settings, brackets, probes) and the
         input bound applied (``"limits"``)."""

@@ -35,9 +35,9 @@ from .._io import finite_or_none, write_json
 from ..control.baseline import LQRController
 from ..errors import IdapbcError
 from ..sim.limits import InputLimits, input_limits
-from ..sim.roa import roa
+from .roa import roa
 from ..sim.step import judge_step
-from ..training.run import resolve_run
+from ..run import resolve_run
 
 __all__ = [
     "MISMATCH_KINDS",
@@ -296,7 +296,7 @@ def robustness_table(
     Parameters
     ----------
     run : a `Run` or a run directory (its controller, optionally with extra damping `rho`).
-    n, T, dt, seed, box : the ROA settings (`idapbc_pin.sim.roa.roa`); the same states and the same
+    n, T, dt, seed, box : the ROA settings (`idapbc_pin.evaluation.roa.roa`); the same states and the same
         step in every row (dt None: `judge_step` of both laws on the nominal plant).
     conditions : rows (default `default_conditions()`: nominal, mass ×0.8 and ×1.2, saturation at
         `saturation_factor` × LQR's median nominal peak |u|, noise σ = 0.01).

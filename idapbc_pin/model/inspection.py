@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import IdapbcError, NotAnEquilibriumError
-from ..control.linear import controllability_rank
+from .controllability import controllability_rank
 from .loading import load_system
 from .system import System
 

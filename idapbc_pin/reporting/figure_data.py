@@ -17,10 +17,10 @@ from ..certificate.terms import closed_loop_terms
 from ..errors import IdapbcError
 from ..evaluation.robustness import MeasuredController
 from ..sim.integrate import simulate
-from ..sim.step import judge_step
+from ..sim.step import horizon, judge_step
 from ..sim.states import initial_states
 
-__all__ = ["FigureData", "figure_data", "horizon"]
+__all__ = ["FigureData", "figure_data"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,15 +63,6 @@ class FigureData:
         """(N, K, nq) momenta, the second half of x."""
         nq = len(self.coordinate_names)
         return self.traj.x[..., nq:]
-
-
-def horizon(T: float, dt: float) -> float:
-    """T rounded to a whole number (≥ 1) of steps dt, s; a non-positive T or dt is an `IdapbcError`."""
-    if not (dt > 0 and math.isfinite(dt)):
-        raise IdapbcError(f"dt must be a positive number of seconds, got {dt!r}.")
-    if not (T > 0 and math.isfinite(T)):
-        raise IdapbcError(f"T must be a positive number of seconds, got {T!r}. Fix: e.g. --T 20.")
-    return max(1, int(round(T / dt))) * dt
 
 
 def _units(system):

@@ -21,7 +21,7 @@ from ..certificate.certify import certify, resolve_controller
 from ..errors import IdapbcError
 from ..evaluation.evaluate import evaluate_run, format_evaluation
 from ..sim.states import initial_states, uniform_states
-from ..training.run import resolve_run
+from ..run import resolve_run
 from ..viewer import view
 from .figure_data import FigureData, figure_data
 from .plot import plot, save_png

@@ -11,9 +11,8 @@ import numpy as np
 
 __all__ = ["DEFAULT_THREADS", "Judge"]
 
-#: Threads for Pinocchio's ``abaInParallel`` / ``rneaInParallel``. One: measured on the 2-core
-#: machine with other work running (load 4–7), 2 OpenMP threads made a 1000-state acrobot ROA 6.7×
-#: slower (129 s vs 19 s); on an idle machine 2 threads gain at most ~2× on the Pinocchio calls.
+#: Threads for Pinocchio's ``abaInParallel`` / ``rneaInParallel``. One: on a loaded machine OpenMP
+#: threads slow the pooled calls down several-fold, and on an idle one they gain at most their count.
 DEFAULT_THREADS = 1
 
 

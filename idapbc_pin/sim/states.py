@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import IdapbcError
 
-__all__ = ["evaluation_box", "half_box", "initial_states", "uniform_states"]
+__all__ = ["evaluation_box", "half_box", "initial_states", "scaled_box", "uniform_states"]
 
 
 def half_box(system) -> tuple[np.ndarray, np.ndarray]:
@@ -52,3 +52,13 @@ def initial_states(system, x0, n: int, seed: int) -> np.ndarray:
     if not np.all(np.isfinite(x0)):
         raise IdapbcError("x0 contains NaN or inf. Fix: give finite values.")
     return x0
+
+
+def scaled_box(system, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """X_s = x* + s·(X − x*): (lo, hi), each (n,). s = 1 is the training domain itself and s = 0.5
+    equals `half_box` bit for bit."""
+    lo, hi = evaluation_box(system, "domain")
+    if s == 1.0:
+        return lo, hi
+    x_star = np.asarray(system.x_star, float)
+    return x_star + s * (lo - x_star), x_star + s * (hi - x_star)

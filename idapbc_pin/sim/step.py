@@ -3,20 +3,17 @@
 The judge runs a control law as a robot does: sampled every dt and held over the step (a 500 Hz
 digital controller at the default `DEFAULT_STEP` = 2 ms, MuJoCo's own default step), the plant
 integrated by classical RK4 over that step; MuJoCo's RK4 integrator stepping the same URDF with the
-torque held follows the judge's trajectory to 1e-6 (tests/test_mujoco_judge.py). The judge before it
-evaluated the law at every RK4 stage of 10 ms, and saturated swings are sensitive to that: on the zoo
-acrobot (seed-0 run, 100 half-box states of seed 7, NIDA-PBC / saturated LQR) it gave 92 / 74 % at
-10 ms and 80 / 66 % at 2 ms, while MuJoCo's own Euler stepping with the torque held gave 79.5 / 81 %
-on 200 such states. Which states a chaotic swing catches still depends on the integrator at any
-control rate (docs/method.md §5).
+torque held follows the judge's trajectory to 1e-6 (tests/test_mujoco_judge.py). Saturated swings
+are sensitive to how the law is sampled, so the law is held as a robot holds it rather than
+evaluated at every RK4 stage (docs/results-history.md); which states a chaotic swing catches still
+depends on the integrator at any control rate (docs/method.md §5).
 
 Classical RK4 with step dt is stable on a linear mode λ only while |λ|·dt stays inside its stability
 region (up to 2.78 on the negative real axis), and a sampled law needs a step short against the loop
 too. Every evaluation takes ``dt=None`` to mean: `DEFAULT_STEP`, or a shorter step where a judged
-loop, linearised at x*, has a pole faster than ``POLE_STEP / DEFAULT_STEP`` (250 1/s). Every zoo
-robot and paper benchmark stays at 2 ms (their fastest loop pole, LQR's on the reaction wheel, is
-32 1/s), and so does example-robot-data's damped double pendulum (plant poles of 136–153 1/s from
-joint damping on light links, which made LQR "diverge" from 155 of 200 domain states at 10 ms).
+loop, linearised at x*, has a pole faster than ``POLE_STEP / DEFAULT_STEP`` (250 1/s). The zoo robots and
+the paper's benchmarks stay at 2 ms; a plant with joint damping on light links can itself have poles
+above 100 1/s, which a longer step would not follow.
 """
 
 from __future__ import annotations
@@ -27,16 +24,17 @@ from typing import Mapping
 
 import numpy as np
 
+from ..errors import IdapbcError
 from .judge import Judge
 
-__all__ = ["DEFAULT_STEP", "MIN_AUTO_STEP", "POLE_STEP", "judge_step", "loop_pole", "step_for_pole"]
+__all__ = ["DEFAULT_STEP", "MIN_AUTO_STEP", "POLE_STEP", "horizon", "judge_step", "loop_pole", "step_for_pole"]
 
 #: The judge's RK4 step and control period (s) unless a loop is stiffer: a 500 Hz controller.
 DEFAULT_STEP = 0.002
 #: The largest |λ|·dt an automatic step allows at x* (the loop is faster still away from x*).
 POLE_STEP = 0.5
 #: The shortest automatic step (s): a loop faster than POLE_STEP / MIN_AUTO_STEP (500 1/s) gets this
-#: step and a warning, since 20 000 steps per 20 s rollout is already slow on two cores.
+#: step and a warning, since a shorter one makes every rollout of 20 s too long to simulate.
 MIN_AUTO_STEP = 1e-3
 #: Relative size of the central-difference steps of `loop_pole`.
 _FD_STEP = 1e-6
@@ -97,3 +95,12 @@ def judge_step(system, controllers: Mapping[str, object], T: float, dt: float | 
         )
         return short
     return step
+
+
+def horizon(T: float, dt: float) -> float:
+    """T rounded to a whole number (≥ 1) of steps dt, s; a non-positive T or dt is an `IdapbcError`."""
+    if not (dt > 0 and math.isfinite(dt)):
+        raise IdapbcError(f"dt must be a positive number of seconds, got {dt!r}.")
+    if not (T > 0 and math.isfinite(T)):
+        raise IdapbcError(f"T must be a positive number of seconds, got {T!r}. Fix: e.g. --T 20.")
+    return max(1, int(round(T / dt))) * dt

@@ -1,6 +1,6 @@
 """The trainer's state and how it is saved: what the epochs read and advance (`Trainer`), the
 in-memory snapshot a divergence rolls back to, the checkpoints (last, best, pre_rollout) and the rows
-of metrics.csv. The loop that advances it is `training.train`; the run directory is `training.run`.
+of metrics.csv. The loop that advances it is `training.train`; the run directory is `idapbc_pin.run`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from ..config import TrainConfig
 from ..control.nets import IdaPbcNets, build_nets
 from ..model import System
 from .loss import TERMS, AdaptiveWeights
-from .run import load_weights, require_device, save_checkpoint, system_record
+from ..run import load_weights, save_checkpoint, system_record
+from .._device import require_device
 
 __all__ = ["METRICS_COLUMNS", "Trainer", "checkpoint", "metrics_row", "open_metrics", "restore", "save_snapshot", "snapshot", "start"]
 
@@ -93,7 +94,7 @@ def _live(trainer: Trainer) -> dict:
 def _cloned(tree):
     """A copy of a state dict's nesting of dicts, lists and tuples: tensors cloned, everything else
     (numbers, strings, None, as in Adam's state and param groups) shared, since it is immutable.
-    Taken every epoch: `copy.deepcopy` of Adam's state cost ~10 % of a fast-preset epoch."""
+    Taken every epoch, where `copy.deepcopy` of Adam's state would cost a noticeable share of a fast-preset epoch."""
     if isinstance(tree, torch.Tensor):
         return tree.detach().clone()
     if isinstance(tree, dict):

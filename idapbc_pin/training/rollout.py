@@ -18,7 +18,7 @@ saturated input, as the real loop is insensitive there. A trajectory that leaves
 is frozen (its cost stays at that cap): it cannot blow up the gradient.
 
 The rollout epochs' weights replace the residual-trained ones only if the real loop does at least
-as well from fresh states (`rollout_gate`); the trainer keeps the earlier weights in
+as well from fresh states (`rollout_gate`); the trainer keeps the residual-trained weights in
 ``checkpoints/pre_rollout.pt`` for that comparison.
 """
 
@@ -30,6 +30,9 @@ from torch import Tensor
 
 from ..control.nets import IdaPbcNets
 from ..model import System
+from ..sim.compare import compare_laws
+from ..sim.states import scaled_box, uniform_states
+from ..sim.step import judge_step
 
 __all__ = ["PlantDrift", "rollout_cost", "rollout_gate", "rollout_starts", "saturated_field"]
 
@@ -116,6 +119,8 @@ def rollout_cost(nets: IdaPbcNets, system: System, x0: Tensor, horizon: float, s
 #: (their own stream: neither the training samples nor the evaluation's seed-0 states).
 GATE_STATES = 100
 GATE_SEED = 7919
+#: The gate's horizon, s (DESIGN §4).
+GATE_HORIZON = 20.0
 
 
 def rollout_gate(system: System, before, after, box: float, seed: int) -> dict:
@@ -124,14 +129,13 @@ def rollout_gate(system: System, before, after, box: float, seed: int) -> dict:
     `before`, `after` : controllers ((N, n) -> (N, m)); box : the rollout box's scale b; seed : the
     run's seed. Both are simulated from the same `GATE_STATES` uniform states of x* + b·(X − x*),
     drawn with seed ``GATE_SEED + seed``. The rollout weights are kept when they do at least as well:
-    back-propagation through a saturated swing can also lead somewhere worse (measured on the
-    acrobot: the first link ended up spinning for good from most of the half box).
+    back-propagation through a saturated swing can also lead somewhere worse (a link that ends up
+    spinning for good, say).
 
     Returns {"states", "before", "after" (success rates in [0, 1]), "kept" (bool)}.
     """
-    from ..sim.radius import scaled_box  # training sits upstream of the judge; imported only here
-    from ..sim.roa import roa
-
-    result = roa(system, {"before": before, "after": after}, n=GATE_STATES, box=scaled_box(system, box), seed=GATE_SEED + seed, limits=True)
-    rates = {k: float(v.success_rate) for k, v in result.scores.items()}
+    x0 = uniform_states(system, GATE_STATES, scaled_box(system, box), GATE_SEED + seed)
+    dt = judge_step(system, {"before": before, "after": after}, GATE_HORIZON, None)
+    (ok_before, _), (ok_after, _) = compare_laws(system, [(before, x0), (after, x0)], T=GATE_HORIZON, dt=dt, stop_settled=False)
+    rates = {"before": float(ok_before.mean()), "after": float(ok_after.mean())}
     return {"states": GATE_STATES, **rates, "kept": rates["after"] >= rates["before"]}

@@ -8,13 +8,10 @@ __all__ = ["PLANT_POLE_SHARE", "STIFF_DT", "STIFF_WARN", "format_train_summary"]
 #: The judge's default RK4 step and control period (s) (`idapbc_pin.sim.step.DEFAULT_STEP`), and the
 #: |λ|·dt above which `train` notes that the learned loop is too stiff for it, so the evaluations
 #: shorten the step: the judge's own `POLE_STEP` (RK4 is stable on the negative real axis up to 2.78,
-#: and a law sampled every dt needs a step short against the loop; measured with the earlier 10 ms
-#: step: the Furuta pendulum's anchor with |λ| = 253 1/s, |λ|·dt = 2.5, diverged from every state
-#: and reached x* from 24 % of the half box at 2 ms).
+#: and a law sampled every dt needs a step short against the loop).
 STIFF_DT, STIFF_WARN = 0.002, 0.5
 #: The NOTE blames the plant rather than the anchor when the open loop at x* has a pole at least this
-#: share of the fastest closed-loop one (`erd:double_pendulum`: open loop 136 1/s from joint damping on
-#: light links, closed loop 136 1/s with the weakest automatic anchor).
+#: share of the fastest closed-loop one (joint damping on light links can make the plant itself that fast).
 PLANT_POLE_SHARE = 0.9
 
 
@@ -38,7 +35,7 @@ def format_train_summary(run) -> str:
         gate = s.get("fallback") or {}
         why = (f" (gate: {100 * gate['with_fallback']:.0f} % of {gate['states']} fresh states reach x* with it, "
                f"{100 * gate['networks']:.0f} % without)" if "with_fallback" in gate else "")
-        from ..control.fallback import fallback_gain
+        from ..recovery.box_law import fallback_gain
 
         k = fallback_gain(run.system, run.config)
         law = "u* − Kδ" if k == 1 else f"u* − {k:g}·Kδ"

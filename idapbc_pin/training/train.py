@@ -1,6 +1,6 @@
 """The trainer: fresh uniform samples each epoch, named loss terms with adaptive weights, Adam,
 atomic checkpoints (last and best), resume, NaN guard, Ctrl-C. Its state and checkpoints are
-`training._trainer`; the run directory it writes is described in `training.run`.
+`training._trainer`; the run directory it writes is described in `idapbc_pin.run`.
 """
 
 from __future__ import annotations
@@ -22,24 +22,25 @@ from ..config import TrainConfig
 from ..control.anchor import anchor_settings
 from ..control.linear import fastest_pole
 from ..control.controller import Controller
-from ..control.fallback import box_fallback, fallback_gain
+from ..recovery.box_law import box_fallback, fallback_gain
 from ..control.nets import build_nets
 from ..errors import IdapbcError
 from ..model import System
 from ._trainer import Trainer, checkpoint, metrics_row, open_metrics, restore, save_snapshot, snapshot, start
 from .loss import TERMS, loss_terms
-from . import fallback_gate as _gate
+from ..recovery import box_gate as _gate
 from .rollout import rollout_cost, rollout_gate, rollout_starts
-from .run import Run, check_checkpoints, load_weights, read_checkpoint, read_config, require_device
+from ..run import Run, check_checkpoints, load_weights, read_checkpoint, read_config
+from .._device import require_device
 
 __all__ = ["TrainingDiverged", "train"]
 
 
-#: The learning rate a resume after a divergence is offered at most (the presets' own, measured).
+#: The learning rate a resume after a divergence is offered at most (the presets' own, `TrainConfig.lr`).
 SAFE_LR = 5e-4
 
-#: Gradient-norm clip of the `rollout` epochs: back-propagation through a saturated swing gave norms
-#: from 10 to 1e5 on the acrobot (measured), so each step is at most Adam's own size.
+#: Gradient-norm clip of the `rollout` epochs: back-propagation through a saturated swing gives norms
+#: over several orders of magnitude, so each step is at most Adam's own size.
 ROLLOUT_CLIP = 1.0
 
 
@@ -98,8 +99,8 @@ def train(
             f"{run_dir / 'checkpoints' / 'last.pt'}. Fix: idapbc-pin train --resume {run_dir} --lr {min(config.lr / 10, SAFE_LR):g}"
         ) from None
     gate = _gate_rollout(trainer, progress) if status == "finished" and config.rollout_epochs > 0 else None
-    # From here the law is only simulated: on the CPU, where the plant is. On an H200 the fallback
-    # gate took 73 s with the networks on the GPU against 38 s on the CPU (README, "On a GPU").
+    # From here the law is only simulated: on the CPU, where the plant is, which spares the
+    # per-step round trips to a GPU.
     run = Run(run_dir, system, config, trainer.nets.to("cpu"))
     if status == "finished" and config.fallback == "auto":
         # first, so that the summary's eigenvalues at x* are those of the law the run applies (a
@@ -183,7 +184,7 @@ def _resolve(system: System, config: TrainConfig | None, out, resume) -> tuple[T
 
 def resolved_config(system: System, config: TrainConfig) -> TrainConfig:
     """`config` with its automatic values resolved for `system` (the units and the anchor weight,
-    `control.anchor.anchor_settings`, and the fallback gain, `control.fallback.fallback_gain`): what a
+    `control.anchor.anchor_settings`, and the fallback gain, `recovery.box_law.fallback_gain`): what a
     new run's config.json records, so a batch that runs a job again finds the run it trained."""
     scaling, anchor_q = anchor_settings(system, config)
     return config.replace(scaling=scaling, anchor_q=anchor_q, fallback_gain=fallback_gain(system, config))
@@ -293,7 +294,7 @@ def _step(trainer: Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float],
     if rolling:  # the last epochs train on simulations of the saturated loop alone
         if epoch == config.epochs - config.rollout_epochs:
             checkpoint(trainer, "pre_rollout", epoch)  # what `rollout_gate` compares the result with
-            trainer.optimizer.state.clear()  # Adam's moments of the residuals would scale the new term's steps (measured: no progress)
+            trainer.optimizer.state.clear()  # Adam's moments of the residuals would scale the new term's steps
         x0 = rollout_starts(system, config.rollout_samples, config.rollout_box, trainer.gen)
         limits = trainer.tensor(np.array(system.effort))
         terms["rollout"] = rollout_cost(nets, system, trainer.tensor(x0), config.rollout_horizon, config.rollout_step, config.rollout_tail, limits)

@@ -24,7 +24,7 @@ from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import initial_states
 from ..sim.step import judge_step
-from ..training.run import resolve_run
+from ..run import resolve_run
 from .animation import DEFAULT_FPS
 from .viewer import Viewer
 

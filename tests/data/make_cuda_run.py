@@ -18,7 +18,7 @@ import torch
 
 import idapbc_pin as ip
 from idapbc_pin.config import TrainConfig
-from idapbc_pin.training.run import load_run
+from idapbc_pin.run import load_run
 from idapbc_pin.training.train import train
 
 #: The fixture's training: small enough to commit (about 40 kB of checkpoints).

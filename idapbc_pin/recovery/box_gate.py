@@ -1,20 +1,18 @@
-"""Whether a run uses the linear law outside its training box (`control.fallback`), and whether it
+"""Whether a run uses the linear law outside its training box (`recovery.box_law`), and whether it
 scales the learned law inside it: decided by simulation.
 
 After training, the learned law is simulated on the true plant, with the actuators' limits, from
 `GATE_STATES` states of its own: as trained, with the anchor's linear law outside the training box,
 and (robots with effort limits, whose fallback gain k is 3) with that linear law outside and the
 learned law scaled by k about u* inside, the factor ramped in from 1 near x*
-(`BoxFallback.inside_gain`, `control.fallback.INSIDE_RAMP`). The law that brings the most of those
+(`BoxFallback.inside_gain`, `recovery.box_law.INSIDE_RAMP`). The law that brings the most of those
 states to x* is used (DESIGN §4 success: T = 20 s, within 0.05 over the last 2 s); a tie keeps the
 simpler one. Half the states are drawn from the half box and half from the training box, with
 seeds ``GATE_SEED + seed`` and ``GATE_SEED + seed + 1``: neither the training samples nor the
 evaluation's seed-0 states.
 
-Why a decision per run and not one rule (fast preset, seed 0, limits on both laws, 100 states of
-seed 7, half box then domain, learned law everywhere → with the fallback):
-acrobot 74 / 44 → 84 / 51 %, acrobot with continuous joints and a damped elbow 53 / 28 → 87 / 50 %,
-but pendubot 64 / 44 → 63 / 24 % and a Furuta pendulum with other masses 94 / 72 → 88 / 67 %.
+Why a decision per run and not one rule: the fallback brings more states to x* on some robots and
+fewer on others (docs/results-history.md).
 """
 
 from __future__ import annotations
@@ -22,25 +20,25 @@ from __future__ import annotations
 import numpy as np
 
 from ..control.controller import Controller
-from ..control.fallback import INSIDE_RAMP, BoxFallback
+from .box_law import INSIDE_RAMP, BoxFallback
 from ..control.linear import fastest_pole
 from ..model import System
+from ..sim.compare import compare_laws
+from ..sim.states import uniform_states
+from ..sim.step import step_for_pole
 
 __all__ = ["GATE_SEED", "GATE_STATES", "fallback_gate", "gate_step"]
 
 #: States of the gate (half from the half box, half from the training box), its seed offset, and the
 #: horizon and step of its simulations (s): the judge's (DESIGN §4, `idapbc_pin.sim.step.DEFAULT_STEP`:
-#: the law sampled and held at 500 Hz), so the gate decides on the same judge as every evaluation
-#: (the zoo's decisions came out the same as with the earlier 10 ms judge; the acrobot's gate saw
-#: 64 → 75 % instead of 45 → 78 %).
+#: the law sampled and held at 500 Hz), so the gate decides on the same judge as every evaluation.
 GATE_STATES = 100
 GATE_SEED = 15_485_863
 GATE_HORIZON = 20.0
 GATE_STEP = 0.002
 #: The gate's RK4 step is at most this over the fastest pole of the linear loop at x* (|λ|·dt ≤ 0.5,
-#: the judge's `POLE_STEP`): a plant with a 153 1/s damping pole (example-robot-data's
-#: double_pendulum_simple) has |λ|·dt = 1.5 at 10 ms, where LQR (no limits there) "diverged" from 155 of 200
-#: domain states and from none at 2 ms. A decision taken on such blow-ups would be noise.
+#: the judge's `POLE_STEP`): beyond it RK4 itself blows up on a stiff loop (joint damping on light
+#: links), and a decision taken on such blow-ups would be noise.
 GATE_POLE_STEP = 0.5
 #: The trajectories the fallback changes are simulated again in this many batches, whatever the
 #: number of workers (a batch's rounding depends on its rows: BLAS's matrix-vector kernels), so the
@@ -53,23 +51,8 @@ def gate_step(system: System, fallback: BoxFallback) -> float:
     loop the anchored networks reproduce there; the fallback never acts at x*) has a pole faster than
     ``GATE_POLE_STEP / GATE_STEP``; then the largest step ≤ ``GATE_POLE_STEP / |λ|`` that divides
     `GATE_HORIZON` into whole steps."""
-    from ..sim.step import step_for_pole  # training sits upstream of the judge; imported only here
-
     A, B = system.linearization()
     return step_for_pole(fastest_pole(A - B @ fallback.anchor_K), GATE_HORIZON, GATE_STEP, GATE_POLE_STEP)
-
-
-def _gate_job(job) -> tuple[np.ndarray, np.ndarray | None]:
-    """Worker: for ``job = (system, law, x0, dt, box)``, (N,) bool, the success of `law` from x0
-    (N, n) on `system` with its effort limits, and (N,) bool, whether each trajectory left `box`'s
-    training box at one of its samples (None without a box). A row is no longer integrated once it
-    has rested in the success box for the success window (``simulate(stop_settled=True)``)."""
-    from ..sim.integrate import simulate  # training sits upstream of the judge; imported only here
-    from ..sim.metrics import success
-
-    system, law, x0, dt, box = job
-    traj = simulate(system, law, x0, T=GATE_HORIZON, dt=dt, limits=True, stop_settled=True)
-    return success(traj, system), (None if box is None else box.outside(traj.x).any(axis=1))  # (N, T_k) -> (N,)
 
 
 def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int, workers: int = 1) -> dict:
@@ -85,7 +68,7 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     learned law when `workers` > 1 (processes, `idapbc_pin._parallel.process_map`: the count
     changes the time, never a verdict). A trajectory is no longer integrated once it has rested in
     the success box for the success window (``simulate(stop_settled=True)``): its verdict is known
-    then, unless it would leave the box again (re-gating 30 runs changed no decision; docs/method.md §6).
+    then, unless it would leave the box again (docs/method.md §6).
 
     Returns {"states", "networks", "with_fallback", "scaled" (success rates in [0, 1]; "scaled" None
     where k = 1), "left_box" (how many trajectories of the learned law left the box),
@@ -95,24 +78,21 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     (s)}. The law with the most successes is used; a tie goes to the simpler one (the learned law
     everywhere, then the fallback outside only).
     """
-    from .._parallel import process_map
-    from ..sim.states import uniform_states
-
     k = GATE_STATES // 2
     x0 = np.concatenate([
         uniform_states(system, k, "half", GATE_SEED + seed),
         uniform_states(system, GATE_STATES - k, "domain", GATE_SEED + seed + 1),
     ])
     dt = gate_step(system, fallback)
-    jobs = [(system, ctrl.with_fallback(None), x0, dt, fallback)]
+    runs = [(ctrl.with_fallback(None), x0)]
     if fallback.gain > 1.0:
-        jobs.append((system, ctrl.with_fallback(fallback.with_inside_gain(fallback.gain, INSIDE_RAMP)), x0, dt, None))
-    (ok, left), *rest = process_map(_gate_job, jobs, workers)
+        runs.append((ctrl.with_fallback(fallback.with_inside_gain(fallback.gain, INSIDE_RAMP)), x0))
+    (ok, left), *rest = compare_laws(system, runs, T=GATE_HORIZON, dt=dt, workers=workers, box=fallback)
     ok_fb = ok.copy()
     if left.any():  # a trajectory that never leaves the box is the same under both laws
         chunks = np.array_split(np.flatnonzero(left), min(GATE_FALLBACK_CHUNKS, int(left.sum())))
         law = ctrl.with_fallback(fallback)
-        for rows, (ok_rows, _) in zip(chunks, process_map(_gate_job, [(system, law, x0[rows], dt, None) for rows in chunks], workers)):
+        for rows, (ok_rows, _) in zip(chunks, compare_laws(system, [(law, x0[rows]) for rows in chunks], T=GATE_HORIZON, dt=dt, workers=workers)):
             ok_fb[rows] = ok_rows
     counts = [int(ok.sum()), int(ok_fb.sum())] + [int(r[0].sum()) for r in rest]
     scaled = float(rest[0][0].mean()) if rest else None

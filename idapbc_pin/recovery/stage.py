@@ -11,20 +11,19 @@ The steps (`RecoveryConfig` holds every number):
    reaches x* gives labels (x(t), u(t)) every 10 ms over its first 6 s. With the run's law as the
    teacher the fitted law imitates the IDA-PBC law on the states that law already brings to x*,
    so a trajectory that leaves the inner box meets a law that continues what the IDA-PBC law was
-   doing; with LQR it met LQR's habits, and on the zoo pendubot the gate refused that law for the
-   states near x* it lost (README, "A recovery law for weak actuators").
-2. **Fit.** A `control.recovery.RecoveryLaw` MLP (two tanh layers of `width`) by least squares on
-   u/ū (Adam, minibatches of 4096; `recovery_fit`). With `form` "residual" the MLP is a correction
+   doing; with LQR it meets LQR's habits, and can lose states near x* that the run's law holds
+   (docs/method.md §6).
+2. **Fit.** A `recovery.law.RecoveryLaw` MLP (two tanh layers of `width`) by least squares on
+   u/ū (Adam, minibatches of 4096; `fit`). With `form` "residual" the MLP is a correction
    added to the IDA-PBC law's own input (`RecoveryLaw.residual`). After the DAgger rounds, `fits`
    laws are fitted to the final labels (seeds `fit_seed`, `fit_seed` + 1, …) and the gate judges each.
 3. **DAgger** (Ross, Gordon, Bagnell 2011), `dagger` rounds: the fitted law runs from
    `dagger_starts` new starts of the same box; the states its failures visit at 0.5, 1.5 and 3 s are
    labelled as in step 1, and a fresh law is fitted on all labels. When the first fit brings none
    of the first round's starts to x*, and fewer than half of them even end in the gate's near box,
-   the rounds end there (`stop_when_lost`): on the cart_double_pendulum such a law still lost every start after
-   a round of labels (`recover` took most of an hour there, plans included). On the zoo cartpole
-   (training-box starts) the first fit also lost all 30, but each came to rest 0.1 m from x*; one
-   round of labels later it lost 3 of 30, and its gate kept it.
+   the rounds end there (`stop_when_lost`): such a law is far from a working one, and a round of
+   labels costs plans. A first fit whose starts all fail yet mostly end near x* (`ends_near`) goes
+   on: DAgger's labels of the states it visits are what it lacks.
 4. **Gate.** The run's law as it is, and the law with the recovery law outside an inner box of
    each scale in `inner_scales`, run from `gate_states` states of their own (half from the half
    box, half from the training box). Of the inner boxes that bring at most `half_loss` fewer of the
@@ -34,43 +33,40 @@ The steps (`RecoveryConfig` holds every number):
    is left as it was (`gate_choice`). Where the run's law brings all those half-box states to x*,
    a kept law is checked again on `confirm_states` half-box states of their own.
 
-What it buys, measured (README, "Can one feedback law learn the plans?"): on a pendubot with an
-8 N·m shoulder the distilled law brought 53 % of the half box to x* where saturated LQR and the
-IDA-PBC law brought about 25 %; on an acrobot with a 5 N·m elbow it tied. With the gate, `recover`
-doubled the half-box basin of two weak pendubots and added 1 to 7.5 points on the acrobot (README,
-"A recovery law for weak actuators"). Plans cost 15–50 minutes per 2-DoF robot on 2 shared cores (an hour for the 3-DoF cart_double_pendulum)
-(`workers` processes), so `train` runs `recover` only where saturated LQR leaves room
-(`training.weak_actuators`).
+What it buys is recorded in docs/results-history.md. The plans dominate its cost (tens of minutes
+per robot; `workers` processes), so `train` runs `recover` only where saturated LQR leaves room
+(`recovery.trigger`).
 
 The result is written into the run directory: ``recovery.npz`` (the law, when the gate keeps it;
 `Run.controller` then applies it) or ``recovery-refused.npz`` (when it does not; never applied),
 ``recovery-labels.npz`` (the labels of the last fit) and the ``"recovery"`` entry of summary.json,
-each atomically (`recovery_gate.save_recovery`). `regate` judges the saved law again with another
+each atomically (`gate.save_recovery`). `regate` judges the saved law again with another
 gate, or keeps it, and `refit` fits a law again to the saved labels (another `fit_seed`, `width` or
-`steps`) and gates it: minutes instead of the plans' hour.
+`steps`) and gates it, without searching plans again.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 
 import numpy as np
 import torch
 
 from .._parallel import process_map, resolve_workers
 from ..control.baseline import LQRController
-from ..control.recovery import RecoveryLaw
+from .law import RecoveryLaw
 from ..errors import IdapbcError
 from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
 from ..sim.metrics import success
-from ..sim.radius import scaled_box
+from ..sim.states import scaled_box
 from ..sim.states import uniform_states
-from .plans import PLAN_STEP, PlanSettings, PlanThenLaw, planning_system, search_plans
-from .recovery_fit import base_inputs, fit_job, fit_recovery_law
-from .recovery_gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, read_labels, save_labels, save_recovery
-from .run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
+from .plans import PLAN_STEP, PlanThenLaw, planning_system, search_plans
+from .config import FORMS, START_BOXES, TEACHERS, RecoveryConfig
+from .fit import base_inputs, fit_job, fit_recovery_law
+from .gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, read_labels, save_labels, save_recovery
+from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
 
 __all__ = ["FORMS", "LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "START_BOXES", "TEACHERS", "choose_inner", "collect_labels", "dagger_round", "ends_near", "fit_recovery_law", "gate_choice", "recover", "refit", "regate"]
 
@@ -79,111 +75,9 @@ LABEL_EVERY, LABEL_SPAN = 5, 3000
 #: Lost starts whose plans are searched together (`plans.search_plans`): 16 × 48 candidates per batch.
 PLAN_BATCH = 16
 #: Chunks the starts of one labelling step are split into, whatever the number of workers: a batch's
-#: rounding depends on its rows, so chunks that followed the workers gave other labels (and another
-#: law) with --workers 1 than with 2 (8: what two workers made before the chunks were fixed).
+#: rounding depends on its rows, so a fixed count gives the same labels (and law) for any --workers;
+#: 8 keeps the labels of runs recovered with two workers before the count was fixed.
 LABEL_CHUNKS = 8
-
-
-#: Boxes the recovery law's start states may be drawn from (`RecoveryConfig.start_box`).
-START_BOXES = ("half", "domain")
-#: Feedback laws that label the starts they bring to x* and catch every plan (`RecoveryConfig.teacher`).
-TEACHERS = ("lqr", "run")
-#: Forms of the fitted law (`RecoveryConfig.form`, `control.recovery.RecoveryLaw.residual`).
-FORMS = ("direct", "residual")
-
-
-@dataclass(frozen=True)
-class RecoveryConfig:
-    """How `recover` fits and gates a recovery law (defaults: the settings measured in the README).
-
-    Attributes
-    ----------
-    starts : start states labelled by the teacher or plans, uniform in `start_box`.
-    start_box : where the starts and the DAgger starts are drawn: ``"half"`` (the half box) or
-        ``"domain"`` (the training box; `train --recover auto` uses it where saturated LQR leaves no
-        room on the half box but does on the training box, `weak_actuators.auto_recover`).
-    teacher : the feedback law that runs from each start first, labels the starts it brings to x*,
-        and takes over from every plan after its horizon: ``"run"`` (the run's own law as the gate
-        judges it, without an earlier recovery law; the default) or ``"lqr"`` (saturated LQR,
-        Q = I, R = I; the default until this version). With "run" the fitted law imitates the
-        IDA-PBC law on the states that law already brings to x*, and the plans only have to reach
-        that law's basin.
-    plan_seed : seed of those start states and of the plans' searches.
-    dagger : DAgger rounds after the first fit.
-    dagger_starts : starts of the fitted law per DAgger round, uniform in `start_box`.
-    width : width of the MLP's two tanh layers.
-    steps : Adam steps of each fit.
-    fit_seed : seed of each fit's initial weights and minibatches.
-    fits : laws fitted to the final labels (seeds fit_seed, fit_seed + 1, …), each judged by the gate
-        on the same states; the one it keeps with the most successes is the run's (`choose_fit`).
-        The fit's seed alone moved the heavier pendubot's half-box success from 65 to 77 % (four
-        seeds, the same labels), and the gate's order followed the evaluation's there (README).
-    gate_states : states of the gate (half from the half box, half from the training box).
-    inner_scales : candidate scales r of the inner box r·s where the IDA-PBC law keeps control.
-    margin : successes the best candidate must add to the run's law on the gate's states to be kept.
-    near_states : further gate states from the near box (scale NEAR_SCALE of the training box), not
-        counted in the margin: a candidate must keep the run's law's successes there (0: no near box).
-    half_loss : half-box and near-box gate states a candidate may lose against the run's law and stay
-        eligible: the recovery law must not shrink the basin the IDA-PBC law already has, beyond a
-        loss of 2 states in either part (the 2 N·m reaction wheel's law lost 2 of 100 near x* and
-        added 18 of 100; the zoo pendubot's lost 6 to 11 near x*). 0: no loss at all. None is
-        forgiven in the half box where the run's law brings all of its gate states there.
-    confirm_states : where the run's law brings all of the half-box gate states to x*, half-box
-        states of their own from which a law the rule keeps must bring no more than `half_loss`
-        fewer to x* than the run's law (`recovery_gate._Confirmation`; 0: no such check).
-    workers : processes that search the plans, fit the laws and run the gate's simulations (0: one
-        per available core, at most 16). Each process does what a loop would, so this changes the
-        time only, never a plan, label, law or verdict.
-    plan : the cross-entropy search of each plan.
-    stop_when_lost : end the DAgger rounds, before labelling, when the first fit brings none of the
-        first round's starts to x* and fewer than half of them end in the near box (`ends_near`; the
-        gate then judges that law).
-    form : ``"direct"`` (the MLP's output is the input, ū tanh(MLP)) or ``"residual"`` (the MLP
-        corrects the IDA-PBC law's own input, `recovery_fit`). Refits of saved labels: the 8 N·m
-        pendubot's ROA radius 0.13 → 0.16 (LQR 0.11), the cart-double-pendulum's 0.13 either way
-        (docs/method.md §6, "The residual form"); one full `recover` in this form (that pendubot,
-        seed 0) beat the direct form's boxes by 2.5-5 points at the same radius.
-    levels : quantiles of H_d over the half box giving the levels c the gate tries, with the same
-        rule, when it keeps no inner box: the IDA-PBC law then keeps {H_d ≤ c} (`RecoveryLaw.level`;
-        docs/method.md §6). Empty: the inner boxes alone, as before this version.
-    """
-
-    starts: int = 240
-    start_box: str = "half"
-    teacher: str = "run"
-    plan_seed: int = 101
-    dagger: int = 2
-    dagger_starts: int = 30
-    width: int = 128
-    steps: int = 4500
-    fit_seed: int = 0
-    fits: int = 3
-    gate_states: int = 100
-    near_states: int = 100
-    inner_scales: tuple = (0.1, 0.25, 0.5)
-    margin: int = 3
-    half_loss: int = 2
-    confirm_states: int = 200
-    workers: int = 0
-    plan: PlanSettings = field(default_factory=PlanSettings)
-    stop_when_lost: bool = True
-    levels: tuple = (0.1, 0.25, 0.5)
-    form: str = "direct"
-
-    def __post_init__(self):
-        checks = [
-            (self.starts >= 1 and self.dagger_starts >= 1 and self.gate_states >= 2 and min(self.near_states, self.confirm_states) >= 0,
-             "starts, dagger_starts must be ≥ 1, gate_states ≥ 2, near_states and confirm_states ≥ 0"),
-            (self.dagger >= 0 and self.workers >= 0 and min(self.width, self.steps, self.fits) >= 1, "dagger, workers ≥ 0, width, steps and fits ≥ 1"),
-            (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
-            (self.half_loss >= 0 and all(0 < q < 1 for q in self.levels), "half_loss must be ≥ 0 and levels quantiles in (0, 1)"),
-            (self.start_box in START_BOXES, f"start_box must be one of {', '.join(START_BOXES)}"),
-            (self.teacher in TEACHERS, f"teacher must be one of {', '.join(TEACHERS)}"),
-            (self.form in FORMS, f"form must be one of {', '.join(FORMS)}"),
-        ]
-        for ok, what in checks:
-            if not ok:
-                raise IdapbcError(f"bad recovery setting: {what}. Fix: pass valid values.")
 
 
 # ------------------------------------------------------------------------------------ labels
@@ -203,8 +97,8 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
         group = lost[k : k + PLAN_BATCH]
         rngs = [np.random.default_rng((plan_seed, first + int(i))) for i in group]
         plans = search_plans(system, law, x0[group], bound, settings, rngs)
-        # Each plan is judged alone, as before batching: numpy's matrix product (LQR's -Kδ) rounds a
-        # batch of one differently, which would move every measured run's labels by ~1e-14.
+        # Each plan is judged alone: numpy's matrix product (LQR's -Kδ) rounds a batch of one
+        # differently, and judging it in a batch would move existing runs' labels by rounding.
         for plan, i in zip(plans, group):
             t = simulate(system, PlanThenLaw(plan[None], settings.horizon, law), x0[i : i + 1], T=20.0, dt=PLAN_STEP)
             if success(t, system)[0]:
@@ -276,9 +170,9 @@ def _teacher_name(config: RecoveryConfig) -> str:
 
 def ends_near(x: np.ndarray, system) -> np.ndarray:
     """(N, n) states -> (N,) bool: inside the near box x* + NEAR_SCALE·(X − x*) (angles wrapped to
-    within π of x*). A first fit whose trajectories all fail yet end there (the zoo cartpole's, at
-    rest 0.1 m from x*: its output at x* was 0.19 N, not 0) is near a working law, and DAgger's
-    labels of the states it visits are what it lacks."""
+    within π of x*). A first fit whose trajectories all fail yet end there (at rest just off x*, its
+    output at x* not quite u*) is near a working law, and DAgger's labels of the states it visits
+    are what it lacks."""
     lo, hi = scaled_box(system, NEAR_SCALE)
     x_star = np.asarray(system.x_star, dtype=np.float64)
     d = wrap_angles(np.atleast_2d(x) - x_star, np.asarray(system.angle_mask, dtype=bool))

@@ -11,13 +11,13 @@ from typing import Mapping
 import numpy as np
 
 from .._parallel import process_map
-from .integrate import Controller, simulate
-from .limits import InputLimits, input_limits
-from .metrics import equilibrium_offset, peak_input, settled, settling_time, success
+from ..sim.integrate import Controller, simulate
+from ..sim.limits import InputLimits, input_limits
+from ..sim.metrics import equilibrium_offset, peak_input, settled, settling_time, success
 from .paired import PairedComparison, paired_comparison
-from .states import evaluation_box, uniform_states
-from .step import judge_step
-from .trajectory import Trajectory
+from ..sim.states import evaluation_box, uniform_states
+from ..sim.step import judge_step
+from ..sim.trajectory import Trajectory
 
 __all__ = ["ControllerScore", "RoaResult", "roa", "score"]
 

@@ -1,4 +1,4 @@
-"""Checks and small helpers for the dense matrices of `linear` and `controllability` (numpy float64)."""
+"""Checks and small helpers for dense matrices (`controllability`, `idapbc_pin.control.linear`), numpy float64."""
 
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ takes over. The plan is found by a cross-entropy search (Rubinstein 1999): `popu
 iteration drawn around a mean, the best eighth refits the mean and spread, `iterations` times. A
 plan is scored by the distance to x* after `score_T` seconds (wrapped angle errors plus 0.3 × the
 speeds; a diverged rollout scores 1e3). Plans are per state and open loop: they are the labels a
-recovery law is fitted to (`training.recovery`), and a lower bound on what the limited actuator can
+recovery law is fitted to (`recovery.stage`), and a lower bound on what the limited actuator can
 do (`benchmarks/bench_recoverable.py`). An input without an effort limit is planned within
 LQR's largest demand on the training box instead (`plan_bound`).
 """

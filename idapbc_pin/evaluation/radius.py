@@ -29,13 +29,13 @@ from typing import Mapping
 import numpy as np
 
 from .._parallel import process_map
-from .integrate import Controller
-from .limits import InputLimits, input_limits
+from ..sim.integrate import Controller
+from ..sim.limits import InputLimits, input_limits
 from .roa import RoaResult, score
-from .states import evaluation_box, uniform_states
-from .step import judge_step
+from ..sim.states import scaled_box, uniform_states
+from ..sim.step import judge_step
 
-__all__ = ["RADIUS_RANGE", "RADIUS_RESOLUTION", "RADIUS_THRESHOLD", "RadiusResult", "roa_radius", "scaled_box"]
+__all__ = ["RADIUS_RANGE", "RADIUS_RESOLUTION", "RADIUS_THRESHOLD", "RadiusResult", "roa_radius"]
 
 #: Scales searched: below the first the radius is reported as "< 0.05", at the last as "≥ 2".
 RADIUS_RANGE = (0.05, 2.0)
@@ -47,16 +47,6 @@ RADIUS_RESOLUTION = 0.04
 #: failures are already in (a batch of 50 states costs about a third of one of 200: the
 #: controllers' per-call overhead is a large part of a rollout).
 _FIRST_SHARE = 0.25
-
-
-def scaled_box(system, s: float) -> tuple[np.ndarray, np.ndarray]:
-    """X_s = x* + s·(X − x*): (lo, hi), each (n,). s = 1 is the training domain itself and s = 0.5
-    equals `half_box` bit for bit."""
-    lo, hi = evaluation_box(system, "domain")
-    if s == 1.0:
-        return lo, hi
-    x_star = np.asarray(system.x_star, float)
-    return x_star + s * (lo - x_star), x_star + s * (hi - x_star)
 
 
 def _fmt(s: float, s_range: tuple[float, float], below: bool, above: bool) -> str:

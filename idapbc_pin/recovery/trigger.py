@@ -1,9 +1,9 @@
 """When `train` fits a recovery law on its own: saturated LQR leaves room on the half box, or else on
 the training box.
 
-A recovery law (`training.recovery`) is worth its cost (15–50 minutes of plans on 2 cores for a 2-DoF robot, about an hour for the 3-DoF cart_double_pendulum) where a
-linear law under the robot's torque limits loses states that torque plans within the same limits
-bring to x* (README, "A recovery law for weak actuators"). The test runs saturated LQR from
+A recovery law (`recovery.stage`) is worth its cost (its plans take tens of minutes per robot)
+where a linear law under the robot's torque limits loses states that torque plans within the same
+limits bring to x* (docs/method.md §6). The test runs saturated LQR from
 `BIND_STATES` uniform half-box states (a seed no evaluation uses): it leaves **room** when at least
 `ROOM_POINTS` per cent of them fail. It also runs LQR without the limits from the same states, to say
 whether the limits **bind** (saturated LQR loses ≥ `BIND_POINTS` per cent more than unsaturated LQR):
@@ -16,16 +16,10 @@ the same test with LQR itself, and its plans and recovery law stay within `plans
 largest |u| LQR asks on the training box: a basin larger than LQR's is what the user comes for with
 or without limits.
 
-Measured with these defaults (successes of the 100 states, saturated / unsaturated LQR; the full
-table is in docs/method.md §6): at their URDF limits the pendubot (61 / 61), acrobot (69 / 6),
-cart_double_pendulum (22 / 18) and furuta (81 / 69) leave room on the half box although their limits
-do not bind; cartpole, reaction_wheel and double_pendulum (100 / 100) do not. On the training box the
-cartpole leaves room (saturated LQR 63 % of the evaluation's 200 states): there the recovery law
-from training-box starts took it to 97 % of the training box and a ROA radius ≥ 2 (LQR 0.69). A
-heavier pendubot (outside the zoo, 55 / 62 at its 20 N·m) is why room, not binding, decides: its
-limits do not bind, yet the recovery law took its gate from 53 to 75 of 100 and its half box from
-68 % to 83 % (saturated LQR 65 %; a rule on binding limits alone skipped it). Where plans cannot help a
-feedback law the gate keeps none and only time is lost: the zoo acrobot (1463 s, gate 75 → 61–64).
+Room, not binding, decides: a robot whose limits do not bind (saturated LQR fails about as often
+as unsaturated LQR) can still leave room that a recovery law fills. Where plans cannot help a
+feedback law the gate keeps none and only time is lost. What the test says for each zoo robot is in
+docs/method.md §6.
 """
 
 from __future__ import annotations
@@ -40,7 +34,7 @@ from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import uniform_states
 from .plans import PLAN_STEP, plan_bound
-from .recovery import RecoveryConfig, recover
+from .stage import RecoveryConfig, recover
 
 __all__ = ["BIND_POINTS", "BIND_STATES", "RECOVER_MODES", "ROOM_POINTS", "auto_recover", "limits_bind"]
 

@@ -22,19 +22,16 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from .._io import DamagedFileError, atomic_write_bytes, read_npz, write_json
-from .._parallel import process_map
-from ..control.recovery import RecoveryLaw
-from ..sim.integrate import simulate
-from ..sim.metrics import success
-from ..sim.radius import scaled_box
-from ..sim.states import uniform_states
+from .config import RecoveryConfig
+from .law import RecoveryLaw
+from ..sim.compare import compare_laws
+from ..sim.states import scaled_box, uniform_states
 from .plans import PLAN_STEP
-from .run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
+from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
 
-__all__ = ["LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery"]
+__all__ = ["GATE_HORIZON", "LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery"]
 
 #: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
 RECOVERY_GATE_SEED = 7_368_787
@@ -42,15 +39,8 @@ RECOVERY_GATE_SEED = 7_368_787
 NEAR_SCALE = 0.25
 #: Half-box states whose H_d quantiles give the level candidates (`energy_levels`).
 LEVEL_STATES = 2000
-
-
-def _successes(job) -> np.ndarray:
-    """Worker: (N,) bool, the 20 s success of `law` from x0 (N, n) on `system`, for job = (system, law, x0);
-    a row that has rested in the success box for the success window is integrated no further
-    (``simulate(stop_settled=True)``)."""
-    system, law, x0 = job
-    torch.set_num_threads(1)
-    return success(simulate(system, law, x0, T=20.0, dt=PLAN_STEP, stop_settled=True), system)
+#: Horizon of the gate's simulations, s (DESIGN §4).
+GATE_HORIZON = 20.0
 
 
 def gate_choice(run: tuple[int, int, int], candidates: dict, margin: int, half_loss: int = 0, half_states: int | None = None) -> tuple[float | None, bool]:
@@ -109,7 +99,7 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
         uniform_states(system, half, "half", seed), uniform_states(system, n - half, "domain", seed + 1),
         uniform_states(system, config.near_states, scaled_box(system, NEAR_SCALE), seed + 2),
     ])  # fmt: skip
-    ctrl = run.own_controller  # not an earlier recovery law
+    ctrl = run.own_controller  # without any recovery law the run already has
     scales = [float(r) for r in config.inner_scales]
     base, *rest = _counts(system, [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales], x0, half, n, config, progress)
     gates = [_gate(base, dict(zip(scales, rest[i * len(scales) : (i + 1) * len(scales)])), n, config) for i in range(len(laws))]
@@ -139,8 +129,7 @@ class _Confirmation:
     `RecoveryConfig.confirm_states` half-box states of their own (seed `seed`), and a kept law that
     brings more than `half_loss` fewer of them to x* than the run's law is refused. The rule picks
     among many candidates on 50 half-box states, so a law that loses a few per cent of the half box
-    passes it often (paper cartpole seed 4: 50 of 50 at the gate, 189 of 200 in the evaluation);
-    states the choice never saw judge it without that bias. Each confirmed gate gets "confirm": a
+    can pass it by chance; states the choice never saw judge it without that bias. Each confirmed gate gets "confirm": a
     list of {"states", "run", "law", and "inner_scale" r or "level" c}, successes of each candidate
     of that fit the check ran (an inner box, then a level where it refused every box)."""
 
@@ -168,7 +157,7 @@ class _Confirmation:
 def _counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, config, progress: bool) -> list[tuple[int, int, int]]:
     """(half box, training box, near box) successes of each law of `ctrls` from the gate's states x0."""
     counts, start = [], time.perf_counter()
-    for ok in process_map(_successes, [(system, c, x0) for c in ctrls], config.workers):
+    for ok, _ in compare_laws(system, [(c, x0) for c in ctrls], T=GATE_HORIZON, dt=PLAN_STEP, workers=config.workers):
         counts.append((int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())))
         if progress:
             print(f"  gate: {len(counts)}/{len(ctrls)} laws simulated from its {len(x0)} states  [{time.perf_counter() - start:.0f} s]", flush=True)
@@ -223,7 +212,7 @@ def read_labels(run_dir, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
     path = Path(run_dir) / RECOVERY_LABELS_FILE
     fix = f"run `idapbc-pin recover {run_dir}` again (it searches the plans and saves the labels)"
     if not path.is_file():
-        raise DamagedFileError(f"'{path}' is missing: the run has no saved labels (recover saves them since this version). Fix: {fix}.")
+        raise DamagedFileError(f"'{path}' is missing: the run has no saved labels (a run recovered before labels were saved has none). Fix: {fix}.")
     X, U = read_npz(path, lambda arrays: (np.asarray(arrays["X"], dtype=np.float64), np.asarray(arrays["U"], dtype=np.float64)), fix=fix)
     if X.ndim != 2 or U.ndim != 2 or X.shape[1] != n or U.shape[1] != m or len(X) != len(U) or not len(X):
         raise DamagedFileError(f"{path} does not fit the run (X {X.shape}, U {U.shape}; expected (K, {n}) and (K, {m})). Fix: {fix}.")

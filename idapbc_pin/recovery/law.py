@@ -2,9 +2,9 @@
 
 Under tight effort limits most of the box cannot be brought to x* by a saturated smooth law: the
 actuator has to pump, and the matched IDA-PBC law cannot hold such a swing (its H_d would have to
-decrease along every pumping trajectory; README, "Can one feedback law learn the plans?"). A
+decrease along every pumping trajectory; docs/method.md §6). A
 recovery law is a plain state feedback fitted to torque plans within the limits
-(`training.recovery`); the IDA-PBC law keeps the neighbourhood of x*:
+(`recovery.stage`); the IDA-PBC law keeps the neighbourhood of x*:
 
     u(x) = u_IDA-PBC(x)                 where |δ_i| ≤ r·s_i for every i   (the inner box)
                                         or H_d(x) ≤ c                     (the level set, if c < ∞)
@@ -12,7 +12,7 @@ recovery law is a plain state feedback fitted to torque plans within the limits
     u(x) = ū ⊙ clip(clip(u_IDA-PBC(x)/ū, ±1) + MLP(δ / s), ±1)  elsewhere            (residual form)
 
 with δ = wrap(x − x*), s the training box's half-widths, r the inner scale chosen on validation
-states (`training.recovery_gate.choose_inner`) and ū the effort limits: the recovery law stays within
+states (`recovery.gate.choose_inner`) and ū the effort limits: the recovery law stays within
 the limits by construction. The MLP has tanh hidden layers and a linear output. The residual form
 adds the MLP to the IDA-PBC law's own input instead of replacing it: where the labels are that
 law's inputs (every start the run's law brings to x*, and every plan after its horizon) the fit

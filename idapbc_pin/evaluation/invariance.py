@@ -22,10 +22,10 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..model.angles import wrap_angles
-from .integrate import simulate
-from .metrics import success
-from .states import uniform_states
-from .trajectory import Trajectory
+from ..sim.integrate import simulate
+from ..sim.metrics import success
+from ..sim.states import uniform_states
+from ..sim.trajectory import Trajectory
 
 __all__ = ["InvariantShare", "invariant_share", "stays_inside"]
 

@@ -13,8 +13,8 @@ difference of the success rates is (b − c)/N whatever the concordant states do
 
 A chaotic loop (a saturated acrobot swinging before it is caught) turns many states into coin flips
 that another integrator or seed would flip: many discordant states, a wide interval. A lead whose
-interval excludes 0 on one judge can still move by a few points under another (README, "The judge,
-checked against MuJoCo"); the interval measures the sampling of states, not the judge.
+interval excludes 0 on one judge can still move under another (`idapbc_pin.sim.mujoco_plant`); the
+interval measures the sampling of states, not the judge.
 """
 
 from __future__ import annotations

@@ -1,9 +1,8 @@
 """Outside the training box, the anchor's linear law: `BoxFallback` and `box_fallback`.
 
 The networks are trained on the box X = [lo, hi] only; beyond it H_d, J_d and R_d extrapolate, and a
-saturated swing leaves X for much of its course (acrobot, 100 half-box states: every trajectory
-left X, elbow momenta reached 34–43 box half-widths, and the successes spent a third of their time
-outside). With the fallback on, the law is
+saturated swing leaves X for much of its course, its momenta reaching many box half-widths. With
+the fallback on, the law is
 
     u(x) = u_IDA-PBC(x)          where |wrap(x − x*)_i| ≤ s_i for every i   (s: the box's half-widths)
     u(x) = u* − k K wrap(x − x*)  elsewhere
@@ -11,11 +10,9 @@ outside). With the fallback on, the law is
 with K the gain of the LQR loop the anchored networks are pinned to at x* (`anchor.system_anchor`,
 Q = anchor_q·I in physical units, R = I), k the run's `fallback_gain` and u* the input that holds x*.
 For a robot with effort limits the automatic k is `LIMITED_GAIN` = 3: outside the box the law then
-saturates on most of a swing and acts like a bang-bang law switching on the sign of Kδ, which brought
-more states to x* than k = 1 (acrobot, Furuta pendulum, cart-double-pendulum; k = 3, 5 and 10 within
-noise of each other; re-measured with the law held every 2 ms, under our judge and MuJoCo's Euler:
-docs/method.md §6). Its loop A − kBK at x* (never used there) has poles up to 71 1/s on the zoo
-(|λ|·dt ≤ 0.14 at the judge's 2 ms). Inside X nothing changes:
+saturates on most of a swing and acts like a bang-bang law switching on the sign of Kδ, which brings
+more states to x* than k = 1 (docs/method.md §6). Its loop A − kBK at x* (never used there) stays
+within the judge's `POLE_STEP` at 2 ms on the zoo. Inside X nothing changes:
 H_d, J_d, R_d, the certificate (whose sublevel sets lie inside X) and the linearisation at x* are
 those of the networks. The switch is discontinuous on the box's faces; the actuator limits clip
 both sides alike (docs/method.md §6 measures what the switching costs: no torque step the saturated
@@ -28,25 +25,21 @@ With an ``inside_gain`` k_in > 1 the learned law is also scaled about u* inside 
 so under the limits the whole law switches on its sign as the linear law does outside. Its
 linearisation at x* is u* − k_in K δ, still exponentially stable for any k_in ≥ ½ (LQR's gain margin:
 (A − kBK)ᵀS + S(A − kBK) = −Q − (2k − 1)KᵀRK with S, K the anchor's Riccati solution and gain).
-On the zoo acrobot (elbow 20 N·m, 600 half-box states of seed 11) it brought 92 % to x* against
-82 % with the linear law outside only and 75 % for saturated LQR; on the zoo pendubot (300 states)
-49 % against 77 % for the learned law everywhere (docs/results-history.md), which is why the gate
-decides it per run.
+It helps some robots and costs others (docs/results-history.md), which is why the gate decides it
+per run.
 
 The constant k_in leaves the loop at x* as A − k_in BK, whose slowest pole can be far slower than
-the anchor's (a pendubot with 1.5× heavier links: −0.39 1/s against −1.72 1/s, settling 2.6× slower
-than LQR). So the gain ramps up with the distance from x* in the box's ∞-norm, r = max_i |δ_i| / s_i:
+the anchor's, so that the loop settles slower than LQR. So the gain ramps up with the distance from
+x* in the box's ∞-norm, r = max_i |δ_i| / s_i:
 
     k(x) = 1 + (k_in − 1) · clip((r − r₀) / (r₁ − r₀), 0, 1),     (r₀, r₁) = ``inside_ramp``
 
 which is 1 within r₀ of x* (the learned law as trained: its linearisation is the anchor's LQR loop
-again) and k_in beyond r₁; (0, 0) is the constant k_in. The gate uses `INSIDE_RAMP` = (0.2, 0.5):
-on 200 half-box states of seed 11 (neither a gate's nor an evaluation's) it kept the constant gain's
-success (heavier pendubot 74.5 %, zoo acrobot 89.0 % against 88.5 %) and settled in 4.24 s instead of
-6.44 s and 5.84 s instead of 6.15 s (docs/results-history.md).
+again) and k_in beyond r₁; (0, 0) is the constant k_in. The gate uses `INSIDE_RAMP` = (0.2, 0.5),
+which keeps the constant gain's success and settles faster (docs/results-history.md).
 
 Whether a run uses the fallback, and which inside gain, is decided after training on states of its
-own (`training.fallback_gate`): each helped some robots and cost others (docs/results-history.md).
+own (`recovery.box_gate`): each helps some robots and costs others (docs/results-history.md).
 """
 
 from __future__ import annotations
@@ -57,8 +50,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..model.angles import wrap_angles
-from .anchor import half_widths, system_anchor
-from .baseline import equilibrium_input
+from ..control.anchor import half_widths, system_anchor
+from ..control.baseline import equilibrium_input
 
 __all__ = ["INSIDE_RAMP", "LIMITED_GAIN", "BoxFallback", "box_fallback", "fallback_gain"]
 

@@ -9,8 +9,7 @@ by Adam on minibatches of 4096 for `steps` steps, the rate divided by 10 for the
   the IDA-PBC law's own inputs (`base_inputs`). A label at the limit (|U| = ū) only asks the sum
   to reach that side of the limit, max(0, 1 − sign(U)·(b + MLP))², so the clip's flat part does not
   stall the fit; other labels are fitted by the squared error of the clipped sum. Where the labels
-  are the IDA-PBC law's inputs (on the zoo cart-double-pendulum 74 % of them) the MLP only has to
-  learn zero.
+  are the IDA-PBC law's inputs (often most of them) the MLP only has to learn zero.
 """
 
 from __future__ import annotations
@@ -18,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..control.recovery import RecoveryLaw
+from .law import RecoveryLaw
 from ..model.angles import wrap_angles
 
 __all__ = ["base_inputs", "fit_job", "fit_recovery_law"]

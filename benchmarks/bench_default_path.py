@@ -1,0 +1,104 @@
+"""Goal: where the default path's time goes, stage by stage, for one robot.
+
+Runs what ``idapbc-pin train ROBOT --fast`` runs (training, the gate of the outer law, the recovery
+stage where `--recover` asks for it, the evaluation on two boxes and the ROA radius) through the
+Python API, and prints the wall time and share of each stage:
+
+    training       the epochs (`training.train._run_epochs`)
+    gate           the gate of the linear law outside the box (`recovery.box_gate.fallback_gate`)
+    recovery: test whether saturated LQR leaves room (`recovery.trigger.limits_bind`)
+    recovery: plans + labels, DAgger rounds, fits + gate (`recovery.stage`)
+    evaluation     both boxes, NIDA-PBC and LQR (`evaluation.evaluate.roa`)
+    radius         the ROA radius bisection (`evaluation.evaluate.roa_radius`)
+
+A stage's time is its wall time in this process, minus the stages nested in it; work a stage hands
+to worker processes counts in the stage that waits for it. "other" is the rest (loading, set-up).
+Run: python benchmarks/bench_default_path.py ROBOT [--epochs N] [--recover auto|always|never]
+     [--evaluate N] [--workers W] [--seed S]
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import importlib
+import tempfile
+import time
+
+import idapbc_pin as ip
+from idapbc_pin.evaluation.evaluate import evaluate_run, format_evaluation
+from idapbc_pin.recovery.config import RecoveryConfig
+from idapbc_pin.recovery.trigger import auto_recover
+
+#: (stage, module, attribute): the functions timed, as the default path calls them.
+STAGES = (
+    ("training", "idapbc_pin.training.train", "_run_epochs"),
+    ("gate", "idapbc_pin.recovery.box_gate", "fallback_gate"),
+    ("recovery: room test", "idapbc_pin.recovery.trigger", "limits_bind"),
+    ("recovery: plans + labels", "idapbc_pin.recovery.stage", "collect_labels"),
+    ("recovery: DAgger rounds", "idapbc_pin.recovery.stage", "dagger_round"),
+    ("recovery: fits + gate", "idapbc_pin.recovery.stage", "_gate_fits"),
+    ("evaluation", "idapbc_pin.evaluation.evaluate", "roa"),
+    ("radius", "idapbc_pin.evaluation.evaluate", "roa_radius"),
+)
+
+
+class Stopwatch:
+    """Exclusive wall time per stage of functions patched in their modules (nested stages apart)."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {name: 0.0 for name, _, _ in STAGES}
+        self._stack: list[list] = []  # [stage, start, time spent in nested stages]
+
+    def wrap(self, name: str, fn):
+        @functools.wraps(fn)
+        def timed(*args, **kwargs):
+            self._stack.append([name, time.perf_counter(), 0.0])
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                stage, start, nested = self._stack.pop()
+                spent = time.perf_counter() - start
+                self.seconds[stage] += spent - nested
+                if self._stack:
+                    self._stack[-1][2] += spent
+
+        return timed
+
+    def install(self) -> None:
+        for name, module, attr in STAGES:
+            mod = importlib.import_module(module)
+            setattr(mod, attr, self.wrap(name, getattr(mod, attr)))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("robot", help="zoo name, built-in name, erd:<stem> or URDF path (zoo actuation)")
+    parser.add_argument("--epochs", type=int, default=None, help="training epochs (default: the fast preset's)")
+    parser.add_argument("--recover", choices=("auto", "always", "never"), default="auto", help="as `train --recover`")
+    parser.add_argument("--evaluate", type=int, default=100, help="evaluation states per box, as `train --evaluate`")
+    parser.add_argument("--workers", type=int, default=0, help="processes (0: one per core), as `train --workers`")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+
+    watch = Stopwatch()
+    watch.install()
+    start = time.perf_counter()
+    system = ip.load_system(args.robot)
+    config = ip.TrainConfig.fast(seed=args.seed, **({} if args.epochs is None else {"epochs": args.epochs}))
+    with tempfile.TemporaryDirectory() as out:
+        run = ip.train(system, config, out=out, workers=args.workers)
+        if args.recover != "never":
+            auto_recover(run, args.recover, RecoveryConfig(workers=args.workers))
+        if args.evaluate > 0:
+            print(format_evaluation(evaluate_run(run, n=args.evaluate, workers=args.workers)))
+    total = time.perf_counter() - start
+    other = total - sum(watch.seconds.values())
+    print(f"\ndefault path of {args.robot} (fast preset, {config.epochs} epochs, --recover {args.recover}): {total:.1f} s wall")
+    print(f"{'stage':<28}{'s':>9}{'share':>9}")
+    for name, seconds in [*watch.seconds.items(), ("other", other)]:
+        print(f"{name:<28}{seconds:>9.1f}{100 * seconds / total:>8.1f}%")
+
+
+if __name__ == "__main__":
+    main()

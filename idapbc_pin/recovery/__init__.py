@@ -1,0 +1,22 @@
+"""The recovery stage and the run's outer laws: where a weak actuator's limits bind, a law fitted to
+torque plans within the limits replaces the IDA-PBC law outside an inner set, kept only where a gate
+sees it help.
+
+* `box_law`: `BoxFallback`, the linear law outside the training box (the run's own outer law), and
+  `box_gate`, the gate after training that decides whether a run uses it.
+* `law`: `RecoveryLaw`, the fitted law and where it acts. Both laws reach the controller only through
+  `idapbc_pin.control.controller.OuterLaw` (``apply(x, u, energy) -> u``).
+* `config`: `RecoveryConfig`, every number of the stage (a TOML file for the CLI).
+* `plans` (torque plans within the limits), `fit` (the law from labels), `gate` (keep it or not),
+  `stage` (`recover`, `refit`, `regate`), `trigger` (`limits_bind`, `auto_recover`: `train`'s default).
+
+The law modules import nothing of this package's stage, so the run directory can load them.
+"""
+
+from .box_law import BoxFallback
+from .config import RecoveryConfig
+from .law import RecoveryLaw
+from .stage import recover, refit, regate
+from .trigger import auto_recover, limits_bind
+
+__all__ = ["BoxFallback", "RecoveryConfig", "RecoveryLaw", "auto_recover", "limits_bind", "recover", "refit", "regate"]

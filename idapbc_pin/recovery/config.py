@@ -1,0 +1,111 @@
+"""`RecoveryConfig`: every number of the recovery stage, a frozen dataclass read from the Python API or
+from a TOML file (`idapbc-pin recover RUN --config recovery.toml`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .._settings import Settings
+from ..errors import IdapbcError
+from .plans import PlanSettings
+
+__all__ = ["FORMS", "RecoveryConfig", "START_BOXES", "TEACHERS"]
+
+
+#: Boxes the recovery law's start states may be drawn from (`RecoveryConfig.start_box`).
+START_BOXES = ("half", "domain")
+#: Feedback laws that label the starts they bring to x* and catch every plan (`RecoveryConfig.teacher`).
+TEACHERS = ("lqr", "run")
+#: Forms of the fitted law (`RecoveryConfig.form`, `RecoveryLaw.residual`).
+FORMS = ("direct", "residual")
+
+
+@dataclass(frozen=True)
+class RecoveryConfig(Settings):
+    """How `recover` fits and gates a recovery law (`idapbc-pin recover --config FILE` reads it from a
+    TOML file's ``[recovery]`` table; `from_file`).
+
+    Attributes
+    ----------
+    starts : start states labelled by the teacher or plans, uniform in `start_box`.
+    start_box : where the starts and the DAgger starts are drawn: ``"half"`` (the half box) or
+        ``"domain"`` (the training box; `auto_recover` picks it where saturated LQR leaves room only
+        on the training box).
+    teacher : the feedback law that runs from each start first, labels the starts it brings to x*,
+        and takes over from every plan after its horizon: ``"run"`` (the run's own law as the gate
+        judges it, without an earlier recovery law) or ``"lqr"`` (saturated LQR, Q = I, R = I). With
+        "run" the fitted law imitates the IDA-PBC law where that law already reaches x*, and the plans
+        only have to reach that law's basin.
+    plan_seed : seed of those start states and of the plans' searches.
+    dagger : DAgger rounds after the first fit.
+    dagger_starts : starts of the fitted law per DAgger round, uniform in `start_box`.
+    width : width of the MLP's two tanh layers.
+    steps : Adam steps of each fit.
+    fit_seed : seed of each fit's initial weights and minibatches.
+    fits : laws fitted to the final labels (seeds fit_seed, fit_seed + 1, …), each judged by the gate
+        on the same states; the one it keeps with the most successes is the run's (`choose_fit`): a
+        fit's seed alone moves the basin.
+    gate_states : states of the gate (half from the half box, half from the training box).
+    inner_scales : candidate scales r of the inner box r·s where the IDA-PBC law keeps control.
+    margin : successes the best candidate must add to the run's law on the gate's states to be kept.
+    near_states : further gate states from the near box (scale NEAR_SCALE of the training box), not
+        counted in the margin: a candidate must keep the run's law's successes there (0: no near box).
+    half_loss : half-box and near-box gate states a candidate may lose against the run's law and stay
+        eligible, so that the recovery law does not shrink the basin the IDA-PBC law already has
+        (0: no loss at all). None is forgiven in the half box where the run's law brings all of its
+        gate states there.
+    confirm_states : where the run's law brings all of the half-box gate states to x*, half-box
+        states of their own from which a law the rule keeps must bring no more than `half_loss`
+        fewer to x* than the run's law (`gate._Confirmation`; 0: no such check).
+    workers : processes that search the plans, fit the laws and run the gate's simulations (0: one
+        per available core, at most 16). The count changes the time only, never a plan, label, law
+        or verdict.
+    plan : the cross-entropy search of each plan (`plans.PlanSettings`).
+    stop_when_lost : end the DAgger rounds, before labelling, when the first fit brings none of the
+        first round's starts to x* and fewer than half of them end in the near box (`ends_near`; the
+        gate then judges that law).
+    form : ``"direct"`` (the MLP's output is the input, ū tanh(MLP)) or ``"residual"`` (the MLP
+        corrects the IDA-PBC law's own input; `fit`, docs/method.md §6).
+    levels : quantiles of H_d over the half box giving the levels c the gate tries, with the same
+        rule, when it keeps no inner box: the IDA-PBC law then keeps {H_d ≤ c} (`RecoveryLaw.level`).
+        Empty: the inner boxes alone.
+    """
+
+    _what, _table, _fix = "recovery config", "recovery", "see RecoveryConfig's fields"
+
+    starts: int = 240
+    start_box: str = "half"
+    teacher: str = "run"
+    plan_seed: int = 101
+    dagger: int = 2
+    dagger_starts: int = 30
+    width: int = 128
+    steps: int = 4500
+    fit_seed: int = 0
+    fits: int = 3
+    gate_states: int = 100
+    near_states: int = 100
+    inner_scales: tuple = (0.1, 0.25, 0.5)
+    margin: int = 3
+    half_loss: int = 2
+    confirm_states: int = 200
+    workers: int = 0
+    plan: PlanSettings = field(default_factory=PlanSettings)
+    stop_when_lost: bool = True
+    levels: tuple = (0.1, 0.25, 0.5)
+    form: str = "direct"
+
+    def __post_init__(self):
+        checks = [
+            (self.starts >= 1 and self.dagger_starts >= 1 and self.gate_states >= 2 and min(self.near_states, self.confirm_states) >= 0,
+             "starts, dagger_starts must be ≥ 1, gate_states ≥ 2, near_states and confirm_states ≥ 0"),
+            (self.dagger >= 0 and self.workers >= 0 and min(self.width, self.steps, self.fits) >= 1, "dagger, workers ≥ 0, width, steps and fits ≥ 1"),
+            (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
+            (self.half_loss >= 0 and all(0 < q < 1 for q in self.levels), "half_loss must be ≥ 0 and levels quantiles in (0, 1)"),
+            (self.start_box in START_BOXES, f"start_box must be one of {', '.join(START_BOXES)}"),
+            (self.teacher in TEACHERS, f"teacher must be one of {', '.join(TEACHERS)}"),
+            (self.form in FORMS, f"form must be one of {', '.join(FORMS)}"),
+        ]
+        for ok, what in checks:
+            if not ok:
+                raise IdapbcError(f"bad recovery setting: {what}. Fix: pass valid values.")

@@ -1,0 +1,27 @@
+"""The run directory: its format, `load_run` / `resolve_run`, checkpoints and records.
+
+A run directory is written by `idapbc_pin.training.train` and read only through this subpackage.
+"""
+
+from .checkpoints import CHECKPOINTS, DEFAULT_CHECKPOINT, check_checkpoints, load_weights, read_checkpoint, save_checkpoint
+from .directory import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, Run, load_run, read_recovery, resolve_run
+from .record import load_run_system, read_config, system_record
+
+__all__ = [
+    "CHECKPOINTS",
+    "DEFAULT_CHECKPOINT",
+    "RECOVERY_FILE",
+    "RECOVERY_LABELS_FILE",
+    "RECOVERY_REFUSED_FILE",
+    "Run",
+    "check_checkpoints",
+    "load_run",
+    "load_run_system",
+    "load_weights",
+    "read_checkpoint",
+    "read_config",
+    "read_recovery",
+    "resolve_run",
+    "save_checkpoint",
+    "system_record",
+]
