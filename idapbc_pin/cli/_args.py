@@ -12,7 +12,7 @@ from dataclasses import fields, is_dataclass
 from ..errors import IdapbcError
 from ..run import CHECKPOINTS, DEFAULT_CHECKPOINT
 
-__all__ = ["add_box_argument", "add_checkpoint_argument", "add_effort_argument", "add_horizon_argument", "add_limits_argument",
+__all__ = ["add_box_argument", "add_command", "add_checkpoint_argument", "add_effort_argument", "add_horizon_argument", "add_limits_argument",
            "add_radius_argument", "add_rho_argument", "add_run_argument", "add_seed_argument", "add_states_argument",
            "add_system_arguments", "add_workers_argument", "add_x0_argument", "config_keys", "key_range", "key_value",
            "library_default", "positive_int", "system_kwargs", "workers_of", "x0_of"]
@@ -183,3 +183,11 @@ def add_rho_argument(parser: argparse.ArgumentParser, what: str = "extra damping
 def add_radius_argument(parser: argparse.ArgumentParser) -> None:
     """--no-radius: skip the ROA radii (``radius=False``)."""
     parser.add_argument("--no-radius", action="store_true", help="skip the ROA radii (a few more ROA evaluations of --n states)")
+
+
+def add_command(subparsers, name: str, func, help: str, **kwargs) -> argparse.ArgumentParser:
+    """The sub-command `name`, which runs ``func(args)``: its `--help` shows `help` and, as the
+    description, `func`'s docstring. `kwargs` go to ``add_parser`` (an ``epilog``, say)."""
+    p = subparsers.add_parser(name, help=help, description=inspect.getdoc(func) or help, **kwargs)
+    p.set_defaults(func=func)
+    return p

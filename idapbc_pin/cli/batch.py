@@ -5,10 +5,17 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ._args import add_command
+
 __all__ = ["add_batch_command"]
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
+    """Run every job of a TOML pipeline (e.g. pipelines/zoo.toml): train, ROA vs LQR on the
+    training box and its half, certify, figure, HTML replay, each into <batch>/<job>/. The whole
+    file is validated first. A failing job is recorded and the batch goes on; re-running the
+    same command skips the jobs already done. Writes summary.csv and summary.md into the batch
+    directory."""
     from ..batch.runner import run_batch
 
     result = run_batch(args.pipeline, workers=args.workers, ray=args.ray, only=args.only, smoke=args.smoke, out=args.out,
@@ -22,16 +29,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
 def add_batch_command(subparsers) -> argparse.ArgumentParser:
     """Register ``idapbc-pin batch PIPELINE ...`` on an argparse sub-parsers object."""
-    p = subparsers.add_parser(
-        "batch",
-        help="train, evaluate (ROA vs LQR), certify and replay every job of a pipeline file; one summary",
-        description=(
-            "Run every job of a TOML pipeline (e.g. pipelines/zoo.toml): train, ROA vs LQR on the training box and its half, "
-            "certify, figure, HTML replay, each into <batch>/<job>/. The whole file is validated first. A failing job is "
-            "recorded and the batch goes on; re-running the same command skips the jobs already done. Writes "
-            "summary.csv and summary.md into the batch directory."
-        ),
-    )
+    p = add_command(subparsers, "batch", _cmd_batch, help="train, evaluate (ROA vs LQR), certify and replay every job of a pipeline file; one summary")
     p.add_argument("pipeline", metavar="PIPELINE", help="pipeline TOML file (pipelines/zoo.toml, pipelines/paper.toml, ...)")
     p.add_argument("--workers", type=int, metavar="N", help="jobs at a time (default: one per core); 1 runs them in this process")
     p.add_argument("--ray", metavar="auto|ADDRESS", help="run the jobs as Ray tasks: 'auto' starts a local Ray instance ($RAY_ADDRESS's cluster when set), "
@@ -41,5 +39,4 @@ def add_batch_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help="batch directory (default: resume the latest unfinished runs/batch-* of this pipeline, else a new runs/batch-<stamp>)")
     p.add_argument("--resume", metavar="BATCH_DIR", help="finish an existing batch directory (skips the jobs already done)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (status lines only)")
-    p.set_defaults(func=_cmd_batch)
     return p

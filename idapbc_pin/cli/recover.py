@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..recovery.stage import RecoveryConfig, recover, refit, regate
-from ._args import add_run_argument, add_workers_argument, config_keys, workers_of
+from ._args import add_command, add_run_argument, add_workers_argument, config_keys, workers_of
 
 __all__ = ["add_recover_command"]
 
@@ -17,6 +17,14 @@ def _config(args: argparse.Namespace) -> RecoveryConfig:
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
+    """Search torque plans within RUN's effort limits (where a joint has none, within LQR's largest
+    demand on the training box) from states RUN's own law loses (the half box, or the training
+    box with start_box = "domain"; with teacher = "lqr": states saturated LQR loses), fit a
+    small feedback law to them (then DAgger rounds), and use it outside an inner box around x*
+    (or, where no box helps, only where H_d is above a level) if simulation on states of its own
+    shows it brings more states to x*. Writes RUN/recovery.npz (kept) or
+    RUN/recovery-refused.npz (not kept; --regate judges it again) and summary.json → recovery.
+    It takes tens of minutes on 2 cores for a 2-DoF robot."""
     config = _config(args)
     if args.regate:
         entry = regate(args.run, config, keep=args.keep)
@@ -35,20 +43,8 @@ def _cmd_recover(args: argparse.Namespace) -> int:
 
 def add_recover_command(subparsers) -> argparse.ArgumentParser:
     """Register ``idapbc-pin recover RUN`` on an argparse sub-parsers object."""
-    p = subparsers.add_parser(
-        "recover",
-        help="weak actuators: fit a recovery law to torque plans within the limits, beside the IDA-PBC law",
-        description=(
-            "Search torque plans within RUN's effort limits (where a joint has none, within LQR's largest demand on the training box) "
-            "from states RUN's own law loses (the half box, or the training box with start_box = \"domain\"; with teacher = \"lqr\": "
-            "states saturated LQR loses), fit a small feedback law to "
-            "them (then DAgger rounds), and use it outside an inner box around x* (or, where no box helps, only where "
-            "H_d is above a level) if simulation on states of its own shows it brings more states to x*. Writes RUN/recovery.npz (kept) or RUN/recovery-refused.npz (not kept; "
-            "--regate judges it again) and summary.json → recovery. Took 15-50 minutes on 2 cores for a 2-DoF robot."
-        ),
-        epilog=f"--config FILE keys (RecoveryConfig fields, described in its docstring, idapbc_pin/recovery/config.py; the defaults): "
-               f"{config_keys(RecoveryConfig(), 'recovery')}.",
-    )
+    p = add_command(subparsers, "recover", _cmd_recover, help="weak actuators: fit a recovery law to torque plans within the limits, beside the IDA-PBC law", epilog=f"--config FILE keys (RecoveryConfig fields, described in its docstring, idapbc_pin/recovery/config.py; the defaults): "
+               f"{config_keys(RecoveryConfig(), 'recovery')}.")
     add_run_argument(p, "run directory written by `idapbc-pin train` (an actuated joint without an effort limit plans within LQR's largest demand on the training box)")
     p.add_argument("--config", metavar="FILE",
                    help="TOML file with a [recovery] table (or top-level keys; a [recovery.plan] table for the plans' search) or JSON: "
@@ -61,5 +57,4 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
                        help="fit a law again to the labels the last recover saved (recovery-labels.npz; the config's fit_seed, fits, width, steps, form) "
                             "and gate it; no plans: minutes")
     p.add_argument("--keep", action="store_true", help="keep the law at the gate's best inner box whatever its verdict (summary.json says forced)")
-    p.set_defaults(func=_cmd_recover)
     return p

@@ -10,7 +10,7 @@ from ..errors import IdapbcError
 from ..model import load_system
 from ..run import resolve_run
 from ..viewer import PICK_CANDIDATES, view
-from ._args import (add_checkpoint_argument, add_horizon_argument, add_limits_argument, add_seed_argument, add_states_argument, add_system_arguments,
+from ._args import (add_command, add_checkpoint_argument, add_horizon_argument, add_limits_argument, add_seed_argument, add_states_argument, add_system_arguments,
                     add_x0_argument, library_default, system_kwargs, x0_of)
 
 __all__ = ["add_view_command"]
@@ -18,16 +18,7 @@ __all__ = ["add_view_command"]
 
 def add_view_command(subparsers) -> argparse.ArgumentParser:
     """Register ``idapbc-pin view RUN_OR_SOURCE ...`` on an argparse sub-parsers object (defaults: `view`'s)."""
-    p = subparsers.add_parser(
-        "view",
-        help="meshcat animation of closed-loop rollouts: live in the browser, or a standalone HTML file",
-        description=(
-            "Animate closed-loop rollouts in meshcat. RUN_OR_SOURCE is a run directory (its controller) or a system "
-            "source (the LQR baseline; --actuated, --target, --domain and --effort apply to a SOURCE). Serves "
-            "http://127.0.0.1:PORT/static/ until Ctrl-C; with --html FILE it writes the standalone replay and exits "
-            "(add --serve or --port to serve as well). The layout and the traced link are `idapbc_pin.view` arguments."
-        ),
-    )
+    p = add_command(subparsers, "view", _cmd_view, help="meshcat animation of closed-loop rollouts: live in the browser, or a standalone HTML file")
     add_system_arguments(p, metavar="RUN_OR_SOURCE", source_help="run directory, or URDF path, zoo name, built-in name (paper_*) or erd:<stem>")
     add_x0_argument(p, "overrides --n")
     add_states_argument(p, view, "rollouts from random states of the half-size training box")
@@ -42,7 +33,6 @@ def add_view_command(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--serve", action="store_true", help="serve live even when --html is given")
     add_limits_argument(p)
     add_checkpoint_argument(p, "animate")
-    p.set_defaults(func=_cmd_view)
     return p
 
 
@@ -66,6 +56,11 @@ def _serve_until_stopped(viewer, port: int | None) -> None:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
+    """Animate closed-loop rollouts in meshcat. RUN_OR_SOURCE is a run directory (its controller)
+    or a system source (the LQR baseline; --actuated, --target, --domain and --effort apply to a
+    SOURCE). Serves http://127.0.0.1:PORT/static/ until Ctrl-C; with --html FILE it writes the
+    standalone replay and exits (add --serve or --port to serve as well). The layout and the
+    traced link are `idapbc_pin.view` arguments."""
     source = Path(args.source)
     if source.is_dir() and (source / "config.json").is_file():
         target = resolve_run(source, checkpoint=args.checkpoint)
