@@ -21,11 +21,11 @@ from ..certificate.certify import certify
 from ..errors import IdapbcError
 from ..evaluation.evaluate import evaluate_run
 from ..model import load_system
+from ..recovery.stage import RecoveryConfig
+from ..recovery.trigger import auto_recover
 from ..reporting.report import figure
 from ..run import load_run, read_checkpoint, read_config
-from ..recovery.stage import RecoveryConfig
 from ..training.train import resolved_config, train
-from ..recovery.trigger import auto_recover
 from ..viewer import view
 from ._files import read_json_or_none, timestamp
 from ._shipping import pack_dir, sees_batch_dir

@@ -41,8 +41,8 @@ import numpy as np
 
 from .._io import write_json
 from ..errors import IdapbcError
-from ..sim.limits import input_limits
 from ..run import resolve_run
+from ..sim.limits import input_limits
 from .baseline import certify_baseline
 from .checks import boundary_min, check_dissipation, check_structural, check_sublevel, face_samples, local_stability, settled_equilibrium
 from .result import LABEL, Certificate

@@ -17,14 +17,14 @@ from .._io import write_json
 from .._parallel import process_map
 from ..control.baseline import LQRController
 from ..errors import IdapbcError
+from ..run import resolve_run
 from ..sim.limits import input_limits
 from ..sim.mujoco_plant import mujoco_judge
-from .radius import RadiusResult, roa_radius
-from .roa import RoaResult, score
 from ..sim.states import evaluation_box, initial_states, uniform_states
 from ..sim.step import horizon, judge_step
 from ..sim.trajectory import Trajectory
-from ..run import resolve_run
+from .radius import RadiusResult, roa_radius
+from .roa import RoaResult, score
 from .robustness import MeasuredController, parse_mismatch, perturbed_system
 
 __all__ = ["JUDGES", "SimulationResult", "simulate_run"]

@@ -14,11 +14,11 @@ from dataclasses import dataclass
 from .._io import finite_or_none, write_json
 from ..control.baseline import LQRController
 from ..recovery.law import RecoveryLaw
+from ..run import Run
 from ..sim.limits import input_limits
+from ..sim.step import judge_step
 from .radius import RadiusResult, roa_radius
 from .roa import RoaResult, roa
-from ..sim.step import judge_step
-from ..run import Run
 
 __all__ = ["Evaluation", "evaluate_run", "format_evaluation"]
 

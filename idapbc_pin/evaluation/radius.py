@@ -31,9 +31,9 @@ import numpy as np
 from .._parallel import process_map
 from ..sim.integrate import Controller
 from ..sim.limits import InputLimits, input_limits
-from .roa import RoaResult, score
 from ..sim.states import scaled_box, uniform_states
 from ..sim.step import judge_step
+from .roa import RoaResult, score
 
 __all__ = ["RADIUS_RANGE", "RADIUS_RESOLUTION", "RADIUS_THRESHOLD", "RadiusResult", "roa_radius"]
 

@@ -14,10 +14,10 @@ from .._parallel import process_map
 from ..sim.integrate import Controller, simulate
 from ..sim.limits import InputLimits, input_limits
 from ..sim.metrics import equilibrium_offset, peak_input, settled, settling_time, success
-from .paired import PairedComparison, paired_comparison
 from ..sim.states import evaluation_box, uniform_states
 from ..sim.step import judge_step
 from ..sim.trajectory import Trajectory
+from .paired import PairedComparison, paired_comparison
 
 __all__ = ["ControllerScore", "RoaResult", "roa", "score"]
 

@@ -34,10 +34,10 @@ import numpy as np
 from .._io import finite_or_none, write_json
 from ..control.baseline import LQRController
 from ..errors import IdapbcError
-from ..sim.limits import InputLimits, input_limits
-from .roa import roa
-from ..sim.step import judge_step
 from ..run import resolve_run
+from ..sim.limits import InputLimits, input_limits
+from ..sim.step import judge_step
+from .roa import roa
 
 __all__ = [
     "MISMATCH_KINDS",

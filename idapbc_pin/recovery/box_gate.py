@@ -20,12 +20,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..control.controller import Controller
-from .box_law import INSIDE_RAMP, BoxFallback
 from ..control.linear import fastest_pole
 from ..model import System
 from ..sim.compare import compare_laws
 from ..sim.states import uniform_states
 from ..sim.step import step_for_pole
+from .box_law import INSIDE_RAMP, BoxFallback
 
 __all__ = ["GATE_SEED", "GATE_STATES", "fallback_gate", "gate_step"]
 

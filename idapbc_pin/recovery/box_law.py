@@ -49,9 +49,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..model.angles import wrap_angles
 from ..control.anchor import half_widths, system_anchor
 from ..control.baseline import equilibrium_input
+from ..model.angles import wrap_angles
 
 __all__ = ["INSIDE_RAMP", "LIMITED_GAIN", "BoxFallback", "box_fallback", "fallback_gain"]
 

@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .law import RecoveryLaw
 from ..model.angles import wrap_angles
+from .law import RecoveryLaw
 
 __all__ = ["base_inputs", "fit_job", "fit_recovery_law"]
 

@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 
 from .._io import DamagedFileError, atomic_write_bytes, read_npz, write_json
-from .config import RecoveryConfig
-from .law import RecoveryLaw
+from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
 from ..sim.compare import compare_laws
 from ..sim.states import scaled_box, uniform_states
+from .config import RecoveryConfig
+from .law import RecoveryLaw
 from .plans import PLAN_STEP
-from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
 
 __all__ = ["GATE_HORIZON", "LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery"]
 

@@ -55,18 +55,17 @@ import torch
 
 from .._parallel import process_map, resolve_workers
 from ..control.baseline import LQRController
-from .law import RecoveryLaw
 from ..errors import IdapbcError
 from ..model.angles import wrap_angles
+from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
 from ..sim.integrate import simulate
 from ..sim.metrics import success
-from ..sim.states import scaled_box
-from ..sim.states import uniform_states
-from .plans import PLAN_STEP, PlanThenLaw, planning_system, search_plans
+from ..sim.states import scaled_box, uniform_states
 from .config import FORMS, START_BOXES, TEACHERS, RecoveryConfig
 from .fit import base_inputs, fit_job, fit_recovery_law
 from .gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, read_labels, save_labels, save_recovery
-from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
+from .law import RecoveryLaw
+from .plans import PLAN_STEP, PlanThenLaw, planning_system, search_plans
 
 __all__ = ["FORMS", "LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "START_BOXES", "TEACHERS", "choose_inner", "collect_labels", "dagger_round", "ends_near", "fit_recovery_law", "gate_choice", "recover", "refit", "regate"]
 

@@ -17,8 +17,8 @@ from ..certificate.terms import closed_loop_terms
 from ..errors import IdapbcError
 from ..evaluation.robustness import MeasuredController
 from ..sim.integrate import simulate
-from ..sim.step import horizon, judge_step
 from ..sim.states import initial_states
+from ..sim.step import horizon, judge_step
 
 __all__ = ["FigureData", "figure_data"]
 

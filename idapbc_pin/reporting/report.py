@@ -20,8 +20,8 @@ from .._io import atomic_write_bytes
 from ..certificate.certify import certify, resolve_controller
 from ..errors import IdapbcError
 from ..evaluation.evaluate import evaluate_run, format_evaluation
-from ..sim.states import initial_states, uniform_states
 from ..run import resolve_run
+from ..sim.states import initial_states, uniform_states
 from ..viewer import view
 from .figure_data import FigureData, figure_data
 from .plot import plot, save_png

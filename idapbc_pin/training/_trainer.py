@@ -12,13 +12,13 @@ from pathlib import Path
 
 import torch
 
+from .._device import require_device
 from .._io import DamagedFileError, write_json
 from ..config import TrainConfig
 from ..control.nets import IdaPbcNets, build_nets
 from ..model import System
-from .loss import TERMS, AdaptiveWeights
 from ..run import load_weights, save_checkpoint, system_record
-from .._device import require_device
+from .loss import TERMS, AdaptiveWeights
 
 __all__ = ["METRICS_COLUMNS", "Trainer", "checkpoint", "metrics_row", "open_metrics", "restore", "save_snapshot", "snapshot", "start"]
 

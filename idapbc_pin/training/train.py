@@ -17,21 +17,21 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from .._device import require_device
 from .._io import write_json
 from ..config import TrainConfig
 from ..control.anchor import anchor_settings
-from ..control.linear import fastest_pole
 from ..control.controller import Controller
-from ..recovery.box_law import box_fallback, fallback_gain
+from ..control.linear import fastest_pole
 from ..control.nets import build_nets
 from ..errors import IdapbcError
 from ..model import System
+from ..recovery import box_gate as _gate
+from ..recovery.box_law import box_fallback, fallback_gain
+from ..run import Run, check_checkpoints, load_weights, read_checkpoint, read_config
 from ._trainer import Trainer, checkpoint, metrics_row, open_metrics, restore, save_snapshot, snapshot, start
 from .loss import TERMS, loss_terms
-from ..recovery import box_gate as _gate
 from .rollout import rollout_cost, rollout_gate, rollout_starts
-from ..run import Run, check_checkpoints, load_weights, read_checkpoint, read_config
-from .._device import require_device
 
 __all__ = ["TrainingDiverged", "train"]
 

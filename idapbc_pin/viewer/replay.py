@@ -20,11 +20,11 @@ import numpy as np
 from ..control.baseline import LQRController
 from ..errors import IdapbcError
 from ..model import load_system
+from ..run import resolve_run
 from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import initial_states
 from ..sim.step import judge_step
-from ..run import resolve_run
 from .animation import DEFAULT_FPS
 from .viewer import Viewer
 
