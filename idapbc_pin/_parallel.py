@@ -13,10 +13,10 @@ from __future__ import annotations
 import contextlib
 import os
 import pickle
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Callable, Iterator, Sequence
 
-__all__ = ["MAX_AUTO_WORKERS", "THREAD_ENV", "available_cores", "process_map", "resolve_workers", "stop_with_parent", "thread_env"]
+__all__ = ["MAX_AUTO_WORKERS", "THREAD_ENV", "JobPool", "available_cores", "process_map", "resolve_workers", "stop_with_parent", "thread_env"]
 
 #: Environment of worker processes: one OpenMP / MKL / BLAS thread each (set before they import numpy or torch).
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
@@ -111,3 +111,33 @@ def process_map(fn: Callable, jobs: Sequence, workers: int) -> Iterator:
         yield from pool.map(_call, [(fn, pickle.dumps(job)) for job in jobs])
     finally:
         pool.shutdown(cancel_futures=True)
+
+
+class JobPool:
+    """Jobs handed out one at a time, each ``fn(job)`` in a worker process (as `process_map`'s), for
+    callers whose next jobs depend on earlier results: ``with JobPool(workers) as pool: future =
+    pool.submit(fn, job)``. With `workers` 1 each job runs in this process as it is submitted (its
+    future is already done); 0 means one per core. Leaving the block cancels the jobs not started."""
+
+    def __init__(self, workers: int):
+        self.workers = resolve_workers(workers)
+        self._pool = None
+        if self.workers > 1:
+            self._pool = ProcessPoolExecutor(self.workers, initializer=_one_thread, initargs=(os.getpid(),))
+
+    def submit(self, fn: Callable, job) -> Future:
+        if self._pool is not None:
+            return self._pool.submit(_call, (fn, pickle.dumps(job)))
+        future = Future()
+        try:
+            future.set_result(fn(job))
+        except Exception as exc:  # noqa: BLE001 (handed to the caller through the future, as a worker's would be)
+            future.set_exception(exc)
+        return future
+
+    def __enter__(self) -> "JobPool":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)

@@ -102,10 +102,14 @@ def test_smoke_flag_shrinks_every_job_and_changes_its_fingerprint(tmp_path):
     for a, b in zip(full.jobs, small.jobs):
         assert b.config["epochs"] <= 20 and b.config["width"] <= 16 and b.evaluate["n"] <= 12
         assert b.recover == "never" and a.fingerprint() != b.fingerprint()
-    unpinned = tmp_path / "zoo.toml"  # the zoo without its `recover = "never"`: each job as `train` would run it
-    unpinned.write_text((ROOT / "pipelines" / "zoo.toml").read_text().replace('recover = "never"', ""))
-    for a, b in zip(load_pipeline(unpinned).jobs, load_pipeline(unpinned, smoke=True).jobs):
+    auto = tmp_path / "zoo.toml"  # the zoo with `recover = "auto"`: a recovery law where saturated LQR leaves room
+    auto.write_text((ROOT / "pipelines" / "zoo.toml").read_text().replace('recover = "never"', 'recover = "auto"'))
+    for a, b in zip(load_pipeline(auto).jobs, load_pipeline(auto, smoke=True).jobs):
         assert a.recover == "auto" and b.recover == "never"  # a smoke run never spends minutes on plans
+    unpinned = tmp_path / "unpinned.toml"  # without the line, each job as `train` runs it: no recovery stage
+    unpinned.write_text((ROOT / "pipelines" / "zoo.toml").read_text().replace('recover = "never"', ""))
+    assert {job.recover for job in load_pipeline(unpinned).jobs} == {"never"}
+    assert [j.fingerprint() for j in load_pipeline(unpinned).jobs] == [j.fingerprint() for j in full.jobs]
 
 
 BAD_JOBS = [

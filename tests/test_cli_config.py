@@ -110,7 +110,7 @@ def trained(monkeypatch):
 
     def fake_train(system, config, out=None, resume=None, workers=0):
         seen["config"], seen["workers"] = config, workers
-        return SimpleNamespace(summary={"status": "finished"}, path=out)
+        return SimpleNamespace(summary={"status": "finished"}, path=out, uses_recovery=False, system=SimpleNamespace(m=1))
 
     monkeypatch.setattr("idapbc_pin.training.train.train", fake_train)
     monkeypatch.setattr("idapbc_pin.training.summary.format_train_summary", lambda run: "trained")
@@ -126,7 +126,7 @@ def test_train_takes_expert_keys_from_its_config_file_and_flags_win(tmp_path, tr
     assert trained["config"] == expected and "recovery" not in trained  # the file under --fast's preset, --epochs over both
 
 
-def test_train_passes_the_recover_config_file_to_its_recovery_stage(tmp_path, trained):
+def test_train_passes_the_recover_config_file_to_its_recovery_stage(tmp_path, trained, capsys):
     path = tmp_path / "recovery.toml"
     path.write_text(RECOVERY_TOML)
     argv = ["train", "pendubot", "--fast", "--evaluate", "0", "--recover", "always", "--recover-config", str(path), "--out", str(tmp_path)]
@@ -134,8 +134,12 @@ def test_train_passes_the_recover_config_file_to_its_recovery_stage(tmp_path, tr
     assert trained["mode"] == "always" and trained["recovery"] == RecoveryConfig.from_file(path)
     assert main([*argv, "--workers", "2"]) == 0
     assert trained["recovery"].workers == 2 and trained["workers"] == 2
-    assert main([*argv[:-6], "--out", str(tmp_path)]) == 0  # no file, no --workers: recover's defaults
-    assert trained["mode"] == "auto" and trained["recovery"] == RecoveryConfig()
+    trained.clear()
+    assert main([*argv[:-6], "--out", str(tmp_path)]) == 0  # train's default: no recovery stage, the command printed instead
+    assert "mode" not in trained
+    assert f"idapbc-pin recover {tmp_path} --workers 0" in capsys.readouterr().out
+    assert main([*argv[:-6], "--recover", "--out", str(tmp_path)]) == 0  # no file, no --workers: recover's defaults
+    assert trained["mode"] == "always" and trained["recovery"] == RecoveryConfig()
 
 
 def test_a_bad_train_config_key_is_one_line_and_exit_2(tmp_path, cli):
@@ -165,3 +169,14 @@ def test_the_cli_stays_small_and_every_evaluation_default_is_the_library_s():
     assert (view.n, view.T, view.pick) == (VIEW_DEFAULTS["n"], VIEW_DEFAULTS["T"], "random")
     robustness = parser.parse_args(["robustness", "RUN"])
     assert (robustness.box, robustness.n) == ("half", 100) and not hasattr(robustness, "noise")  # the conditions' own defaults apply
+
+
+def test_the_recovery_hint_names_the_command_only_where_saturated_lqr_leaves_room():
+    from idapbc_pin.recovery.trigger import ROOM_POINTS, recovery_hint
+
+    run = SimpleNamespace(path="runs/x/1", system=SimpleNamespace(m=1))
+    room = 1.0 - ROOM_POINTS / 100.0  # LQR's half-box success at which it fails from exactly ROOM_POINTS per cent
+    assert "idapbc-pin recover runs/x/1 --workers 0" in recovery_hint(run, room)
+    assert recovery_hint(run, room + 0.01) is None  # LQR holds the half box: nothing to suggest
+    assert "idapbc-pin recover runs/x/1" in recovery_hint(run, None)  # not evaluated: the command, with its test
+    assert recovery_hint(SimpleNamespace(path="r", system=SimpleNamespace(m=0)), 0.0) is None

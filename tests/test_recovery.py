@@ -22,7 +22,7 @@ Claims:
   to the saved labels (the same seed gives the same law as a fit on those labels) without plans;
   missing or damaged labels are refused with one line;
 * a damaged or missing recovery.npz is refused when the run loads, with one line;
-* `train --recover auto` (the default) fits one exactly when saturated LQR leaves room: it fails on
+* `train --recover auto` (opt-in: `train`'s default, never, prints the `recover` command instead) fits one exactly when saturated LQR leaves room: it fails on
   ≥ 10 % of the half box (the zoo pendubot, whose 20 N·m limit does not bind, and an 8 N·m shoulder,
   where it binds; not the cartpole), or else of the training box, and then from training-box starts
   (the cartpole; not the reaction wheel); a robot without limits is tested with LQR itself, and

@@ -297,6 +297,26 @@ def test_evaluation_applies_limits_and_writes_the_radii(tmp_path):
     assert data["limits"]["lifted"] and not data["limits"]["applied"] and "lifted" in format_evaluation(free)
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_the_scheduled_evaluation_is_roa_and_roa_radius_exactly(tiny_run, workers):
+    """evaluate_run shares its box rollouts and radius searches over one pool (a controller's search
+    starts once its own boxes are in): every success, settling time and radius probe is the one that
+    `roa` and `roa_radius` give on their own, for any number of workers."""
+    from idapbc_pin.evaluation.radius import roa_radius
+    from idapbc_pin.evaluation.roa import roa
+
+    ev = evaluate_run(tiny_run, n=10, T=3.0, dt=0.02, workers=workers)
+    controllers = {"NIDA-PBC": tiny_run.controller, "LQR": LQRController(tiny_run.system)}
+    alone = {box: roa(tiny_run.system, controllers, n=10, box=box, T=3.0, dt=0.02) for box in ("domain", "half")}
+    for box, res in alone.items():
+        np.testing.assert_array_equal(ev.results[box].x0, res.x0)
+        for name in controllers:
+            np.testing.assert_array_equal(ev.results[box][name].success, res[name].success)
+            np.testing.assert_array_equal(ev.results[box][name].settling_time, res[name].settling_time)
+    radius = roa_radius(tiny_run.system, controllers, n=10, T=3.0, dt=0.02, known={1.0: alone["domain"], 0.5: alone["half"]})
+    assert ev.radius.radius == radius.radius and ev.radius.probes == radius.probes and ev.radius.bracket == radius.bracket
+
+
 def test_cli_no_limits_flags(tiny_run, capsys):
     run = str(tiny_run.path)
     for command in ("simulate", "certify", "report", "robustness"):

@@ -267,6 +267,21 @@ def test_rows_that_rest_at_x_star_stop_without_changing_a_verdict(systems):
     assert 1 not in sizes and sizes[-1] == 2  # the failing row, alone at the end, evaluated beside a copy
 
 
+def test_a_batch_stops_once_enough_rows_rest_and_leaves_the_others_undecided(systems):
+    """``enough_settled`` (the radius probes): once that many rows have rested in the success box the
+    whole batch stops; those rows read as successes, as in the full horizon, and the rows still moving
+    hold NaN from then on, so they read as failures (undecided), never as successes."""
+    system = systems("pendubot")
+    lqr = LQRController(system)
+    x0 = system.x_star + np.array([[0.02, 0, 0, 0], [0, 0.05, 0, 0], [0.3, -0.3, 0, 0], [2.5, 1.0, 0, 0]])
+    full = success(simulate(system, lqr, x0, T=8.0), system)
+    early = simulate(system, lqr, x0, T=8.0, stop_settled=True, enough_settled=2)
+    ok = success(early, system)
+    assert ok.sum() >= 2 and np.all(full[ok])
+    undecided = np.isnan(early.x[:, -1]).any(axis=1)
+    assert undecided.sum() >= 1 and not ok[undecided].any() and np.all(ok | undecided)
+
+
 # ------------------------------------------------------------------ saturation and recording
 def test_saturation_clips_the_applied_input(systems):
     system = systems("paper_cartpole")
@@ -528,9 +543,11 @@ def test_radius_is_the_largest_passing_scale_on_the_same_states():
     assert "sat 0.78" in result.line() or f"sat {s:.2f}" in result.line()
 
 
-def test_radius_probes_stop_rows_at_rest_without_changing_a_count():
+def test_radius_probes_stop_rows_at_rest_without_changing_a_verdict():
     """A probe integrates a state no further once it has rested in the success box for the success
-    window: each probe's count is that of the full 20 s rollouts of its states, for fewer law calls."""
+    window, and stops the rest once enough states rest for it to pass: a failing probe's count is
+    that of the full 20 s rollouts of its states, a passing probe's is the threshold it reached, and
+    every probe passes exactly when the full rollouts do, for fewer law calls."""
     system, rows = SaturatedUnstable(), []
 
     def counting(x):
@@ -539,10 +556,16 @@ def test_radius_probes_stop_rows_at_rest_without_changing_a_count():
 
     result = roa_radius(system, {"sat": counting}, n=200, T=20.0, dt=0.05)
     stopped_rows, rows[:] = sum(rows), []
+    need = 180
+    verdicts = set()
     for scale, (ok, done) in result.probes["sat"].items():
         x0 = uniform_states(system, 200, scaled_box(system, scale), seed=0)[:done]
-        full = score(system, "sat", counting, x0, 20.0, 0.05)[0]
-        assert int(full.success.sum()) == ok, scale
+        full = int(score(system, "sat", counting, x0, 20.0, 0.05)[0].success.sum())
+        passed = ok >= need
+        verdicts.add(passed)
+        assert passed == (full >= need), scale
+        assert (need <= ok <= full) if passed else ok == full, (scale, ok, full)
+    assert verdicts == {True, False}  # the search probed both kinds
     assert stopped_rows < 0.6 * sum(rows)  # most states rest long before 20 s
 
 

@@ -437,3 +437,26 @@ def test_two_trainings_started_in_the_same_second_get_a_run_directory_each(tmp_p
     third = train_module._new_run_dir(tmp_path / "runs")
     assert [p.name for p in (first, second, third)] == ["20260102-030405", "20260102-030405-1", "20260102-030405-2"]
     assert all((p / "checkpoints").is_dir() and not any((p / "checkpoints").iterdir()) for p in (first, second, third))
+
+
+@pytest.mark.parametrize("form", ["anchored", "free"])
+def test_the_one_pass_jacobian_of_the_desired_flow_is_autograds_per_state(form):
+    """∂f̃_d/∂x from one forward and one backward pass over copies of the states (the local-stability
+    term's) equals torch's Jacobian of f̃_d state by state, and its gradient w.r.t. the weights too."""
+    from idapbc_pin.training.loss import _desired_jacobian
+
+    system = ip.load_system("cartpole")
+    torch.manual_seed(3)
+    nets = build_nets(system, TrainConfig(width=16, depth=3, form=form, dtype="float64"))
+    with torch.no_grad():
+        for p in nets.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    x = torch.as_tensor(system.x_star + np.random.default_rng(3).normal(scale=0.5, size=(7, system.n)))
+    fast = _desired_jacobian(nets, x)
+    flow = lambda s: nets.desired(s.unsqueeze(0), create_graph=True)[4][0]  # noqa: E731
+    slow = torch.stack([torch.autograd.functional.jacobian(flow, s, create_graph=True) for s in x])
+    torch.testing.assert_close(fast, slow, rtol=1e-12, atol=1e-12)
+    w = next(nets.parameters())
+    g_fast, = torch.autograd.grad(fast.square().sum(), w)
+    g_slow, = torch.autograd.grad(slow.square().sum(), w)
+    torch.testing.assert_close(g_fast, g_slow, rtol=1e-10, atol=1e-12)

@@ -22,7 +22,7 @@ Format (``pipelines/*.toml``)::
     effort = { elbow = 8.0 }   # optional: actuator limits (N·m or N) over the URDF's <limit effort>
                                # (inf lifts one); the limits apply to training and evaluation
     recover = "auto"           # optional: a recovery law after training where saturated LQR leaves room
-                               # ("auto", as `train`), "always" or "never"; --smoke: "never"
+                               # ("auto"), "always" or "never" (the default, as `train`)
 
 Every job is checked before the first one starts: unknown keys, wrong types, the system itself
 (`load_system`: unknown source, unknown joint, a target that is not an equilibrium, an empty domain)
@@ -129,7 +129,7 @@ class Job:
     actuated_resolved: tuple[str, ...] = ()
     description: str = ""
     effort: dict | None = None
-    recover: str = "auto"
+    recover: str = "never"
 
     def system_arguments(self) -> dict:
         """The keyword arguments of `load_system` for this job (after `source_path`)."""
@@ -146,7 +146,7 @@ class Job:
             "target": self.target,
             "domain": self.domain,
             **({"effort": self.effort} if self.effort is not None else {}),  # jobs without one keep their old fingerprint
-            **({"recover": self.recover} if self.recover != "auto" else {}),
+            **({"recover": self.recover} if self.recover != "auto" else {}),  # "auto" was the default: its jobs keep their fingerprint
             "config": self.config,
             "evaluate": self.evaluate,
             "certify": self.certify,
@@ -293,7 +293,7 @@ def _build_job(raw: dict, base: Path, line: int | None, smoke: bool) -> Job:
     train = dict(_check_type(raw.get("train", {}), dict, "'train'"))
     tables = _stage_tables(raw)
     description = _check_type(raw.get("description", ""), str, "'description'")
-    recover = _check_type(raw.get("recover", "auto"), str, "'recover'")
+    recover = _check_type(raw.get("recover", "never"), str, "'recover'")
     if recover not in RECOVER_MODES:
         raise IdapbcError(f"recover must be one of {', '.join(repr(m) for m in RECOVER_MODES)}, got {recover!r}")
 

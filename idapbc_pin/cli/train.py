@@ -7,6 +7,7 @@ import argparse
 from ..config import FIELD_HELP, TrainConfig
 from ..errors import IdapbcError
 from ..recovery.config import RecoveryConfig
+from ..recovery.trigger import RECOVER_TIME
 from ._args import add_limits_argument, add_seed_argument, add_system_arguments, add_workers_argument, config_keys, system_kwargs, workers_of
 
 __all__ = ["add_model_commands", "add_train_command"]
@@ -76,10 +77,19 @@ def _cmd_train(args: argparse.Namespace) -> int:
         from ..recovery.trigger import auto_recover
 
         auto_recover(run, args.recover, recovery)
+    lqr_half = None
     if args.evaluate > 0:
         from ..evaluation.evaluate import evaluate_run, format_evaluation
 
-        print(format_evaluation(evaluate_run(run, n=args.evaluate, limits=not args.no_limits, workers=workers)))
+        evaluation = evaluate_run(run, n=args.evaluate, limits=not args.no_limits, workers=workers, progress=True)
+        print(format_evaluation(evaluation))
+        lqr_half = evaluation.results["half"]["LQR"].success_rate
+    if args.recover == "never" and not run.uses_recovery and not args.no_limits:
+        from ..recovery.trigger import recovery_hint
+
+        hint = recovery_hint(run, lqr_half)
+        if hint:
+            print(hint)
     print(
         f"next: idapbc-pin report {run.path}   (ROA vs LQR, certificate.json, figure.png, replay.html)\n"
         f"      idapbc-pin view {run.path}     (3-D replay in the browser)"
@@ -120,12 +130,13 @@ def add_train_command(sub) -> None:
     p.add_argument("--evaluate", type=int, default=100, metavar="N", help="closed-loop check vs LQR from N random states after training (0: skip)")
     add_limits_argument(p, "evaluate without the actuators' effort limits")
     add_workers_argument(p, "the simulations (the two controllers side by side, train's gate and the recovery stage)")
-    p.add_argument("--recover", nargs="?", const="always", default="auto", choices=["auto", "always", "never"],
+    p.add_argument("--recover", nargs="?", const="always", default="never", choices=["auto", "always", "never"],
                    help="weak actuators: after training, fit a recovery law to torque plans within the limits and keep it "
-                        "if simulation shows it helps (`idapbc-pin recover`; 15-50 min on 2 cores for a 2-DoF robot, an hour for a 3-DoF one). "
-                        "auto (default): only where saturated LQR leaves room, i.e. fails from at least 10 of 100 half-box "
-                        "states, or else of 100 training-box states (then the plans start from the training box: the cartpole; "
-                        "reaction wheel and double pendulum leave no room at their URDF limits); --recover alone: always; never: skip")
+                        f"if simulation shows it helps (`idapbc-pin recover`; {RECOVER_TIME}). never (default): not on the "
+                        "default path; where saturated LQR fails from at least 10 %% of the evaluation's half-box states, train "
+                        "prints the `idapbc-pin recover RUN` command. auto: only where saturated LQR fails from at least 10 of 100 "
+                        "half-box states, or else of 100 training-box states (then the plans start from the training box); "
+                        "--recover alone: always")
     p.add_argument("--recover-config", metavar="FILE", dest="recover_config",
                    help="the recovery stage's settings: a TOML file with a [recovery] table, as `idapbc-pin recover --config` reads")
     p.set_defaults(func=_cmd_train)

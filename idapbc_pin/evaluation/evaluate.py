@@ -9,16 +9,22 @@ run directory.
 
 from __future__ import annotations
 
+import sys
+import time
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
 
+from tqdm.auto import tqdm
+
 from .._io import finite_or_none, write_json
+from .._parallel import JobPool
 from ..control.baseline import LQRController
 from ..recovery.law import RecoveryLaw
 from ..run import Run
 from ..sim.limits import input_limits
 from ..sim.step import judge_step
-from .radius import RadiusResult, roa_radius
-from .roa import RoaResult, roa
+from .radius import RadiusResult, radius_job, radius_result, run_radius_job
+from .roa import RoaResult, roa_result, roa_states, run_score_job, score_job
 
 __all__ = ["Evaluation", "evaluate_run", "format_evaluation"]
 
@@ -82,6 +88,7 @@ def evaluate_run(
     limits: bool = True,
     radius: bool = True,
     workers: int = 1,
+    progress: bool = False,
 ) -> Evaluation:
     """ROA of the run's controller (optionally with extra damping ρ) and LQR on `n` states per box,
     and their ROA radii on `n` states per scale (the boxes' rollouts reused at s = 1 and 0.5).
@@ -89,17 +96,14 @@ def evaluate_run(
     dt : RK4 step and control period (s); None: 2 ms, or shorter where either loop is stiffer at x* (`judge_step`).
     limits : apply the system's effort limits to both controllers (False lifts them).
     radius : find the ROA radii (False skips them; they cost a few more ROA evaluations).
-    workers : processes simulating the two controllers side by side (1: in this process, 0: one per core); the count
+    workers : processes sharing the simulations (1: in this process, 0: one per core; `_simulate`); the count
         changes the time, never a result.
+    progress : show a progress bar over the simulation jobs (with an ETA).
     """
     ctrl = run.controller if rho is None else run.controller.with_damping(rho)
     controllers = {"NIDA-PBC": ctrl, "LQR": LQRController(run.system)}
     dt = judge_step(run.system, controllers, T, dt)
-    results = {box: roa(run.system, controllers, n=n, box=box, seed=seed, T=T, dt=dt, limits=limits, workers=workers) for box in boxes}
-    found = None
-    if radius:
-        known = {scale: results[box] for scale, box in ((1.0, "domain"), (0.5, "half")) if box in results}
-        found = roa_radius(run.system, controllers, n=n, seed=seed, T=T, dt=dt, known=known, limits=limits, workers=workers)
+    results, found = _simulate(run.system, controllers, tuple(boxes), n, seed, T, dt, bool(limits), radius, workers, progress)
     evaluation = Evaluation(run, results, found, bool(limits))
     record = evaluation.record()
     record["rho"] = ctrl.rho
@@ -110,6 +114,45 @@ def evaluate_run(
     record["inside_ramp"] = list(getattr(law, "inside_ramp", (0.0, 0.0))) if record["fallback"] else [0.0, 0.0]  # from 1 near x*
     write_json(run.path / "evaluation.json", record)
     return evaluation
+
+
+def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: float, dt: float, limits: bool, radius: bool,
+              workers: int, progress: bool = False) -> tuple[dict[str, RoaResult], RadiusResult | None]:
+    """Every controller on every box, then each controller's radius search as soon as its own boxes
+    are in (they are its probes at s = 1 and 0.5), all on one pool of `workers` processes: the
+    searches of the cheaper controllers start while the costlier ones still run. Each job is the
+    computation `roa` and `roa_radius` run, so the results are theirs, whatever the workers.
+    `progress`: a bar over the jobs (boxes, then searches), with the elapsed time and an ETA."""
+    t0 = time.perf_counter()
+    states = {box: roa_states(system, n, box, seed)[1] for box in boxes}
+    known_box = {box: scale for scale, box in ((1.0, "domain"), (0.5, "half")) if box in boxes}
+    total = len(controllers) * (len(boxes) + int(radius))
+    bar = tqdm(total=total, disable=not progress, desc=f"evaluate {getattr(system, 'name', '')}", unit="job", dynamic_ncols=True,
+               mininterval=0.5 if sys.stderr.isatty() else 15.0)
+    with JobPool(workers) as pool, bar:
+        scored = {(name, box): pool.submit(run_score_job, score_job(system, name, ctrl, states[box], T, dt, limits=limits))
+                  for name, ctrl in controllers.items() for box in boxes}  # the first controller first: NIDA-PBC's rollouts cost most
+        searches, waiting, seen = {}, list(controllers) if radius else [], set()
+        while len(seen) < total:
+            for name in [w for w in waiting if all(scored[w, box].done() for box in boxes)]:
+                known = {scale: roa_result(system, box, states[box], T, dt, seed, {name: scored[name, box].result()}, limits=limits)
+                         for box, scale in known_box.items()}
+                searches[name] = pool.submit(run_radius_job, radius_job(system, name, controllers[name], n=n, seed=seed, T=T, dt=dt,
+                                                                        known=known, limits=limits))
+                waiting.remove(name)
+            futures = [f for f in (*scored.values(), *searches.values()) if id(f) not in seen]
+            done = [f for f in futures if f.done()] or list(wait(futures, return_when=FIRST_COMPLETED).done)
+            for future in done:
+                future.result()  # a worker's error surfaces here
+                seen.add(id(future))
+            bar.update(len(done))
+        results = {box: roa_result(system, box, states[box], T, dt, seed, {name: scored[name, box].result() for name in controllers},
+                                   limits=limits) for box in boxes}
+        found = None
+        if radius:
+            found = radius_result(system, {name: searches[name].result() for name in controllers}, n=n, seed=seed, T=T, dt=dt,
+                                  limits=limits, wall_time=time.perf_counter() - t0)
+    return results, found
 
 
 def format_evaluation(evaluation: Evaluation) -> str:

@@ -12,9 +12,10 @@ the half box, so an ROA already computed there is reused instead of simulated ag
 The search is a bisection per controller on those fixed states: s = 1 first, then (if it fails)
 s = 0.5, then halving the bracket [passing s, failing s] down to the resolution; the ends of the
 range (0.05, 2) are probed only when the bracket ends next to them. A probe simulates a quarter
-of its states first and stops there when more than 10 % of all its states already failed, and it
+of its states first and stops there when more than 10 % of all its states already failed, it
 integrates a state no further once that state has rested in the success box for the success
-window (its verdict is then known: ``simulate(stop_settled=True)``). The success share need not be
+window (its verdict is then known: ``simulate(stop_settled=True)``), and it stops the rest once
+90 % of all its states rest (the probe passes whatever the others do: ``enough_settled``). The success share need not be
 monotone in s; the result is a scale that passes with the next probed scale above it failing, on
 the same seeds.
 """
@@ -35,7 +36,7 @@ from ..sim.states import scaled_box, uniform_states
 from ..sim.step import judge_step
 from .roa import RoaResult, score
 
-__all__ = ["RADIUS_RANGE", "RADIUS_RESOLUTION", "RADIUS_THRESHOLD", "RadiusResult", "roa_radius"]
+__all__ = ["RADIUS_RANGE", "RADIUS_RESOLUTION", "RADIUS_THRESHOLD", "RadiusResult", "radius_job", "radius_result", "roa_radius", "run_radius_job"]
 
 #: Scales searched: below the first the radius is reported as "< 0.05", at the last as "≥ 2".
 RADIUS_RANGE = (0.05, 2.0)
@@ -70,7 +71,7 @@ class RadiusResult:
         it (None where there is none: below the range, or at its top).
     below, above : {controller: bool}, see `radius`.
     probes : {controller: {s: (successes, states simulated)}}; a probe that failed early has
-        simulated fewer than n states.
+        simulated fewer than n states, and one that passed early counts the successes it needed.
     n, seed, T, dt : the states per scale, their seed, the horizon and step (s).
     threshold, resolution, s_range : the criterion and the search settings.
     limits : the input bound the rollouts applied.
@@ -144,7 +145,8 @@ class _Prober:
             return k, self.n
         ok, done = 0, 0
         for end in sorted({math.ceil(_FIRST_SHARE * self.n), self.n}):
-            res = score(self.system, self.name, self.ctrl, x0[done:end], **self.sim_kw, stop_settled=True)[0]
+            # a batch stops once enough of its states rest for the probe to pass: its count is then a lower bound
+            res = score(self.system, self.name, self.ctrl, x0[done:end], **self.sim_kw, stop_settled=True, enough_settled=self.need - ok)[0]
             ok, done = ok + int(np.count_nonzero(res.success)), end
             if done - ok > self.n - self.need:  # too many failures already: decided
                 break
@@ -171,14 +173,6 @@ def _search(probe: _Prober, s_lo: float, s_hi: float, resolution: float) -> tupl
     if b == s_hi and probe.passes(s_hi):
         return s_hi, (s_hi, None), False, True
     return a, (a, b), False, False
-
-
-def _search_job(job) -> tuple[float, tuple, bool, bool, dict]:
-    """Worker: one controller's search, for job = (system, name, ctrl, n, seed, need, known, sim_kw,
-    (s_lo, s_hi), resolution); returns `_search`'s result and the probes."""
-    system, name, ctrl, n, seed, need, known, sim_kw, (s_lo, s_hi), resolution = job
-    probe = _Prober(system, name, ctrl, n, seed, need, known, sim_kw)
-    return (*_search(probe, s_lo, s_hi, resolution), probe.probes)
 
 
 def roa_radius(
@@ -220,19 +214,50 @@ def roa_radius(
     RadiusResult (``.line()`` prints it, ``.radius`` is {name: s}).
     """
     t0 = time.perf_counter()
+    _settings(n, s_range, resolution, threshold)  # bad settings are refused before anything runs
+    dt = judge_step(system, controllers, T, dt)
+    settings = dict(n=n, seed=seed, T=T, dt=dt, s_range=s_range, resolution=resolution, threshold=threshold, limits=limits, saturation=saturation)
+    jobs = [radius_job(system, name, ctrl, known=known, method=method, threads=threads, **settings) for name, ctrl in controllers.items()]
+    found = dict(zip(controllers, process_map(run_radius_job, jobs, workers)))
+    return radius_result(system, found, wall_time=time.perf_counter() - t0, **settings)
+
+
+def _settings(n, s_range, resolution, threshold) -> tuple[int, float, float, int]:
+    """(n, s_lo, s_hi, successes needed), checked."""
     n, (s_lo, s_hi) = int(n), (float(s_range[0]), float(s_range[1]))
     if n < 1 or not (0 < s_lo < s_hi) or not (resolution > 0) or not (0 < threshold <= 1):
         raise ValueError(f"need n ≥ 1, 0 < s_lo < s_hi, resolution > 0, 0 < threshold ≤ 1; got {n}, {s_range}, {resolution}, {threshold}")
-    need = math.ceil(threshold * n - 1e-9)
-    dt = judge_step(system, controllers, T, dt)
+    return n, s_lo, s_hi, math.ceil(threshold * n - 1e-9)
+
+
+def radius_job(system, name: str, ctrl: Controller, *, n: int, seed: int, T: float, dt: float, known=None, s_range=RADIUS_RANGE,
+               resolution: float = RADIUS_RESOLUTION, threshold: float = RADIUS_THRESHOLD, method: str = "rk4", saturation=None,
+               limits: bool = True, threads: int | None = None) -> tuple:
+    """The job of `run_radius_job` (for `process_map` or `JobPool`): one controller's search, with the
+    arguments of `roa_radius` (dt resolved; `known` may hold results of this controller only)."""
+    n, s_lo, s_hi, need = _settings(n, s_range, resolution, threshold)
     sim_kw = dict(T=T, dt=dt, method=method, saturation=saturation, limits=limits, threads=threads)
     known = {float(s): r for s, r in (known or {}).items()}
+    return (system, name, ctrl, n, seed, need, known, sim_kw, (s_lo, s_hi), float(resolution))
+
+
+def run_radius_job(job) -> tuple[float, tuple, bool, bool, dict]:
+    """Worker: one controller's search, for a `radius_job`; returns `_search`'s result and the probes."""
+    system, name, ctrl, n, seed, need, known, sim_kw, (s_lo, s_hi), resolution = job
+    probe = _Prober(system, name, ctrl, n, seed, need, known, sim_kw)
+    return (*_search(probe, s_lo, s_hi, resolution), probe.probes)
+
+
+def radius_result(system, found: Mapping[str, tuple], *, n: int, seed: int, T: float, dt: float, s_range=RADIUS_RANGE,
+                  resolution: float = RADIUS_RESOLUTION, threshold: float = RADIUS_THRESHOLD, limits: bool = True,
+                  saturation=None, wall_time: float = 0.0) -> RadiusResult:
+    """The `RadiusResult` of the searches `found` ({controller: `run_radius_job`'s result})."""
+    n, s_lo, s_hi, _ = _settings(n, s_range, resolution, threshold)
     radius, bracket, below, above, probes = {}, {}, {}, {}, {}
-    jobs = [(system, name, ctrl, n, seed, need, known, sim_kw, (s_lo, s_hi), float(resolution)) for name, ctrl in controllers.items()]
-    for name, found in zip(controllers, process_map(_search_job, jobs, workers)):
-        radius[name], bracket[name], below[name], above[name], probes[name] = found
+    for name, result in found.items():
+        radius[name], bracket[name], below[name], above[name], probes[name] = result
     return RadiusResult(
         system=str(getattr(system, "name", type(system).__name__)), radius=radius, bracket=bracket, below=below, above=above,
         probes=probes, n=n, seed=int(seed), T=float(T), dt=float(dt), threshold=float(threshold), resolution=float(resolution),
-        s_range=(s_lo, s_hi), limits=input_limits(system, limits, saturation), wall_time=time.perf_counter() - t0,
+        s_range=(s_lo, s_hi), limits=input_limits(system, limits, saturation), wall_time=float(wall_time),
     )

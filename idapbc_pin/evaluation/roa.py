@@ -19,7 +19,7 @@ from ..sim.step import judge_step
 from ..sim.trajectory import Trajectory
 from .paired import PairedComparison, paired_comparison
 
-__all__ = ["ControllerScore", "RoaResult", "roa", "score"]
+__all__ = ["ControllerScore", "RoaResult", "roa", "roa_result", "roa_states", "run_score_job", "score", "score_job"]
 
 
 def _median(a: np.ndarray) -> float:
@@ -166,17 +166,19 @@ def score(
     hold: bool = True,
     threads: int | None = None,
     stop_settled: bool = False,
+    enough_settled: int | None = None,
 ) -> tuple[ControllerScore, Trajectory]:
     """Simulate one controller from x0 (N, n) on `system` (the judge) and score the rollouts.
 
-    T, dt, method, saturation, limits, hold, threads, stop_settled : passed to `simulate` (limits:
-    the system's effort limits apply unless False; stop_settled: for callers that read `success`
-    only, since a row's settling time and peak input then stop where the row stopped). Returns the
-    score and the rollouts.
+    T, dt, method, saturation, limits, hold, threads, stop_settled, enough_settled : passed to
+    `simulate` (limits: the system's effort limits apply unless False; stop_settled: for callers
+    that read `success` only, since a row's settling time and peak input then stop where the row
+    stopped; enough_settled: for callers that read the count of successes only). Returns the score
+    and the rollouts.
     """
     t0 = time.perf_counter()
     traj = simulate(system, ctrl, x0, T=T, dt=dt, method=method, saturation=saturation, limits=limits, hold=hold, threads=threads,
-                    stop_settled=stop_settled)
+                    stop_settled=stop_settled, enough_settled=enough_settled)
     wall = time.perf_counter() - t0
     result = ControllerScore(
         name=name,
@@ -189,12 +191,6 @@ def score(
         wall_time=wall,
     )
     return result, traj
-
-
-def _score_job(job) -> ControllerScore:
-    """Worker: the `score` of one controller, for job = (system, name, ctrl, x0, T, dt, keywords)."""
-    system, name, ctrl, x0, T, dt, kw = job
-    return score(system, name, ctrl, x0, T, dt, **kw)[0]
 
 
 def roa(
@@ -233,17 +229,38 @@ def roa(
     -------
     RoaResult (``.table()`` prints it).
     """
-    lo, hi = evaluation_box(system, box)
-    x0 = uniform_states(system, n, (lo, hi), seed)
+    (lo, hi), x0 = roa_states(system, n, box, seed)
     dt = judge_step(system, controllers, T, dt)
     kw = dict(method=method, saturation=saturation, limits=limits, hold=hold, threads=threads)
-    jobs = [(system, name, ctrl, x0, T, dt, kw) for name, ctrl in controllers.items()]
-    scores = {s.name: s for s in process_map(_score_job, jobs, workers)}
-    box_name = box if isinstance(box, str) else "custom"
+    jobs = [score_job(system, name, ctrl, x0, T, dt, **kw) for name, ctrl in controllers.items()]
+    scores = {s.name: s for s in process_map(run_score_job, jobs, workers)}
+    return roa_result(system, box, x0, T, dt, seed, scores, limits=limits, saturation=saturation, hold=hold)
+
+
+def roa_states(system, n: int, box, seed: int) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """The evaluation box (lo, hi) of `box` (see `evaluation_box`) and its `n` uniform states (n, n_x) of `seed`."""
+    lo, hi = evaluation_box(system, box)
+    return (lo, hi), uniform_states(system, n, (lo, hi), seed)
+
+
+def score_job(system, name: str, ctrl: Controller, x0: np.ndarray, T: float, dt: float, **kw) -> tuple:
+    """The job of `run_score_job` (for `process_map` or `JobPool`): `score` of one controller from x0."""
+    return (system, name, ctrl, x0, T, dt, kw)
+
+
+def run_score_job(job) -> ControllerScore:
+    """Worker: the `score` of one controller, for a `score_job`."""
+    system, name, ctrl, x0, T, dt, kw = job
+    return score(system, name, ctrl, x0, T, dt, **kw)[0]
+
+
+def roa_result(system, box, x0: np.ndarray, T: float, dt: float, seed: int, scores: Mapping[str, ControllerScore], *,
+               limits: bool = True, saturation=None, hold: bool = True) -> RoaResult:
+    """The `RoaResult` of `scores` on the states x0 of `box` (as `roa` returns it)."""
     return RoaResult(
         system=getattr(system, "name", type(system).__name__),
-        box=(lo, hi),
-        box_name=box_name,
+        box=evaluation_box(system, box),
+        box_name=box if isinstance(box, str) else "custom",
         x0=x0,
         T=float(T),
         dt=float(dt),

@@ -36,7 +36,7 @@ from ..sim.states import uniform_states
 from .plans import PLAN_STEP, plan_bound
 from .stage import RecoveryConfig, recover
 
-__all__ = ["BIND_POINTS", "BIND_STATES", "RECOVER_MODES", "ROOM_POINTS", "auto_recover", "limits_bind"]
+__all__ = ["BIND_POINTS", "BIND_STATES", "RECOVER_MODES", "RECOVER_TIME", "ROOM_POINTS", "auto_recover", "limits_bind", "recovery_hint"]
 
 #: Half-box states of the test, and the loss (percentage points) of saturated LQR against unsaturated
 #: LQR that makes the limits bind.
@@ -45,8 +45,11 @@ BIND_STATES, BIND_POINTS = 100, 10.0
 ROOM_POINTS = 10.0
 #: Seed of the test's states (neither the plans', the gates', nor an evaluation's).
 BIND_SEED = 5_190_421
-#: `train --recover`: fit a recovery law when the limits bind, always, or never.
+#: `train --recover`: fit a recovery law when the limits bind, always, or never (the default: the stage
+#: is off the default path, and `recovery_hint` prints the command that runs it).
 RECOVER_MODES = ("auto", "always", "never")
+#: What the recovery stage costs, as `train` and `recovery_hint` announce it.
+RECOVER_TIME = "15-60 min on 2 cores for a 2-DoF robot, up to about 2 h for a 3-DoF one, less with more cores (--workers)"
 
 
 def limits_bind(system, states: int = BIND_STATES, seed: int = BIND_SEED, box: str = "half") -> dict:
@@ -96,6 +99,22 @@ def auto_recover(run, mode: str = "auto", config: RecoveryConfig = RecoveryConfi
     return recover(run, config, progress)
 
 
+def recovery_hint(run, half_box_lqr_success: float | None = None) -> str | None:
+    """The line `train` prints after its evaluation when it did not run the recovery stage: the
+    ``idapbc-pin recover`` command and its cost, where saturated LQR failed from at least
+    ROOM_POINTS per cent of the evaluation's half-box states (`half_box_lqr_success`, a share in
+    [0, 1]; None: not evaluated, then the hint names the test instead). None where there is no room
+    or the system has no inputs."""
+    if run.system.m == 0 or (half_box_lqr_success is not None and 100.0 * (1.0 - half_box_lqr_success) < ROOM_POINTS - 1e-9):
+        return None
+    command = f"idapbc-pin recover {run.path} --workers 0"
+    if half_box_lqr_success is None:
+        return (f"weak actuators? `{command}` fits a recovery law where saturated LQR leaves room, and keeps it only if it "
+                f"helps ({RECOVER_TIME})")
+    return (f"saturated LQR fails from {100.0 * (1.0 - half_box_lqr_success):.0f} % of the half box: a recovery law may bring more "
+            f"states to x*: `{command}` ({RECOVER_TIME}; kept only if it helps)")
+
+
 def _tell(test: dict, box: str, system) -> None:
     """Print `limits_bind`'s verdict on `box` and what `auto_recover` does next."""
     n, sat = test["states"], test["saturated"]
@@ -114,7 +133,7 @@ def _tell(test: dict, box: str, system) -> None:
         head = f"no effort limits (a recovery law plans within {bound}, LQR's largest demand on the training box): "
     if test["room"]:
         start = "" if box == "half" else " from training-box starts"
-        verdict = f"fitting a recovery law{start} where it fails (15-60 min on 2 cores for a 2-DoF robot, up to about 2 h for a 3-DoF one; --recover never skips it)"
+        verdict = f"fitting a recovery law{start} where it fails ({RECOVER_TIME}; --recover never skips it)"
     else:
         verdict = "no room there; testing the training box" if box == "half" else "no recovery law (--recover always fits one anyway)"
     print(f"{head}{law}; it fails on {n - sat}: {verdict}", flush=True)

@@ -251,10 +251,15 @@ class _Settle:
     `idapbc_pin.sim.metrics.at_target`) at `needed` consecutive record samples, the samples its
     success test reads, and so stop being integrated (`done`, (N,) bool)."""
 
-    def __init__(self, system, n_rows: int, steps: list[int], dt: float):
+    def __init__(self, system, n_rows: int, steps: list[int], dt: float, enough: int | None = None):
         self.system = system
         self.needed = window_samples(np.asarray(steps, float) * dt)
         self.run_length, self.done = np.zeros(n_rows, int), np.zeros(n_rows, bool)
+        self.enough = enough
+
+    def decided(self) -> bool:
+        """Whether `enough` rows have rested in the success box (never, without `enough`)."""
+        return self.enough is not None and int(self.done.sum()) >= self.enough
 
     @staticmethod
     def applies(steps: list[int]) -> bool:
@@ -310,8 +315,9 @@ def _record(rhs, advance, q, v, x_last, diverged, steps: list[int], m: int, sett
         X[:, r], V[:, r], U[:, r] = x_last, v, u_last
         if r == K - 1:
             break
-        if not live.size:  # every row diverged or rests: the rest of the record is frozen
+        if not live.size or (settle is not None and settle.decided()):  # every row diverged or rests, or enough rest
             X[:, r + 1 :], V[:, r + 1 :], U[:, r + 1 :] = x_last[:, None], v[:, None], u_last[:, None]
+            X[live, r + 1 :], V[live, r + 1 :], U[live, r + 1 :] = np.nan, np.nan, np.nan  # rows still moving: undecided
             break
         qn, vn, b = advance(q[live], v[live], (dq, dv, np.zeros(live.size, bool), u), steps[r + 1] - step)
         q[live[~b]], v[live[~b]] = qn[~b], vn[~b]
@@ -336,6 +342,7 @@ def simulate(
     atol: float = 1e-9,
     threads: int | None = None,
     stop_settled: bool = False,
+    enough_settled: int | None = None,
 ) -> Trajectory:
     """Closed loop of the true plant from a batch of initial states.
 
@@ -372,6 +379,9 @@ def simulate(
         shrinks as rows stop, and BLAS's matrix-vector kernels round a row differently in another
         batch, so the other rows agree with a run without the stop to the last bits, not bit for
         bit (a lone row is evaluated beside a copy of itself: a batch of one takes other kernels).
+    enough_settled : with `stop_settled`, stop the whole batch once this many rows rest (for a
+        caller that needs a count of successes only: the ROA radius's probes); the rows still moving
+        then hold NaN in the rest of their record, so `success` reads False for them.
 
     Returns
     -------
@@ -385,7 +395,7 @@ def simulate(
     x_star = np.asarray(system.x_star, float)
     clip = input_limits(system, limits, saturation).bound
     rhs = _vector_field(Judge(system, threads), ctrl, clip, bound, x_star[:nq], m)
-    settle = _Settle(system, x0.shape[0], steps, dt) if stop_settled and _Settle.applies(steps) else None
+    settle = _Settle(system, x0.shape[0], steps, dt, enough_settled) if stop_settled and _Settle.applies(steps) else None
     if settle is not None:
         rhs = settle.batch_of_one_padded(rhs)
     q, v, bad0 = _initial_state(system, x0, bound)

@@ -38,10 +38,19 @@ def _masked_mean(values: Tensor, mask: Tensor) -> Tensor:
     return (values * mask).sum() / mask.sum().clamp(min=1)
 
 
-def _jacobian_rows(out: Tensor, x: Tensor) -> Tensor:
-    """∂out/∂x for out (K, n) built from x (K, n) row-wise: (K, n, n), graph kept."""
-    rows = [torch.autograd.grad(out[:, i].sum(), x, create_graph=True)[0] for i in range(out.shape[1])]
-    return torch.stack(rows, dim=1)
+def _desired_jacobian(nets: IdaPbcNets, x: Tensor) -> Tensor:
+    """∂f̃_d/∂x at the states x (K, n): (K, n, n), graph kept.
+
+    One forward pass on n copies of the states and one backward pass: output i of copy i,
+    differentiated w.r.t. copy i, is row i of every state's Jacobian (f̃_d acts row by row, so the
+    copies never mix). A loop over the n outputs would traverse the graph n times.
+    """
+    K, n = x.shape
+    copies = x.detach().repeat(n, 1).requires_grad_(True)  # (n K, n): copy i in rows i K … (i + 1) K − 1
+    f_d = nets.desired(copies, create_graph=True)[4].view(n, K, n)
+    own = f_d.diagonal(dim1=0, dim2=2)  # (K, n): output i of copy i
+    rows = torch.autograd.grad(own.sum(), copies, create_graph=True)[0]  # (n K, n)
+    return rows.view(n, K, n).transpose(0, 1)
 
 
 def loss_terms(
@@ -99,9 +108,7 @@ def loss_terms(
         excess = (torch.relu(u.abs() - effort) / limit).sum(-1)
         terms["effort"] = _masked_mean(excess, (H.detach() < c_face).to(x.dtype))
     if df_dx_inside is not None and int(inside.sum()) > 0:
-        xin = x.detach()[inside].requires_grad_(True)
-        f_d_in = nets.desired(xin, create_graph=True)[4]
-        dfd_dx = _jacobian_rows(f_d_in, xin)
+        dfd_dx = _desired_jacobian(nets, x.detach()[inside])
         dmu_dx = nets.g_perp @ (dfd_dx - df_dx_inside)
         terms["local_stability"] = dmu_dx.flatten(1).norm(dim=-1).mean()
     diagnostics = {
