@@ -545,9 +545,10 @@ def test_radius_is_the_largest_passing_scale_on_the_same_states():
 
 def test_radius_probes_stop_rows_at_rest_without_changing_a_verdict():
     """A probe integrates a state no further once it has rested in the success box for the success
-    window, and stops the rest once enough states rest for it to pass: a failing probe's count is
-    that of the full 20 s rollouts of its states, a passing probe's is the threshold it reached, and
-    every probe passes exactly when the full rollouts do, for fewer law calls."""
+    window, stops the rest once enough states rest for it to pass, and starts with the draws that
+    failed at a larger scale: every probe passes exactly when the full 20 s rollouts of all its
+    states do, a passing probe counts at least the threshold, a failing one has seen the failures
+    that decide it, for fewer law calls."""
     system, rows = SaturatedUnstable(), []
 
     def counting(x):
@@ -559,12 +560,12 @@ def test_radius_probes_stop_rows_at_rest_without_changing_a_verdict():
     need = 180
     verdicts = set()
     for scale, (ok, done) in result.probes["sat"].items():
-        x0 = uniform_states(system, 200, scaled_box(system, scale), seed=0)[:done]
+        x0 = uniform_states(system, 200, scaled_box(system, scale), seed=0)
         full = int(score(system, "sat", counting, x0, 20.0, 0.05)[0].success.sum())
         passed = ok >= need
         verdicts.add(passed)
         assert passed == (full >= need), scale
-        assert (need <= ok <= full) if passed else ok == full, (scale, ok, full)
+        assert (need <= ok <= full) if passed else (ok <= full and done - ok > 200 - need), (scale, ok, done, full)
     assert verdicts == {True, False}  # the search probed both kinds
     assert stopped_rows < 0.6 * sum(rows)  # most states rest long before 20 s
 

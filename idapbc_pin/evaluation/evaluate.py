@@ -118,40 +118,45 @@ def evaluate_run(
 
 def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: float, dt: float, limits: bool, radius: bool,
               workers: int, progress: bool = False) -> tuple[dict[str, RoaResult], RadiusResult | None]:
-    """Every controller on every box, then each controller's radius search as soon as its own boxes
-    are in (they are its probes at s = 1 and 0.5), all on one pool of `workers` processes: the
-    searches of the cheaper controllers start while the costlier ones still run. Each job is the
-    computation `roa` and `roa_radius` run, so the results are theirs, whatever the workers.
-    `progress`: a bar over the jobs (boxes, then searches), with the elapsed time and an ETA."""
+    """Every controller on every box, and each controller's radius search once its own boxes are in
+    (they are its probes at s = 1 and 0.5), on one pool of `workers` processes. A free worker takes
+    the first ready job in the controllers' order (boxes, then the search): the first controller's
+    search, the longest job (NIDA-PBC's bisection), starts as soon as it can, while the other
+    controllers' rollouts fill the other workers. Each job is the computation `roa` and
+    `roa_radius` run, so the results are theirs, whatever the workers. `progress`: a bar over the
+    jobs, with the elapsed time and an ETA."""
     t0 = time.perf_counter()
+    names, nb = list(controllers), len(boxes)
     states = {box: roa_states(system, n, box, seed)[1] for box in boxes}
     known_box = {box: scale for scale, box in ((1.0, "domain"), (0.5, "half")) if box in boxes}
-    total = len(controllers) * (len(boxes) + int(radius))
-    bar = tqdm(total=total, disable=not progress, desc=f"evaluate {getattr(system, 'name', '')}", unit="job", dynamic_ncols=True,
-               mininterval=0.5 if sys.stderr.isatty() else 15.0)
+    ready = {(i, j): (run_score_job, score_job(system, name, controllers[name], states[box], T, dt, limits=limits))
+             for i, name in enumerate(names) for j, box in enumerate(boxes)}
+    futures, in_flight = {}, {}
+    bar = tqdm(total=len(names) * (nb + int(radius)), disable=not progress, desc=f"evaluate {getattr(system, 'name', '')}", unit="job",
+               dynamic_ncols=True, mininterval=0.5 if sys.stderr.isatty() else 15.0)
     with JobPool(workers) as pool, bar:
-        scored = {(name, box): pool.submit(run_score_job, score_job(system, name, ctrl, states[box], T, dt, limits=limits))
-                  for name, ctrl in controllers.items() for box in boxes}  # the first controller first: NIDA-PBC's rollouts cost most
-        searches, waiting, seen = {}, list(controllers) if radius else [], set()
-        while len(seen) < total:
-            for name in [w for w in waiting if all(scored[w, box].done() for box in boxes)]:
-                known = {scale: roa_result(system, box, states[box], T, dt, seed, {name: scored[name, box].result()}, limits=limits)
-                         for box, scale in known_box.items()}
-                searches[name] = pool.submit(run_radius_job, radius_job(system, name, controllers[name], n=n, seed=seed, T=T, dt=dt,
-                                                                        known=known, limits=limits))
-                waiting.remove(name)
-            futures = [f for f in (*scored.values(), *searches.values()) if id(f) not in seen]
-            done = [f for f in futures if f.done()] or list(wait(futures, return_when=FIRST_COMPLETED).done)
+        while ready or in_flight:
+            while ready and len(in_flight) < pool.workers:  # the first ready job in the controllers' order
+                key = min(ready)
+                futures[key] = future = pool.submit(*ready.pop(key))
+                in_flight[future] = key
+            done = [f for f in in_flight if f.done()] or list(wait(in_flight, return_when=FIRST_COMPLETED).done)
             for future in done:
                 future.result()  # a worker's error surfaces here
-                seen.add(id(future))
-            bar.update(len(done))
-        results = {box: roa_result(system, box, states[box], T, dt, seed, {name: scored[name, box].result() for name in controllers},
-                                   limits=limits) for box in boxes}
-        found = None
-        if radius:
-            found = radius_result(system, {name: searches[name].result() for name in controllers}, n=n, seed=seed, T=T, dt=dt,
-                                  limits=limits, wall_time=time.perf_counter() - t0)
+                i, j = in_flight.pop(future)
+                bar.update()
+                if radius and j < nb and (i, nb) not in ready and all((i, b) in futures and futures[i, b].done() for b in range(nb)):
+                    name = names[i]
+                    known = {scale: roa_result(system, box, states[box], T, dt, seed, {name: futures[i, boxes.index(box)].result()},
+                                               limits=limits) for box, scale in known_box.items()}
+                    ready[i, nb] = (run_radius_job, radius_job(system, name, controllers[name], n=n, seed=seed, T=T, dt=dt, known=known,
+                                                               limits=limits))
+    results = {box: roa_result(system, box, states[box], T, dt, seed, {name: futures[i, j].result() for i, name in enumerate(names)},
+                               limits=limits) for j, box in enumerate(boxes)}
+    found = None
+    if radius:
+        found = radius_result(system, {name: futures[i, nb].result() for i, name in enumerate(names)}, n=n, seed=seed, T=T, dt=dt,
+                              limits=limits, wall_time=time.perf_counter() - t0)
     return results, found
 
 

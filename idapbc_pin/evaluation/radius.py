@@ -11,13 +11,13 @@ the half box, so an ROA already computed there is reused instead of simulated ag
 
 The search is a bisection per controller on those fixed states: s = 1 first, then (if it fails)
 s = 0.5, then halving the bracket [passing s, failing s] down to the resolution; the ends of the
-range (0.05, 2) are probed only when the bracket ends next to them. A probe simulates a quarter
-of its states first and stops there when more than 10 % of all its states already failed, it
-integrates a state no further once that state has rested in the success box for the success
-window (its verdict is then known: ``simulate(stop_settled=True)``), and it stops the rest once
-90 % of all its states rest (the probe passes whatever the others do: ``enough_settled``). The success share need not be
-monotone in s; the result is a scale that passes with the next probed scale above it failing, on
-the same seeds.
+range (0.05, 2) are probed only when the bracket ends next to them. A probe simulates first the
+draws that failed at the nearest larger probed scale (at least a quarter of its states) and stops
+there when more than 10 % of all its states already failed; it integrates a state no further once
+that state has rested in the success box for the success window (its verdict is then known:
+``simulate(stop_settled=True)``), and it stops the rest once 90 % of all its states rest (the probe
+passes whatever the others do: ``enough_settled``). The success share need not be monotone in s;
+the result is a scale that passes with the next probed scale above it failing, on the same seeds.
 """
 
 from __future__ import annotations
@@ -119,37 +119,57 @@ class RadiusResult:
         }
 
 
-def _known_successes(known, name: str, x0: np.ndarray) -> int | None:
-    """Successes of `name` in an already computed `RoaResult` drawn from exactly these states."""
+def _known_successes(known, name: str, x0: np.ndarray) -> np.ndarray | None:
+    """(N,) bool successes of `name` in an already computed `RoaResult` drawn from exactly these states."""
     if known is None or name not in known.scores or known.x0.shape != x0.shape or not np.array_equal(known.x0, x0):
         return None
-    return int(np.count_nonzero(known[name].success))
+    return np.asarray(known[name].success, bool)
 
 
 class _Prober:
-    """Whether one controller passes at scale s (cached per scale), simulating in batches."""
+    """Whether one controller passes at scale s (cached per scale), simulating in batches.
+
+    The states of every scale are the same unit draws, scaled; the draws that failed at the nearest
+    larger probed scale are simulated first (a basin is roughly star-shaped about x*, so they are
+    the likeliest to fail again), so a failing probe is decided on a small batch.
+    """
 
     def __init__(self, system, name, ctrl, n, seed, need, known, sim_kw):
         self.system, self.name, self.ctrl, self.n, self.seed, self.need = system, name, ctrl, n, seed, need
         self.known, self.sim_kw, self.probes = known, sim_kw, {}
+        self.failed: dict[float, np.ndarray] = {}  # {s: (n,) bool, the draws known to fail there}
 
     def passes(self, s: float) -> bool:
         if s not in self.probes:
             self.probes[s] = self._run(s)
         return self.probes[s][0] >= self.need
 
+    def _order(self, s: float) -> tuple[np.ndarray, int]:
+        """The draws in the order simulated, and the size of the first batch: the draws that failed
+        at the nearest larger probed scale first (at least a quarter of the states: `_FIRST_SHARE`)."""
+        larger = [t for t in self.failed if t > s]
+        suspects = self.failed[min(larger)] if larger else np.zeros(self.n, bool)
+        order = np.concatenate([np.flatnonzero(suspects), np.flatnonzero(~suspects)])
+        return order, max(int(suspects.sum()), math.ceil(_FIRST_SHARE * self.n))
+
     def _run(self, s: float) -> tuple[int, int]:
         x0 = uniform_states(self.system, self.n, scaled_box(self.system, s), self.seed)
-        k = _known_successes(self.known.get(s), self.name, x0)
-        if k is not None:
-            return k, self.n
+        known = _known_successes(self.known.get(s), self.name, x0)
+        if known is not None:
+            self.failed[s] = ~known
+            return int(known.sum()), self.n
+        order, first = self._order(s)
+        failed = np.zeros(self.n, bool)
         ok, done = 0, 0
-        for end in sorted({math.ceil(_FIRST_SHARE * self.n), self.n}):
+        for end in sorted({min(first, self.n), self.n}):
+            rows = order[done:end]
             # a batch stops once enough of its states rest for the probe to pass: its count is then a lower bound
-            res = score(self.system, self.name, self.ctrl, x0[done:end], **self.sim_kw, stop_settled=True, enough_settled=self.need - ok)[0]
+            res = score(self.system, self.name, self.ctrl, x0[rows], **self.sim_kw, stop_settled=True, enough_settled=self.need - ok)[0]
+            failed[rows] = ~res.success
             ok, done = ok + int(np.count_nonzero(res.success)), end
             if done - ok > self.n - self.need:  # too many failures already: decided
                 break
+        self.failed[s] = failed
         return ok, done
 
 
