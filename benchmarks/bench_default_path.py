@@ -8,8 +8,8 @@ Python API, and prints the wall time and share of each stage:
     gate           the gate of the linear law outside the box (`recovery.box_gate.fallback_gate`)
     recovery: test whether saturated LQR leaves room (`recovery.trigger.limits_bind`)
     recovery: plans + labels, DAgger rounds, fits + gate (`recovery.stage`)
-    evaluation     both boxes, NIDA-PBC and LQR (`evaluation.evaluate.roa`)
-    radius         the ROA radius bisection (`evaluation.evaluate.roa_radius`)
+    evaluation + radius   both boxes and both ROA radius searches, NIDA-PBC and LQR, which share
+                   one pool of workers (`evaluation.evaluate._simulate`)
 
 A stage's time is its wall time in this process, minus the stages nested in it; work a stage hands
 to worker processes counts in the stage that waits for it. "other" is the rest (loading, set-up).
@@ -38,8 +38,7 @@ STAGES = (
     ("recovery: plans + labels", "idapbc_pin.recovery.stage", "collect_labels"),
     ("recovery: DAgger rounds", "idapbc_pin.recovery.stage", "dagger_round"),
     ("recovery: fits + gate", "idapbc_pin.recovery.stage", "_gate_fits"),
-    ("evaluation", "idapbc_pin.evaluation.evaluate", "roa"),
-    ("radius", "idapbc_pin.evaluation.evaluate", "roa_radius"),
+    ("evaluation + radius", "idapbc_pin.evaluation.evaluate", "_simulate"),
 )
 
 
@@ -75,7 +74,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("robot", help="zoo name, built-in name, erd:<stem> or URDF path (zoo actuation)")
     parser.add_argument("--epochs", type=int, default=None, help="training epochs (default: the fast preset's)")
-    parser.add_argument("--recover", choices=("auto", "always", "never"), default="auto", help="as `train --recover`")
+    parser.add_argument("--recover", choices=("auto", "always", "never"), default="never", help="as `train --recover`")
     parser.add_argument("--evaluate", type=int, default=100, help="evaluation states per box, as `train --evaluate`")
     parser.add_argument("--workers", type=int, default=0, help="processes (0: one per core), as `train --workers`")
     parser.add_argument("--seed", type=int, default=0)

@@ -117,17 +117,20 @@ class JobPool:
     """Jobs handed out one at a time, each ``fn(job)`` in a worker process (as `process_map`'s), for
     callers whose next jobs depend on earlier results: ``with JobPool(workers) as pool: future =
     pool.submit(fn, job)``. With `workers` 1 each job runs in this process as it is submitted (its
-    future is already done); 0 means one per core. Leaving the block cancels the jobs not started."""
+    future is already done) unless `processes`; 0 means one per core. Leaving the block cancels the
+    jobs not started and stops the ones still running."""
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, *, processes: bool = False):
         self.workers = resolve_workers(workers)
-        self._pool = None
-        if self.workers > 1:
+        self._pool, self._futures = None, []
+        if self.workers > 1 or processes:  # `processes`: worker processes even for one worker (work beside this process's)
             self._pool = ProcessPoolExecutor(self.workers, initializer=_one_thread, initargs=(os.getpid(),))
 
     def submit(self, fn: Callable, job) -> Future:
         if self._pool is not None:
-            return self._pool.submit(_call, (fn, pickle.dumps(job)))
+            future = self._pool.submit(_call, (fn, pickle.dumps(job)))
+            self._futures.append(future)
+            return future
         future = Future()
         try:
             future.set_result(fn(job))
@@ -139,5 +142,13 @@ class JobPool:
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._pool is not None:
+        if self._pool is None:
+            return
+        if all(f.done() for f in self._futures):
             self._pool.shutdown(cancel_futures=True)
+            return
+        # jobs still running that nobody will read (an error or Ctrl-C in the caller): stop them
+        processes = list(getattr(self._pool, "_processes", {}).values())
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()

@@ -11,6 +11,7 @@ Claims:
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 
@@ -45,3 +46,26 @@ def test_each_worker_has_one_thread_in_torch_and_in_every_native_pool():
 def test_zero_workers_means_one_per_available_core():
     assert resolve_workers(3) == 3
     assert resolve_workers(0) == max(1, min(available_cores(), MAX_AUTO_WORKERS))
+
+
+def _sleep_then_pid(seconds: float) -> int:
+    import time
+
+    time.sleep(seconds)
+    return os.getpid()
+
+
+def test_a_job_pool_runs_inline_with_one_worker_elsewhere_when_asked_and_stops_what_nobody_reads():
+    from idapbc_pin._parallel import JobPool
+
+    with JobPool(1) as pool:
+        future = pool.submit(_square_and_pid, 3)
+        assert future.done() and future.result() == (9, os.getpid())  # in this process, done at once
+    with JobPool(1, processes=True) as pool:
+        assert pool.submit(_square_and_pid, 4).result()[1] != os.getpid()  # one worker process: beside this one
+    started = time.perf_counter()
+    with JobPool(1, processes=True) as pool:
+        slow = pool.submit(_sleep_then_pid, 30.0)
+        while not slow.running():
+            time.sleep(0.05)
+    assert time.perf_counter() - started < 20.0  # leaving the block stopped the job nobody waited for

@@ -317,6 +317,25 @@ def test_the_scheduled_evaluation_is_roa_and_roa_radius_exactly(tiny_run, worker
     assert ev.radius.radius == radius.radius and ev.radius.probes == radius.probes and ev.radius.bracket == radius.bracket
 
 
+def test_lqr_simulated_beside_the_training_gives_the_evaluation_it_would_have_given(tiny_run):
+    """`idapbc-pin train` simulates LQR's part of the evaluation in a worker while it trains: handed to
+    evaluate_run, it gives the very same scores and radius; with other settings it is not used."""
+    from idapbc_pin._parallel import JobPool
+    from idapbc_pin.evaluation.evaluate import baseline_job, run_baseline_job
+
+    plain = evaluate_run(tiny_run, n=10, T=3.0, dt=0.02)
+    with JobPool(1, processes=True) as pool:
+        future = pool.submit(run_baseline_job, baseline_job(tiny_run.system, n=10, T=3.0, dt=0.02))
+        beside = evaluate_run(tiny_run, n=10, T=3.0, dt=0.02, baseline=future)
+    for box in ("domain", "half"):
+        for name in ("NIDA-PBC", "LQR"):
+            np.testing.assert_array_equal(beside.results[box][name].success, plain.results[box][name].success)
+            np.testing.assert_array_equal(beside.results[box][name].settling_time, plain.results[box][name].settling_time)
+    assert beside.radius.radius == plain.radius.radius and beside.radius.probes == plain.radius.probes
+    other = run_baseline_job(baseline_job(tiny_run.system, n=6, T=3.0, dt=0.02))  # other settings: simulated again
+    assert evaluate_run(tiny_run, n=10, T=3.0, dt=0.02, baseline=other).radius.probes == plain.radius.probes
+
+
 def test_cli_no_limits_flags(tiny_run, capsys):
     run = str(tiny_run.path)
     for command in ("simulate", "certify", "report", "robustness"):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 
 from ..config import FIELD_HELP, TrainConfig
 from ..errors import IdapbcError
@@ -51,7 +52,6 @@ def _recovery_config(args: argparse.Namespace) -> RecoveryConfig:
 def _cmd_train(args: argparse.Namespace) -> int:
     from ..model import load_system
     from ..run import load_run_system, read_config
-    from ..training.summary import format_train_summary
     from ..training.train import train
 
     workers = workers_of(args)
@@ -60,7 +60,6 @@ def _cmd_train(args: argparse.Namespace) -> int:
         saved = read_config(args.resume)
         config = saved.replace(**{k: getattr(args, k) for k in FLAGS if getattr(args, k) is not None})
         system = load_run_system(args.resume)
-        run = train(system, config, resume=args.resume, workers=workers)  # checks the device and both checkpoints before anything is written
     else:
         if args.source is None:
             raise IdapbcError("train needs SOURCE (or --resume RUN). Fix: see `idapbc-pin train --help`.")
@@ -68,11 +67,36 @@ def _cmd_train(args: argparse.Namespace) -> int:
         overrides = {k: getattr(args, k) for k in (*FLAGS, "seed") if getattr(args, k) is not None}
         config = (TrainConfig.fast(**given) if args.fast else TrainConfig(**given)).replace(**overrides)
         system = load_system(args.source, **system_kwargs(args))
-        run = train(system, config, out=args.out, workers=workers)
+    with contextlib.ExitStack() as stack:
+        baseline = _baseline_beside_training(stack, args, system, workers)
+        if args.resume:  # train checks the device and both checkpoints before anything is written
+            run = train(system, config, resume=args.resume, workers=workers)
+        else:
+            run = train(system, config, out=args.out, workers=workers)
+        _after_training(args, run, recovery, workers, baseline)
+    return 130 if run.summary.get("status") == "interrupted" else 0
+
+
+def _baseline_beside_training(stack: contextlib.ExitStack, args: argparse.Namespace, system, workers: int):
+    """A future of LQR's part of the evaluation (`evaluation.evaluate.run_baseline_job`), simulated in a
+    worker process while the training takes one core, or None (no evaluation, or one process asked for)."""
+    from .._parallel import JobPool, resolve_workers
+    from ..evaluation.evaluate import baseline_job, run_baseline_job
+
+    if args.evaluate <= 0 or resolve_workers(workers) < 2:
+        return None
+    pool = stack.enter_context(JobPool(1, processes=True))
+    return pool.submit(run_baseline_job, baseline_job(system, n=args.evaluate, limits=not args.no_limits))
+
+
+def _after_training(args: argparse.Namespace, run, recovery: RecoveryConfig, workers: int, baseline) -> None:
+    """The summary, then (unless interrupted) the recovery stage, the evaluation and the next commands."""
+    from ..training.summary import format_train_summary
+
     print(format_train_summary(run))
     if run.summary.get("status") == "interrupted":
         print(f"interrupted: resume with  idapbc-pin train --resume {run.path}")
-        return 130
+        return
     if args.recover != "never":
         from ..recovery.trigger import auto_recover
 
@@ -81,7 +105,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     if args.evaluate > 0:
         from ..evaluation.evaluate import evaluate_run, format_evaluation
 
-        evaluation = evaluate_run(run, n=args.evaluate, limits=not args.no_limits, workers=workers, progress=True)
+        evaluation = evaluate_run(run, n=args.evaluate, limits=not args.no_limits, workers=workers, progress=True, baseline=baseline)
         print(format_evaluation(evaluation))
         lqr_half = evaluation.results["half"]["LQR"].success_rate
     if args.recover == "never" and not run.uses_recovery and not args.no_limits:
@@ -94,7 +118,6 @@ def _cmd_train(args: argparse.Namespace) -> int:
         f"next: idapbc-pin report {run.path}   (ROA vs LQR, certificate.json, figure.png, replay.html)\n"
         f"      idapbc-pin view {run.path}     (3-D replay in the browser)"
     )
-    return 0
 
 
 def add_model_commands(sub) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import sys
 import time
-from concurrent.futures import FIRST_COMPLETED, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass
 
 from tqdm.auto import tqdm
@@ -26,7 +26,10 @@ from ..sim.step import judge_step
 from .radius import RadiusResult, radius_job, radius_result, run_radius_job
 from .roa import RoaResult, roa_result, roa_states, run_score_job, score_job
 
-__all__ = ["Evaluation", "evaluate_run", "format_evaluation"]
+__all__ = ["BASELINE", "Evaluation", "baseline_job", "evaluate_run", "format_evaluation", "run_baseline_job"]
+
+#: The baseline controller's name in every evaluation.
+BASELINE = "LQR"
 
 
 @dataclass(frozen=True)
@@ -89,6 +92,7 @@ def evaluate_run(
     radius: bool = True,
     workers: int = 1,
     progress: bool = False,
+    baseline=None,
 ) -> Evaluation:
     """ROA of the run's controller (optionally with extra damping ρ) and LQR on `n` states per box,
     and their ROA radii on `n` states per scale (the boxes' rollouts reused at s = 1 and 0.5).
@@ -99,11 +103,18 @@ def evaluate_run(
     workers : processes sharing the simulations (1: in this process, 0: one per core; `_simulate`); the count
         changes the time, never a result.
     progress : show a progress bar over the simulation jobs (with an ETA).
+    baseline : LQR's part of this evaluation computed beforehand (`run_baseline_job`'s result, or a
+        future of it, e.g. run beside the training by `idapbc-pin train`); used where its settings are
+        this evaluation's (else simulated again), so the results are the same either way.
     """
     ctrl = run.controller if rho is None else run.controller.with_damping(rho)
-    controllers = {"NIDA-PBC": ctrl, "LQR": LQRController(run.system)}
+    controllers = {"NIDA-PBC": ctrl, BASELINE: LQRController(run.system)}
     dt = judge_step(run.system, controllers, T, dt)
-    results, found = _simulate(run.system, controllers, tuple(boxes), n, seed, T, dt, bool(limits), radius, workers, progress)
+    if baseline is not None and not isinstance(baseline, dict):
+        baseline = baseline.result()  # a future: wait for it
+    settings = (int(n), float(T), float(dt), int(seed), tuple(boxes), bool(limits), bool(radius))
+    done = {BASELINE: baseline} if baseline is not None and baseline["settings"] == settings else {}
+    results, found = _simulate(run.system, controllers, tuple(boxes), n, seed, T, dt, bool(limits), radius, workers, progress, done)
     evaluation = Evaluation(run, results, found, bool(limits))
     record = evaluation.record()
     record["rho"] = ctrl.rho
@@ -117,14 +128,15 @@ def evaluate_run(
 
 
 def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: float, dt: float, limits: bool, radius: bool,
-              workers: int, progress: bool = False) -> tuple[dict[str, RoaResult], RadiusResult | None]:
+              workers: int, progress: bool = False, done: dict | None = None) -> tuple[dict[str, RoaResult], RadiusResult | None]:
     """Every controller on every box, and each controller's radius search once its own boxes are in
     (they are its probes at s = 1 and 0.5), on one pool of `workers` processes. A free worker takes
     the first ready job in the controllers' order (boxes, then the search): the first controller's
     search, the longest job (NIDA-PBC's bisection), starts as soon as it can, while the other
     controllers' rollouts fill the other workers. Each job is the computation `roa` and
     `roa_radius` run, so the results are theirs, whatever the workers. `progress`: a bar over the
-    jobs, with the elapsed time and an ETA."""
+    jobs, with the elapsed time and an ETA. `done`: {controller: `run_baseline_job` result} already
+    computed, whose jobs are not run again."""
     t0 = time.perf_counter()
     names, nb = list(controllers), len(boxes)
     states = {box: roa_states(system, n, box, seed)[1] for box in boxes}
@@ -132,7 +144,14 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
     ready = {(i, j): (run_score_job, score_job(system, name, controllers[name], states[box], T, dt, limits=limits))
              for i, name in enumerate(names) for j, box in enumerate(boxes)}
     futures, in_flight = {}, {}
-    bar = tqdm(total=len(names) * (nb + int(radius)), disable=not progress, desc=f"evaluate {getattr(system, 'name', '')}", unit="job",
+    for i, name in enumerate(names):
+        if name in (done or {}):
+            for j, box in enumerate(boxes):
+                del ready[i, j]
+                futures[i, j] = _completed(done[name]["scores"][box])
+            if radius:
+                futures[i, nb] = _completed(done[name]["search"])
+    bar = tqdm(total=len(ready) + int(radius) * sum(name not in (done or {}) for name in names), disable=not progress, desc=f"evaluate {getattr(system, 'name', '')}", unit="job",
                dynamic_ncols=True, mininterval=0.5 if sys.stderr.isatty() else 15.0)
     with JobPool(workers) as pool, bar:
         while ready or in_flight:
@@ -145,7 +164,8 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
                 future.result()  # a worker's error surfaces here
                 i, j = in_flight.pop(future)
                 bar.update()
-                if radius and j < nb and (i, nb) not in ready and all((i, b) in futures and futures[i, b].done() for b in range(nb)):
+                if radius and j < nb and (i, nb) not in ready and (i, nb) not in futures and all(
+                        (i, b) in futures and futures[i, b].done() for b in range(nb)):
                     name = names[i]
                     known = {scale: roa_result(system, box, states[box], T, dt, seed, {name: futures[i, boxes.index(box)].result()},
                                                limits=limits) for box, scale in known_box.items()}
@@ -158,6 +178,33 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
         found = radius_result(system, {name: futures[i, nb].result() for i, name in enumerate(names)}, n=n, seed=seed, T=T, dt=dt,
                               limits=limits, wall_time=time.perf_counter() - t0)
     return results, found
+
+
+def _completed(value) -> Future:
+    """A future that holds `value` already."""
+    future = Future()
+    future.set_result(value)
+    return future
+
+
+def baseline_job(system, n: int = 200, T: float = 20.0, dt: float | None = None, seed: int = 0, boxes=("domain", "half"), *,
+                 limits: bool = True, radius: bool = True) -> tuple:
+    """The job of `run_baseline_job`: the LQR part of `evaluate_run` with these settings, which does
+    not depend on the trained law, so `idapbc-pin train` runs it in a worker process beside the
+    training (which takes one core). dt None: the judge's step for LQR's loop (`judge_step`); an
+    evaluation whose law asks for a shorter step simulates LQR again."""
+    lqr = LQRController(system)
+    return (system, lqr, int(n), float(T), judge_step(system, {BASELINE: lqr}, T, dt), int(seed), tuple(boxes), bool(limits), bool(radius))
+
+
+def run_baseline_job(job) -> dict:
+    """Worker: LQR on the boxes and its radius search, for a `baseline_job`: {"settings", "scores":
+    {box: ControllerScore}, "search": its radius search (None without)}, what `evaluate_run` takes as
+    `baseline`."""
+    system, lqr, n, T, dt, seed, boxes, limits, radius = job
+    results, found = _simulate(system, {BASELINE: lqr}, boxes, n, seed, T, dt, limits, radius, workers=1)
+    search = None if found is None else tuple(getattr(found, a)[BASELINE] for a in ("radius", "bracket", "below", "above", "probes"))
+    return {"settings": (n, T, dt, seed, boxes, limits, radius), "scores": {box: results[box][BASELINE] for box in boxes}, "search": search}
 
 
 def format_evaluation(evaluation: Evaluation) -> str:

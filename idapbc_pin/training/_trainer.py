@@ -59,7 +59,7 @@ def start(system: System, config: TrainConfig, run_dir: Path, state: dict | None
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     nets = build_nets(system, config)
-    optimizer = torch.optim.Adam(nets.parameters(), lr=config.lr)
+    optimizer = torch.optim.Adam(nets.parameters(), lr=config.lr, foreach=True)  # one multi-tensor update for the many small weight tensors
     weights = AdaptiveWeights.start(config.gamma, config.alpha)
     gen = torch.Generator().manual_seed(config.seed)
     trainer = Trainer(system, config, run_dir, nets, optimizer, weights, gen)

@@ -305,7 +305,8 @@ def _step(trainer: Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float],
     total = terms["rollout"] if rolling else trainer.weights.total(terms)
     trainer.optimizer.zero_grad(set_to_none=True)
     total.backward()
-    bad_grad = next((name for name, p in nets.named_parameters() if p.grad is not None and not bool(torch.isfinite(p.grad).all())), None)
+    bad_grad = None if _all_finite(p.grad for p in nets.parameters()) else next(
+        (name for name, p in nets.named_parameters() if p.grad is not None and not bool(torch.isfinite(p.grad).all())), None)
     if bad_grad is not None and not rolling:
         raise TrainingDiverged(f"gradient of '{bad_grad}' became non-finite at epoch {epoch}.")
     if bad_grad is not None:  # back-propagation through an unstable trajectory overflowed: skip the step, not the run
@@ -314,14 +315,23 @@ def _step(trainer: Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float],
     if rolling:
         torch.nn.utils.clip_grad_norm_(nets.parameters(), ROLLOUT_CLIP)
     trainer.optimizer.step()
-    for name, p in nets.named_parameters():
-        if not bool(torch.isfinite(p).all()):
-            raise TrainingDiverged(f"weights of '{name}' became non-finite at epoch {epoch}.")
+    if not _all_finite(nets.parameters()):
+        for name, p in nets.named_parameters():
+            if not bool(torch.isfinite(p).all()):
+                raise TrainingDiverged(f"weights of '{name}' became non-finite at epoch {epoch}.")
     if not rolling:
         trainer.weights.update(values)
     eps_value = float(eps)
     trainer.eps_ema = eps_value if trainer.eps_ema is None else 0.95 * trainer.eps_ema + 0.05 * eps_value
     return total, values, diag, eps_value
+
+
+def _all_finite(tensors) -> bool:
+    """Whether every entry of the tensors (None ones skipped) is finite, in one reduction per call:
+    a non-finite entry makes its tensor's sum of squares non-finite (a finite tensor whose sum of
+    squares overflows reads as non-finite too; the caller then looks tensor by tensor)."""
+    tensors = [t for t in tensors if t is not None]
+    return not tensors or bool(torch.isfinite(torch.stack(torch._foreach_norm(tensors))).all())
 
 
 def _summarise(run: Run, status: str, epoch: int, eps_ema, elapsed: float) -> dict:
