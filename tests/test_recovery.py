@@ -281,7 +281,7 @@ def test_the_labels_do_not_depend_on_the_number_of_worker_processes():
     """The starts are split into the same chunks for one worker or two: on the unlimited paper
     cartpole (plans within the plan bound), chunks that followed the workers gave other plans."""
     system = planning_system(ip.load_system("paper_cartpole"))
-    x0 = uniform_states(system, 12, "domain", 5)  # more starts than chunks: some chunks hold several
+    x0 = uniform_states(system, 9, "domain", 5)  # more starts than chunks (8): one chunk holds two
     plan = PlanSettings(population=8, iterations=1, score_T=1.0)
     labels = [collect_labels(system, x0, 3, RecoveryConfig(workers=w, plan=plan), progress=False) for w in (1, 2)]
     (X1, U1, *counts1), (X2, U2, *counts2) = labels
@@ -985,7 +985,8 @@ def test_auto_recovers_exactly_when_saturated_lqr_leaves_room(tiny_run, tmp_path
     assert entry["used"] and (path / RECOVERY_FILE).is_file()
     strong = tmp_path / "strong"
     (tmp_path / "tiny.toml").write_text("[train]\nwidth = 8\ndepth = 1\n")
-    main(["train", "reaction_wheel", "--fast", "--epochs", "2", "--config", str(tmp_path / "tiny.toml"), "--evaluate", "0", "--out", str(strong)])
+    main(["train", "reaction_wheel", "--fast", "--epochs", "2", "--config", str(tmp_path / "tiny.toml"), "--evaluate", "0", "--recover", "auto",
+          "--out", str(strong)])
     printed = capsys.readouterr().out
     assert "(the limits do not bind)" in printed and "testing the training box" in printed and "no recovery law" in printed
     (run_dir,) = strong.iterdir()
