@@ -137,7 +137,7 @@ class _Prober:
     def __init__(self, system, name, ctrl, n, seed, need, known, sim_kw):
         self.system, self.name, self.ctrl, self.n, self.seed, self.need = system, name, ctrl, n, seed, need
         self.known, self.sim_kw, self.probes = known, sim_kw, {}
-        self.failed: dict[float, np.ndarray] = {}  # {s: (n,) bool, the draws known to fail there}
+        self.failed: dict[float, np.ndarray] = {}  # {s: (n,) bool, the draws that did not succeed there (failed or left undecided)}
 
     def passes(self, s: float) -> bool:
         if s not in self.probes:
