@@ -17,7 +17,10 @@ fewer on others (docs/results-history.md).
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
+from tqdm.auto import tqdm
 
 from ..control.controller import Controller
 from ..control.linear import fastest_pole
@@ -55,7 +58,16 @@ def gate_step(system: System, fallback: BoxFallback) -> float:
     return step_for_pole(fastest_pole(A - B @ fallback.anchor_K), GATE_HORIZON, GATE_STEP, GATE_POLE_STEP)
 
 
-def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int, workers: int = 1) -> dict:
+def _counted(results, bar):
+    """`results` as a list, the bar moved on as each comes in."""
+    out = []
+    for result in results:
+        out.append(result)
+        bar.update()
+    return out
+
+
+def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed: int, workers: int = 1, progress: bool = False) -> dict:
     """Success of `ctrl` (the learned law everywhere), of ``ctrl.with_fallback(fallback)`` and, for a
     fallback whose gain k exceeds 1 (a robot with effort limits), of the same with the learned law
     scaled by k about u* inside the box, ramped in over `INSIDE_RAMP` (`BoxFallback.with_inside_gain`),
@@ -76,7 +88,7 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     pairs between the first two), "used" (bool: the run uses the fallback), "inside_gain" (k where
     the scaled law is used, else 1), "inside_ramp" ([r₀, r₁] where it is used, else [0, 0]), "step"
     (s)}. The law with the most successes is used; a tie goes to the simpler one (the learned law
-    everywhere, then the fallback outside only).
+    everywhere, then the fallback outside only). `progress`: a bar over the simulation runs, with an ETA.
     """
     k = GATE_STATES // 2
     x0 = np.concatenate([
@@ -87,13 +99,18 @@ def fallback_gate(system: System, ctrl: Controller, fallback: BoxFallback, seed:
     runs = [(ctrl.with_fallback(None), x0)]
     if fallback.gain > 1.0:
         runs.append((ctrl.with_fallback(fallback.with_inside_gain(fallback.gain, INSIDE_RAMP)), x0))
-    (ok, left), *rest = compare_laws(system, runs, T=GATE_HORIZON, dt=dt, workers=workers, box=fallback)
-    ok_fb = ok.copy()
-    if left.any():  # a trajectory that never leaves the box is the same under both laws
-        chunks = np.array_split(np.flatnonzero(left), min(GATE_FALLBACK_CHUNKS, int(left.sum())))
-        law = ctrl.with_fallback(fallback)
-        for rows, (ok_rows, _) in zip(chunks, compare_laws(system, [(law, x0[rows]) for rows in chunks], T=GATE_HORIZON, dt=dt, workers=workers)):
-            ok_fb[rows] = ok_rows
+    bar = tqdm(total=len(runs) + GATE_FALLBACK_CHUNKS, disable=not progress, desc="gate", unit="run", dynamic_ncols=True,
+               mininterval=0.5 if sys.stderr.isatty() else 15.0)
+    with bar:
+        (ok, left), *rest = _counted(compare_laws(system, runs, T=GATE_HORIZON, dt=dt, workers=workers, box=fallback), bar)
+        ok_fb = ok.copy()
+        chunks = np.array_split(np.flatnonzero(left), min(GATE_FALLBACK_CHUNKS, int(left.sum()))) if left.any() else []
+        bar.total = len(runs) + len(chunks)
+        if chunks:  # a trajectory that never leaves the box is the same under both laws
+            law = ctrl.with_fallback(fallback)
+            judged = compare_laws(system, [(law, x0[rows]) for rows in chunks], T=GATE_HORIZON, dt=dt, workers=workers)
+            for rows, (ok_rows, _) in zip(chunks, _counted(judged, bar)):
+                ok_fb[rows] = ok_rows
     counts = [int(ok.sum()), int(ok_fb.sum())] + [int(r[0].sum()) for r in rest]
     scaled = float(rest[0][0].mean()) if rest else None
     best = int(np.argmax(counts))  # the first of the largest: ties go to the simpler law

@@ -124,7 +124,7 @@ def _gate_fallback(system: System, config: TrainConfig, nets, progress: bool, ru
         print(f"checking the law outside the training box: {_gate.GATE_STATES} fresh states, {_gate.GATE_HORIZON:g} s each, "
               "with and without the anchor's linear law there (Ctrl-C skips the check) ...", flush=True)
     try:
-        gate = _gate.fallback_gate(system, Controller(system, nets), box_fallback(system, config), config.seed, workers)
+        gate = _gate.fallback_gate(system, Controller(system, nets), box_fallback(system, config), config.seed, workers, progress=progress)
     except KeyboardInterrupt:
         if progress:
             print(f"check interrupted: the run keeps the learned law everywhere; `idapbc-pin train --resume {run_dir}` "
