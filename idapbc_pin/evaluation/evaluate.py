@@ -139,7 +139,7 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
     computed, whose jobs are not run again."""
     t0 = time.perf_counter()
     names, nb = list(controllers), len(boxes)
-    states = {box: roa_states(system, n, box, seed)[1] for box in boxes}
+    states = {box: roa_states(system, n, box, seed) for box in boxes}
     known_box = {box: scale for scale, box in ((1.0, "domain"), (0.5, "half")) if box in boxes}
     ready = {(i, j): (run_score_job, score_job(system, name, controllers[name], states[box], T, dt, limits=limits))
              for i, name in enumerate(names) for j, box in enumerate(boxes)}

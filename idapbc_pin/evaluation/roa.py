@@ -229,7 +229,7 @@ def roa(
     -------
     RoaResult (``.table()`` prints it).
     """
-    (lo, hi), x0 = roa_states(system, n, box, seed)
+    x0 = roa_states(system, n, box, seed)
     dt = judge_step(system, controllers, T, dt)
     kw = dict(method=method, saturation=saturation, limits=limits, hold=hold, threads=threads)
     jobs = [score_job(system, name, ctrl, x0, T, dt, **kw) for name, ctrl in controllers.items()]
@@ -237,10 +237,9 @@ def roa(
     return roa_result(system, box, x0, T, dt, seed, scores, limits=limits, saturation=saturation, hold=hold)
 
 
-def roa_states(system, n: int, box, seed: int) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
-    """The evaluation box (lo, hi) of `box` (see `evaluation_box`) and its `n` uniform states (n, n_x) of `seed`."""
-    lo, hi = evaluation_box(system, box)
-    return (lo, hi), uniform_states(system, n, (lo, hi), seed)
+def roa_states(system, n: int, box, seed: int) -> np.ndarray:
+    """The `n` uniform states (n, n_x) of `seed` in the evaluation box `box` (see `evaluation_box`)."""
+    return uniform_states(system, n, evaluation_box(system, box), seed)
 
 
 def score_job(system, name: str, ctrl: Controller, x0: np.ndarray, T: float, dt: float, **kw) -> tuple:
