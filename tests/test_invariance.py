@@ -12,10 +12,10 @@ import pytest
 
 import idapbc_pin as ip
 from idapbc_pin.certificate.baseline import QuadraticLyapunov, certify_baseline
-from idapbc_pin.certificate.checks import face_samples
+from idapbc_pin.certificate.vbox import verification_box
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.sim.integrate import simulate
-from idapbc_pin.evaluation.invariance import invariant_share, stays_inside
+from idapbc_pin.evaluation.invariance import box_invariant_share, invariant_share, stays_inside
 from idapbc_pin.sim.metrics import success
 
 from .conftest import sample_domain
@@ -39,29 +39,45 @@ def test_every_state_of_lqrs_certified_set_stays_in_the_box_and_reaches_x_star()
     """The certificate's claim, checked by simulation: the mass-spring-damper's LQR certificate
     covers a large share, and every sampled state inside it keeps to the box and converges."""
     system = ip.load_system("paper_mass_spring_damper")
-    lo, hi = system.domain
-    rng = np.random.default_rng(3)
+    box = system.domain
+    base = certify_baseline(system, box, box, np.random.default_rng(3))
+    assert base.sublevel.covered_fraction > 0.3 and base.sublevel.confidence.passed
     x = sample_domain(system, 4000, seed=3)
-    base = certify_baseline(system, x, lo, hi, face_samples(lo, hi, 200, rng))
-    assert base.sublevel.covered_fraction > 0.3
     V = QuadraticLyapunov(LQRController(system).S, system.x_star, system.angle_mask).H_d(x)
     inside = x[V < base.sublevel.c][:300]
     traj = simulate(system, LQRController(system), inside, T=20.0)
     assert np.all(stays_inside(traj, system)) and np.all(success(traj, system))
 
 
+def test_a_set_certified_in_a_wider_verification_box_stays_in_it_and_reaches_x_star():
+    """A wider verification box never shrinks the certified set, and every sampled state of the set
+    certified in 4× the box keeps to that box and converges."""
+    system = ip.load_system("paper_mass_spring_damper")
+    vbox = verification_box(system, 4.0)
+    base = certify_baseline(system, vbox, system.domain, np.random.default_rng(3))
+    assert base.sublevel.confidence.passed
+    x = vbox[0] + (vbox[1] - vbox[0]) * np.random.default_rng(4).random((20000, 2))
+    V = QuadraticLyapunov(LQRController(system).S, system.x_star, system.angle_mask).H_d(x)
+    inside = x[V < base.sublevel.c]
+    in_box = certify_baseline(system, system.domain, system.domain, np.random.default_rng(3))
+    assert base.sublevel.c >= in_box.sublevel.c * (1 - 1e-9) and base.sublevel.c_boundary > in_box.sublevel.c_boundary
+    traj = simulate(system, LQRController(system), inside[:300], T=20.0)
+    assert np.all(stays_inside(traj, system, box=vbox)) and np.all(success(traj, system))
+
+
 def test_the_certified_share_never_exceeds_the_invariant_share():
     system = ip.load_system("paper_mass_spring_damper")
     lqr = LQRController(system)
     share = invariant_share(system, {"LQR": lqr}, n=400, seed=5, scales=(1.0, 2.0))
-    lo, hi = system.domain
-    x = sample_domain(system, 4000, seed=3)
-    base = certify_baseline(system, x, lo, hi, face_samples(lo, hi, 200, np.random.default_rng(3)))
+    base = certify_baseline(system, system.domain, system.domain, np.random.default_rng(3))
     within_1, within_2 = share.inside["LQR"]
     # 400 states: a binomial standard error of at most 2.5 points; allow three of them
     assert base.sublevel.covered_fraction <= within_1 + 0.075
     assert within_1 <= within_2 <= share.success["LQR"]
     assert "never leaves 2× the box" in share.table()
+    # the same ceiling in a verification box twice as wide, as certify measures it (rows stopped once at rest)
+    wide = box_invariant_share(system, {"LQR": lqr}, verification_box(system, 2.0), n=400, seed=5)
+    assert wide["LQR"] == pytest.approx(within_2, abs=0.01)
 
 
 def test_a_scale_that_is_not_positive_is_refused():

@@ -154,7 +154,8 @@ def _stages(job: Job, workdir: Path, record: dict, recover_workers: int = 1):
         record["files"]["evaluation"] = "evaluation.json"
     with stage("certify"):
         c = job.certify
-        cert = certify(run, n=c["n"], seed=ev["seed"], settle=c["settle"], settle_T=c["T"], limits=ev["limits"]).to_dict()
+        cert = certify(run, n=c["n"], seed=ev["seed"], settle=c["settle"], settle_T=c["T"], limits=ev["limits"],
+                       invariant=c["invariant"], scale=c["scale"]).to_dict()
         if not (run.path / "certificate.json").is_file():
             write_json(run.path / "certificate.json", cert)
         record["files"]["certificate"] = "certificate.json"

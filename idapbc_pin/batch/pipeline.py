@@ -8,7 +8,7 @@ Format (``pipelines/*.toml``)::
     preset = "fast"            # "paper" (TrainConfig()) or "fast" (TrainConfig.fast())
     train = { seed = 0 }       # TrainConfig overrides on top of the preset
     evaluate = { n = 200, T = 20.0, seed = 0 }   # ROA: states per box, horizon (s), seed
-    certify = { n = 20000, settle = 4, T = 20.0 }  # certify(): domain samples, settling runs, horizon (s)
+    certify = { n = 20000, settle = 4, T = 20.0 }  # certify(): domain samples, settling runs, horizon (s); also invariant, scale
     figure = { n = 4, T = 20.0 }  # report.figure(): trajectories from the half box, seconds each
     view = { n = 3, T = 10.0 } # HTML replay: rollouts from the half box, seconds each
 
@@ -63,17 +63,17 @@ def _defaults_of(function, **names) -> dict:
 
 
 EVALUATE_DEFAULTS = _defaults_of(evaluate_run, n="n", T="T", seed="seed", limits="limits")
-CERTIFY_DEFAULTS = _defaults_of(certify, n="n", settle="settle", T="settle_T")
+CERTIFY_DEFAULTS = _defaults_of(certify, n="n", settle="settle", T="settle_T", invariant="invariant", scale="scale")
 FIGURE_DEFAULTS = _defaults_of(figure, n="n", T="T")
 VIEW_DEFAULTS = _defaults_of(view, n="n", T="T")
-_SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int, "limits": bool}, "certify": {"n": int, "settle": int, "T": float}, "figure": {"n": int, "T": float}, "view": {"n": int, "T": float}}
+_SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int, "limits": bool}, "certify": {"n": int, "settle": int, "T": float, "invariant": int, "scale": float}, "figure": {"n": int, "T": float}, "view": {"n": int, "T": float}}
 
 #: What ``--smoke`` does to every job: a few epochs of tiny networks (and no `fallback` gate, which
 #: simulates 100 states for 20 s: "auto" becomes "none"), a small ROA and certificate,
 #: one short replay (values are upper bounds: a job already smaller keeps its own).
 SMOKE_TRAIN = {"epochs": 20, "width": 16, "depth": 1, "samples": 64, "checkpoint_every": 10}
 SMOKE_EVALUATE = {"n": 12, "T": 5.0}
-SMOKE_CERTIFY = {"n": 256, "settle": 0, "T": 5.0}
+SMOKE_CERTIFY = {"n": 256, "settle": 0, "T": 5.0, "invariant": 16}
 SMOKE_FIGURE = {"n": 1, "T": 3.0}
 SMOKE_VIEW = {"n": 1, "T": 3.0}
 

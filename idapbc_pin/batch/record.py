@@ -21,7 +21,8 @@ __all__ = ["SUMMARY_COLUMNS", "VOLATILE_COLUMNS", "crash_record", "new_record", 
 #: Columns of summary.csv. Success rates are fractions in [0, 1] of the ROA states (DESIGN §4);
 #: settling times are medians over the successful states (s), empty when none succeeded;
 #: dissipation_fraction, les, sublevel_coverage, certified come from `certify` (les falls back to
-#: the trainer's eigenvalue check), lqr_sublevel_coverage from its LQR baseline (δᵀSδ); limit is the
+#: the trainer's eigenvalue check), lqr_sublevel_coverage from its LQR baseline (δᵀSδ), invariant_share and
+#: lqr_invariant_share (training-box states that reach x* without leaving the verification box); limit is the
 #: actuators' effort limits applied in the evaluation ("none" when unlimited or lifted); *_radius the
 #: ROA radii; *_lead_low / *_lead_high the 95 % interval of NIDA-PBC's success rate minus LQR's on the
 #: box's states and *_lead_p McNemar's exact p-value (`evaluation.paired`); *_peak_half the median peak |u| on the half box; fallback whether NIDA-PBC switches to
@@ -35,7 +36,7 @@ SUMMARY_COLUMNS = (
     "nida_settle_domain", "lqr_settle_domain", "nida_settle_half", "lqr_settle_half",
     "domain_lead_low", "domain_lead_high", "domain_lead_p", "half_lead_low", "half_lead_high", "half_lead_p",
     "roa_n", "roa_T", "roa_judge", "limit", "nida_radius", "lqr_radius", "nida_peak_half", "lqr_peak_half",
-    "dissipation_fraction", "les", "sublevel_coverage", "lqr_sublevel_coverage", "certified",
+    "dissipation_fraction", "les", "sublevel_coverage", "lqr_sublevel_coverage", "invariant_share", "lqr_invariant_share", "certified",
     "fallback", "inside_gain", "recovery", "epochs", "train_seconds", *(f"loss_{t}" for t in TERMS),
     "job_seconds", "run_dir", "error",
 )  # fmt: skip
@@ -103,6 +104,8 @@ def _certificate_figures(cert: dict | None) -> dict:
         "les": None if max_real is None else bool(max_real < 0),
         "sublevel_coverage": _dig(cert, ("sublevel", "covered_fraction")),
         "lqr_sublevel_coverage": _dig(cert, ("baseline", "sublevel", "covered_fraction")),
+        "invariant_share": _dig(cert, ("invariant_share", "NIDA-PBC")),
+        "lqr_invariant_share": _dig(cert, ("invariant_share", "LQR")),
         "certified": cert.get("certified"),
     }
 

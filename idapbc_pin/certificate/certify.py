@@ -16,13 +16,16 @@ For a trained run (or any object with the controller interface, see `idapbc_pin.
   f + g u at x*;
 * the **equilibrium x̄ the closed loop settles at** (true plant simulated from near x* and from
   the half-size box), and ‖x̄ − x*‖ (Proposition 2: x̄ ∈ H_ε, eq. fixedpoint);
-* the **largest sublevel set** {H_d < c} in which every sample has Ḣ_d < 0 along the true closed
-  loop, Ḣ_d = ∇H_dᵀ(f + g u) (violations tolerated inside E), and that stays inside the box
-  (c ≤ min of H_d on the box faces, sampled and refined by L-BFGS-B per face; with H_d convex the
-  set then cannot leave the box). Every trajectory starting there stays there and reaches E
-  (Proposition 2), if the samples are representative: a sampled certificate, never a proof;
-* the **same sublevel test for the LQR baseline** on its own Lyapunov function δᵀSδ
-  (`idapbc_pin.certificate.baseline`): same samples, same face search, its certified share.
+* the **certified set** (`idapbc_pin.certificate.region`): the largest sublevel set {H_d < c} in
+  the verification box V_box ⊇ X (`idapbc_pin.certificate.vbox`) on which H_d decreases along the
+  true closed loop (the controller as deployed, outer law included) outside a core certified by
+  the linearisation, with the confidence of N fresh samples (ε, β); its share of X even where it
+  reaches past X;
+* the **invariant share**: the share of X's states whose trajectory reaches x* without leaving
+  V_box, for both controllers (`idapbc_pin.evaluation.invariance`): no certified set in V_box can
+  cover more of X;
+* the **same certified-set test for the LQR baseline** on its own Lyapunov function δᵀSδ
+  (`idapbc_pin.certificate.baseline`), in the same V_box.
 
 With the actuators' effort limits applied (the default, DESIGN §4), the true loop is f + g·sat(u):
 Ḣ_d (and LQR's V̇) are taken along the saturated input, and the settling simulations clip it; the
@@ -40,13 +43,17 @@ from pathlib import Path
 import numpy as np
 
 from .._io import write_json
+from ..control.baseline import LQRController
 from ..errors import IdapbcError
 from ..run import resolve_run
 from ..sim.limits import input_limits
+from ..evaluation.invariance import box_invariant_share
 from .baseline import certify_baseline
-from .checks import boundary_min, check_dissipation, check_structural, check_sublevel, face_samples, local_stability, settled_equilibrium
+from .checks import check_dissipation, check_structural, local_stability, settled_equilibrium
+from .region import TrueLoop, certified_region
 from .result import LABEL, Certificate
 from .terms import _f64, closed_loop_terms
+from .vbox import DEFAULT_SCALE, verification_box
 
 __all__ = ["certify", "resolve_controller"]
 
@@ -84,13 +91,17 @@ def certify(
     *,
     epsilon: float | None = None,
     n_hessian: int = 2000,
-    n_boundary: int | None = None,
     settle: int = 4,
     settle_T: float = 20.0,
     dt: float | None = None,
     write: bool = True,
     limits: bool = True,
     baseline: bool = True,
+    scale: float = DEFAULT_SCALE,
+    box=None,
+    share_bound: float = 1e-3,
+    beta: float = 1e-6,
+    invariant: int = 200,
 ) -> Certificate:
     """Check the paper's conditions on `n` uniform samples of the training box.
 
@@ -102,16 +113,19 @@ def certify(
     seed : seed of every random draw.
     epsilon : level ε of E = H_ε; default the run's estimate (``summary.json``), else 0.
     n_hessian : subsample on which ∇²H_d is checked.
-    n_boundary : samples on the box faces (default n/4, at least 64 per face), each face's best
-        refined by L-BFGS-B.
     settle : trajectories from near x* and as many from the half box for the settled equilibrium
         (0: skip the simulation).
     settle_T, dt : their horizon and step, s (dt None: 2 ms, or shorter for a stiff loop, `judge_step`).
     write : write ``<run>/certificate.json`` (atomic) when given a run.
     limits : check the true loop with the system's effort limits (f + g·sat(u); the default);
         False lifts them.
-    baseline : also certify the LQR baseline's δᵀSδ on the same samples (skipped for a system
-        without ``linearization``).
+    baseline : also certify the LQR baseline's δᵀSδ in the same verification box (skipped for a
+        system without ``linearization``).
+    scale : the verification box V_box = x* + scale·(X − x*), angles capped at x* ± π
+        (`verification_box`).  box : an explicit V_box (lo, hi) ⊇ X instead.
+    share_bound, beta : the certified set's statement: the share of it where H_d does not
+        decrease is ≤ share_bound (ε) with confidence ≥ 1 − β (N = ⌈ln(3/β)/ε⌉ fresh samples).
+    invariant : training-box states simulated for the invariant share in V_box (0: skip).
 
     Returns
     -------
@@ -129,10 +143,11 @@ def certify(
     structural = check_structural(ctrl, system, terms, n_hessian)
     les = local_stability(ctrl, system)
     equilibrium = settled_equilibrium(ctrl, system, int(settle), settle_T, dt, seed, limits) if settle > 0 else None
-    per_face = max(64, (n // 4 if n_boundary is None else int(n_boundary)) // (2 * system.n))
-    faces = face_samples(lo, hi, per_face, rng)
-    c_bnd, x_bnd = boundary_min(ctrl, lo, hi, faces)
-    base = certify_baseline(system, terms.x, lo, hi, faces, bounds.bound) if baseline and hasattr(system, "linearization") else None
+    vbox = verification_box(system, scale, box)
+    region = certified_region(ctrl, TrueLoop(system, ctrl, bounds.bound), system.x_star, vbox, (lo, hi),
+                              np.random.default_rng([seed, 1]), epsilon=share_bound, beta=beta)
+    base = certify_baseline(system, vbox, (lo, hi), np.random.default_rng([seed, 1]), bounds.bound, share_bound, beta) if baseline and hasattr(system, "linearization") else None
+    invariant_share = box_invariant_share(system, _laws(ctrl, base, system), vbox, int(invariant), seed, limits=limits) if invariant > 0 else None
     cert = Certificate(
         label=LABEL,
         system=str(getattr(system, "name", type(system).__name__)),
@@ -149,8 +164,9 @@ def certify(
         dissipation_everywhere=check_dissipation(terms, 0.0),
         local_stability=les,
         equilibrium=equilibrium,
-        sublevel=check_sublevel(terms.H, terms.H_dot, eps, eps, c_bnd, x_bnd),
-        sublevel_strict=check_sublevel(terms.H, terms.H_dot, 0.0, eps, c_bnd, x_bnd),
+        verification_box={"lo": vbox[0].tolist(), "hi": vbox[1].tolist()},
+        sublevel=region,
+        invariant_share=invariant_share,
         rho=float(ctrl.rho) if hasattr(ctrl, "rho") else None,
         wall_time=time.perf_counter() - t0,
         limits=bounds.to_json(),
@@ -160,3 +176,8 @@ def certify(
     if write and path is not None:
         write_json(path / "certificate.json", cert.to_dict(), sort_keys=False)
     return cert
+
+
+def _laws(ctrl, base, system) -> dict:
+    """The laws whose invariant share is measured: NIDA-PBC, and LQR when its certificate was made."""
+    return {"NIDA-PBC": ctrl} if base is None else {"NIDA-PBC": ctrl, "LQR": LQRController(system)}

@@ -4,9 +4,9 @@
   H_d(x*) = 0, ∇H_d(x*) = 0, H_d > 0 off x*);
 * `check_dissipation`: eq. damping_assign_relax_tilde on the samples with H_d ≥ a level;
 * `local_stability`: eigenvalues of the true closed loop's Jacobian at x*;
-* `face_samples`, `boundary_min` and `check_sublevel`: the largest sublevel set {H_d < c} with
-  Ḣ_d < 0 that stays inside the box (any function with ``H_d`` and ``grad_H_d``: LQR's quadratic
-  Lyapunov function goes through the same search, `idapbc_pin.certificate.baseline`);
+* `face_samples` and `boundary_min`: the minimum of a Lyapunov function (``H_d`` and ``grad_H_d``:
+  H_d, or LQR's δᵀSδ) on the faces of a box, which bounds a sublevel set that stays inside it
+  (`idapbc_pin.certificate.region`);
 * `settled_equilibrium`: where the true closed loop settles, simulated.
 """
 
@@ -20,10 +20,10 @@ from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
 from ..sim.metrics import SUCCESS_WINDOW, settled, success
 from ..sim.states import uniform_states
-from .result import Dissipation, Equilibrium, LocalStability, Structural, Sublevel
+from .result import Dissipation, Equilibrium, LocalStability, Structural
 from .terms import ClosedLoopTerms, _f64, eigenvalues_at_target, hessians
 
-__all__ = ["boundary_min", "check_dissipation", "check_structural", "check_sublevel", "face_samples", "local_stability", "settled_equilibrium"]
+__all__ = ["boundary_min", "check_dissipation", "check_structural", "face_samples", "local_stability", "settled_equilibrium"]
 
 
 def check_structural(ctrl, system, terms: ClosedLoopTerms, n_hessian: int) -> Structural:
@@ -117,24 +117,6 @@ def boundary_min(ctrl, lo: np.ndarray, hi: np.ndarray, faces) -> tuple[float, np
         if v0 < best_val:
             best_val, best_x = v0, x0
     return best_val, best_x
-
-
-def check_sublevel(H: np.ndarray, H_dot: np.ndarray, exclude: float, epsilon: float, c_boundary: float, x_boundary: np.ndarray) -> Sublevel:
-    """Largest {H < c} with Ḣ < 0 on its samples (H, H_dot: (N,) on the domain samples; violations
-    with H < `exclude` tolerated), c at most `c_boundary` (min of H on the box faces, at `x_boundary`)."""
-    viol = (H_dot >= 0) & (H >= exclude)
-    c_viol = float(H[viol].min()) if viol.any() else math.inf
-    c = min(c_viol, c_boundary)
-    return Sublevel(
-        c=c,
-        exclude=float(exclude),
-        c_violation=c_viol,
-        n_violations=int(viol.sum()),
-        c_boundary=float(c_boundary),
-        boundary_state=x_boundary.tolist(),
-        covered_fraction=float(np.mean(H < c)),
-        contains_E=bool(c > epsilon),
-    )
 
 
 def settled_equilibrium(ctrl, system, n_each: int, T: float, dt: float | None, seed: int, limits: bool = True) -> Equilibrium:

@@ -8,10 +8,16 @@ from dataclasses import dataclass
 
 from .._io import to_json
 
-__all__ = ["LABEL", "BaselineCertificate", "Certificate", "Dissipation", "Equilibrium", "LocalStability", "Structural", "Sublevel"]
+__all__ = ["LABEL", "BaselineCertificate", "Certificate", "Confidence", "Dissipation", "Equilibrium", "LocalStability", "Region", "Structural"]
 
 #: How the certificate labels itself in its table and JSON.
 LABEL = "sampled certificate, not a proof"
+
+
+def _pct(share: float) -> str:
+    """A share of a box as a percentage with enough digits for small sets: '12.3 %', '0.0123 %'."""
+    pct = 100 * share
+    return f"{pct:.1f} %" if pct >= 1 else f"{pct:.3g} %"
 
 
 @dataclass(frozen=True)
@@ -69,17 +75,54 @@ class Equilibrium:
 
 
 @dataclass(frozen=True)
-class Sublevel:
-    """Largest sampled sublevel set {H_d < c} with Ḣ_d < 0 (true loop) outside {H_d < exclude}."""
+class Confidence:
+    """What the fresh samples of the certified set say (`idapbc_pin.certificate.region`, step 4).
 
-    c: float  #: min(c_violation, c_boundary)
-    exclude: float  #: violations with H_d below this are tolerated (ε; 0: none)
-    c_violation: float  #: min H_d over the violating samples (inf if none)
+    passed : all `samples` fresh i.i.d. samples of the final set passed: the share of the set
+        (outside the core) where V does not decrease is ≤ `epsilon` with confidence ≥ 1 − `beta`.
+    samples : N = ⌈ln(rounds_max/β)/ε⌉ per round.  rounds : rounds drawn (a failure lowers c and
+        draws again).  failures : failing samples over the earlier rounds.
+    """
+
+    epsilon: float
+    beta: float
+    samples: int
+    rounds: int
+    failures: int
+    passed: bool
+
+
+@dataclass(frozen=True)
+class Region:
+    """The certified set {V < c} in the verification box (`idapbc_pin.certificate.region`).
+
+    c : its level (≤ c_boundary, ≤ the V of every violation found).
+    core : level of the core certified by the linearisation (not sampled; 0: none).
+    linear_decay : λ_min of −(PA + AᵀP) in P's metric, 1/s (≤ 0: the linearisation certifies nothing).
+    c_boundary, boundary_state : min of V on the verification box's faces, and where.
+    c_violation : lowest V of a sample or counter-example with V̇ ≥ 0 outside the core (inf: none).
+    n_violations : failing search samples; n_counterexamples : failing points of the ascent.
+    covered_fraction : vol(set ∩ X) / vol(X), the training box X (0 unless `confidence.passed`).
+    verification_share : vol(set) / vol(V_box).
+    confidence : `Confidence`.
+    """
+
+    c: float
+    core: float
+    linear_decay: float
+    c_boundary: float
+    boundary_state: list
+    c_violation: float
     n_violations: int
-    c_boundary: float  #: min of H_d on the faces of the box (sampled, refined per face)
-    boundary_state: list  #: (n,) where that minimum sits
-    covered_fraction: float  #: share of the domain samples inside {H_d < c}
-    contains_E: bool  #: c > ε: the set holds E = H_ε (else the certificate is vacuous)
+    n_counterexamples: int
+    covered_fraction: float
+    verification_share: float
+    confidence: Confidence
+
+    @property
+    def certified(self) -> bool:
+        """A set beyond the core passed its fresh samples."""
+        return self.confidence.passed and self.c > self.core
 
 
 @dataclass(frozen=True)
@@ -87,21 +130,17 @@ class BaselineCertificate:
     """The LQR baseline's sampled certificate (the ``"baseline"`` entry of certificate.json).
 
     controller : "LQR".  function : what V is.
-    n_samples : the domain samples (the run certificate's own).
     limits_applied : the effort limits clipped the LQR input.
-    saturated_fraction : share of the samples where they did.
     max_real : max Re of the eigenvalues of the LQR loop's linearisation A − BK.
-    sublevel : the largest {V < c} with V̇ < 0 on its samples that stays inside the box
-        (``exclude = 0``: no violation tolerated); ``covered_fraction`` is the certified share.
+    sublevel : its certified set in the run certificate's verification box (`Region`);
+        ``covered_fraction`` is the certified share of the training box.
     """
 
     controller: str
     function: str
-    n_samples: int
     limits_applied: bool
-    saturated_fraction: float
     max_real: float
-    sublevel: Sublevel
+    sublevel: Region
 
 
 @dataclass(frozen=True)
@@ -117,7 +156,10 @@ class Certificate:
     max_mu, max_xi : max ‖μ‖, ‖ξ‖ over the samples.
     max_hdot_identity_error : max |Ḣ_d + margin| / (1 + |Ḣ_d|) (Proposition 1 consistency).
     structural, dissipation_outside_E, dissipation_everywhere, local_stability, equilibrium,
-    sublevel, sublevel_strict : see their classes (sublevel_strict tolerates no violation).
+    verification_box : {"lo": [...], "hi": [...]}, the box V_box ⊇ X the certified sets live in.
+    sublevel : H_d's certified set in V_box (`Region`); ``covered_fraction`` is its share of X.
+    invariant_share : {controller: share of X's states whose trajectory reaches x* without leaving
+        V_box} (simulated; no certified set in V_box covers more of X); None when skipped.
     rho : the controller's ρ, if it has one.  wall_time : seconds.
     limits : the input bound the true loop was checked with (`InputLimits.to_json()`: applied,
         lifted, effort, bound); None for a certificate made before limits were recorded.
@@ -141,8 +183,9 @@ class Certificate:
     dissipation_everywhere: Dissipation
     local_stability: LocalStability
     equilibrium: Equilibrium | None
-    sublevel: Sublevel
-    sublevel_strict: Sublevel
+    verification_box: dict
+    sublevel: Region
+    invariant_share: dict | None
     rho: float | None
     wall_time: float
     limits: dict | None = None
@@ -177,9 +220,10 @@ class Certificate:
             n_sim = e.n_near + e.n_half_box
             out.append(("settles at x*", e.n_settled == n_sim and e.offset <= 0.05 and e.max_offset <= 0.05,
                         f"{e.n_settled}/{n_sim} settled, ‖x̄ − x*‖ = {e.offset:.2e} (near x*), max {e.max_offset:.2e}"))
-        sl = self.sublevel
-        out.append(("sublevel set {H_d < c} ⊃ E", sl.contains_E,
-                    f"c = {sl.c:.4g} (ε = {self.epsilon:.3g}), {100 * sl.covered_fraction:.1f} % of the domain"))
+        sl, conf = self.sublevel, self.sublevel.confidence
+        out.append(("certified set {H_d < c} beyond the core", sl.certified,
+                    f"c = {sl.c:.4g} (core {sl.core:.3g}), {_pct(sl.covered_fraction)} of the training box; "
+                    f"{conf.samples} fresh samples {'passed' if conf.passed else 'did not pass'} (ε = {conf.epsilon:g}, β = {conf.beta:g})"))
         return out
 
     @property
@@ -207,17 +251,21 @@ class Certificate:
                 f"the law saturates on {100 * self.saturated_fraction:.1f} % of the samples")
 
     def _shares_line(self) -> str:
-        """Both certified shares side by side (Neural IDA-PBC's H_d, LQR's δᵀSδ)."""
-        line = f"certified share of the domain: NIDA-PBC {{H_d < {self.sublevel.c:.3g}}} {100 * self.sublevel.covered_fraction:.2f} %"
+        """Both certified shares and invariant shares side by side (NIDA-PBC's H_d, LQR's δᵀSδ)."""
+        inv = self.invariant_share or {}
+        line = f"certified share of the training box: NIDA-PBC {{H_d < {self.sublevel.c:.3g}}} {_pct(self.sublevel.covered_fraction)}"
         if self.baseline is not None:
             b = self.baseline.sublevel
-            line += (f"  |  LQR {{δᵀSδ < {b.c:.3g}}} {100 * b.covered_fraction:.2f} % "
-                     f"({b.n_violations} samples with V̇ ≥ 0; box faces: min V = {b.c_boundary:.3g})")
+            line += f"  |  LQR {{δᵀSδ < {b.c:.3g}}} {_pct(b.covered_fraction)}"
+        if inv:
+            line += "\ninvariant share (reach x* without leaving V_box; the ceiling of any certified set): " + ", ".join(
+                f"{name} {_pct(v)}" for name, v in inv.items())
         return line
 
     def table(self) -> str:
         """A short human-readable table."""
-        sl, st = self.sublevel, self.sublevel_strict
+        sl = self.sublevel
+        v = self.verification_box
         lines = [
             f"certificate of {self.system}: {LABEL}",
             f"{self.n_samples} uniform samples of the training box (seed {self.seed}); ε = {self.epsilon:.4g}, "
@@ -229,12 +277,11 @@ class Certificate:
         for name, ok, detail in self.checks():
             lines.append(f"{name:<38}{'ok' if ok else 'FAIL':>6}  {detail}")
         lines.append("-" * 100)
+        lines.append("verification box V_box: [" + ", ".join(f"{a:.3g}…{b:.3g}" for a, b in zip(v["lo"], v["hi"])) + "]")
         lines.append(
-            f"largest sublevel set with Ḣ_d < 0 outside E and inside the box: {{H_d < {sl.c:.4g}}}, "
-            f"{100 * sl.covered_fraction:.1f} % of the domain ({sl.n_violations} violations outside E; box faces: min H_d = {sl.c_boundary:.4g})"
-        )
-        lines.append(
-            f"  tolerating no violation at all: {{H_d < {st.c:.4g}}}, {100 * st.covered_fraction:.1f} % of the domain ({st.n_violations} samples with Ḣ_d ≥ 0)"
+            f"certified set: {{H_d < {sl.c:.4g}}} with Ḣ_d < 0 outside the core {{H_d < {sl.core:.3g}}}; "
+            f"V_box faces: min H_d = {sl.c_boundary:.4g}; lowest H_d with Ḣ_d ≥ 0 found: {sl.c_violation:.4g} "
+            f"({sl.n_violations} samples, {sl.n_counterexamples} counter-examples)"
         )
         lines.append(self._shares_line())
         if self.local_stability.eigenvalues:

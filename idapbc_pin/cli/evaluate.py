@@ -13,8 +13,8 @@ from ..reporting.report import report
 from ..reporting.simulation_figure import simulation_figure
 from ..run import load_run
 from ._args import (add_box_argument, add_checkpoint_argument, add_horizon_argument, add_limits_argument, add_radius_argument, add_rho_argument,
-                    add_run_argument, add_seed_argument, add_states_argument, add_workers_argument, add_x0_argument, library_default, workers_of,
-                    x0_of)
+                    add_run_argument, add_seed_argument, add_states_argument, add_workers_argument, add_x0_argument, key_range, library_default,
+                    workers_of, x0_of)
 
 __all__ = ["add_eval_commands"]
 
@@ -40,7 +40,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_certify(args: argparse.Namespace) -> int:
-    cert = certify(_run(args), n=args.n, seed=args.seed, epsilon=args.epsilon, settle=args.settle, limits=not args.no_limits)
+    cert = certify(_run(args), n=args.n, seed=args.seed, epsilon=args.epsilon, settle=args.settle, limits=not args.no_limits,
+                   scale=args.scale, box=dict(args.verification_box) if args.verification_box else None, invariant=args.invariant)
     print(cert.table())
     print(f"wrote {Path(args.run) / 'certificate.json'}")
     return 0
@@ -98,6 +99,12 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--epsilon", type=float, help="level ε of E = H_ε (default: the run's estimate)")
     p.add_argument("--settle", type=int, default=library_default(certify, "settle"), metavar="K",
                    help="simulated states near x* (and as many in the half box) for the settled equilibrium (default %(default)s; 0: skip)")
+    p.add_argument("--scale", type=float, default=library_default(certify, "scale"), metavar="S",
+                   help="verification box: S times the training box about x*, angles within ±π of x* (default %(default)g)")
+    p.add_argument("--verification-box", type=key_range, action="append", metavar="NAME=LO:HI",
+                   help="verification-box bounds of a coordinate (joint or p_<joint>), repeatable; it must hold the training box")
+    p.add_argument("--invariant", type=int, default=library_default(certify, "invariant"), metavar="N",
+                   help="training-box states simulated for the invariant share in the verification box (default %(default)s; 0: skip)")
     p.set_defaults(func=_cmd_certify)
 
     p = subparsers.add_parser("report", help="ROA vs LQR, certificate, the paper's figure and a meshcat replay, into RUN")

@@ -27,16 +27,17 @@ from ..sim.metrics import success
 from ..sim.states import uniform_states
 from ..sim.trajectory import Trajectory
 
-__all__ = ["InvariantShare", "invariant_share", "stays_inside"]
+__all__ = ["InvariantShare", "box_invariant_share", "invariant_share", "stays_inside"]
 
 
-def stays_inside(traj: Trajectory, system, scale: float = 1.0) -> np.ndarray:
-    """(N,) bool: every recorded state of each trajectory lies in x* + scale·(domain − x*) (angles
-    wrapped about x*), and the trajectory did not diverge."""
+def stays_inside(traj: Trajectory, system, scale: float = 1.0, box=None) -> np.ndarray:
+    """(N,) bool: every recorded state of each trajectory lies in x* + scale·(domain − x*), or in
+    `box` = (lo, hi) when given (angles wrapped about x*), and the trajectory did not diverge."""
     if not scale > 0:
         raise ValueError(f"scale must be > 0, got {scale}")
     x_star = np.asarray(system.x_star, float)
-    lo, hi = (scale * (np.asarray(b, float) - x_star) for b in system.domain)
+    bounds = system.domain if box is None else box
+    lo, hi = ((1.0 if box is not None else scale) * (np.asarray(b, float) - x_star) for b in bounds)
     d = wrap_angles(traj.x - x_star, np.asarray(system.angle_mask))
     return np.all((d >= lo - 1e-12) & (d <= hi + 1e-12), axis=(1, 2)) & ~traj.diverged
 
@@ -93,3 +94,16 @@ def invariant_share(
         rates[name] = float(np.concatenate(ok).mean())
         inside[name] = tuple(float(v) for v in np.concatenate(ins).mean(axis=0))
     return InvariantShare(system=system.name, n=n, seed=seed, T=T, scales=scales, success=rates, inside=inside)
+
+
+def box_invariant_share(system, controllers: Mapping[str, object], box, n: int = 200, seed: int = 5,
+                        T: float = 20.0, limits: bool = True) -> dict[str, float]:
+    """{controller: share of `n` uniform domain states whose trajectory succeeds without leaving
+    `box` = (lo, hi)} (the ceiling of any certified set in that box). Rows stop once they rest in
+    the success box (`simulate(stop_settled=True)`): the verdicts are those of the full horizon."""
+    x0 = uniform_states(system, n, "domain", seed)
+    shares = {}
+    for name, ctrl in controllers.items():
+        traj = simulate(system, ctrl, x0, T=T, limits=limits, stop_settled=True)
+        shares[name] = float(np.mean(success(traj, system) & stays_inside(traj, system, box=box)))
+    return shares
