@@ -73,6 +73,11 @@ FIELD_HELP = {
     "rollout_tail": "the cost is averaged over the last `rollout_tail` seconds of each rollout (s, ≤ rollout_horizon)",
     "rollout_box": "start states are drawn in x* + b·(X − x*), b = rollout_box times the training box X",
     "face_samples": "samples of the training box's faces per epoch (the level of the `effort` term's sublevel set)",
+    "verification_terms": "opt-in: train the `set_decrease` and `set_coverage` terms, which ask H_d to decrease along the "
+    "true saturated loop on its sublevel set in the verification box (`verification_scale` × the training box, angles "
+    "within ±π) and that set to cover the training box: what `certify` certifies (idapbc_pin.training.verification). "
+    "Each epoch then also evaluates the plant on `samples` states of that box",
+    "verification_scale": "width of the verification box the `verification_terms` use, in training boxes about x* (as `certify --scale`)",
     "wrap_angles": "the control law evaluates the networks at the state whose angles (revolute and continuous joints) are "
     "wrapped to within π of the target, as the LQR baseline does: a pendulum that swings once round is not 2π away "
     "from upright. Without it the networks see angles far outside the box they were trained on",
@@ -124,6 +129,8 @@ class TrainConfig(Settings):
     checkpoint_every: int = 50
     effort_term: bool = True
     face_samples: int = 64
+    verification_terms: bool = False
+    verification_scale: float = 4.0
     rollout_epochs: int = 0
     rollout_samples: int = 64
     rollout_horizon: float = 3.0
@@ -159,6 +166,7 @@ class TrainConfig(Settings):
             (self.threads >= 1, "threads must be ≥ 1"),
             (self.checkpoint_every >= 1, "checkpoint_every must be ≥ 1"),
             (self.face_samples >= 1, "face_samples must be ≥ 1"),
+            (self.verification_scale >= 1, f"verification_scale must be ≥ 1 (the box holds the training box), got {self.verification_scale}"),
             (0 <= self.rollout_epochs <= self.epochs, f"rollout_epochs must be in [0, epochs = {self.epochs}], got {self.rollout_epochs}"),
             (self.rollout_samples >= 1, "rollout_samples must be ≥ 1"),
             (0 < self.rollout_step <= self.rollout_horizon, "rollout_step and rollout_horizon must satisfy 0 < rollout_step ≤ rollout_horizon"),

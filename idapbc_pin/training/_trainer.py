@@ -46,6 +46,7 @@ class Trainer:
     elapsed: float = 0.0
     best_state: dict | None = None  #: `snapshot` of the weights with the lowest loss so far
     rollout_skipped: int = 0  #: rollout epochs whose gradient overflowed, so took no step
+    counterexamples: torch.Tensor | None = None  #: (k, n) states kept by the opt-in `verification_terms` for the next epoch
 
     def tensor(self, a) -> torch.Tensor:
         """`a` in the networks' dtype and device."""
@@ -72,6 +73,7 @@ def start(system: System, config: TrainConfig, run_dir: Path, state: dict | None
         gen.set_state(state["generator"])
         trainer.epoch, trainer.best, trainer.eps_ema, trainer.elapsed = int(state["epoch"]), float(state["best"]), state["epsilon"], float(state["elapsed"])
         trainer.rollout_skipped = int(state.get("rollout_skipped", 0))  # absent from checkpoints of older runs
+        trainer.counterexamples = state.get("counterexamples")
     else:
         write_json(run_dir / "config.json", config.to_dict())
         write_json(run_dir / "system.json", system_record(system, run_dir))
@@ -88,6 +90,7 @@ def _live(trainer: Trainer) -> dict:
         "epoch": trainer.epoch,
         "best": trainer.best,
         "eps_ema": trainer.eps_ema,
+        "counterexamples": trainer.counterexamples,
     }
 
 
@@ -120,6 +123,7 @@ def restore(trainer: Trainer, snap: dict | None) -> None:
     trainer.weights.weights = dict(snap["weights"])
     trainer.gen.set_state(snap["generator"])
     trainer.epoch, trainer.best, trainer.eps_ema = snap["epoch"], snap["best"], snap["eps_ema"]
+    trainer.counterexamples = snap.get("counterexamples")
 
 
 def checkpoint(trainer: Trainer, name: str, epoch: int) -> None:
@@ -132,7 +136,8 @@ def save_snapshot(trainer: Trainer, name: str, snap: dict) -> None:
     save_checkpoint(
         trainer.run_dir / "checkpoints" / f"{name}.pt",
         {"epoch": snap["epoch"], "nets": snap["nets"], "optimizer": snap["optimizer"], "weights": snap["weights"], "generator": snap["generator"],
-         "best": snap["best"], "epsilon": snap["eps_ema"], "elapsed": trainer.elapsed, "rollout_skipped": trainer.rollout_skipped},
+         "best": snap["best"], "epsilon": snap["eps_ema"], "elapsed": trainer.elapsed, "rollout_skipped": trainer.rollout_skipped,
+         **({"counterexamples": snap["counterexamples"]} if snap.get("counterexamples") is not None else {})},
     )
 
 

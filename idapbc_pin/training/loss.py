@@ -12,6 +12,8 @@ For samples x (N, n), with d = 1 where H_d(x) ≥ ε (outside H_ε, the dissipat
   {H_d < c}, c = min of H_d on samples of the box faces (the largest sublevel set that stays in the
   box), ū the actuators' effort limits: the certificate is checked with the saturated law, so the
   set it can certify is where u stays within the limits. Zero for robots without limits.
+* ``set_decrease``, ``set_coverage``  opt-in terms aimed at the certified set in the verification
+  box (`idapbc_pin.training.verification`); zero unless ``TrainConfig.verification_terms``.
 * ``rollout``         the cost of simulations of the true saturated loop (`rollout.rollout_cost`);
   zero here, set by the trainer in the last ``rollout_epochs`` epochs, which train on it alone.
 
@@ -31,7 +33,7 @@ from ..control.nets import IdaPbcNets
 
 __all__ = ["TERMS", "AdaptiveWeights", "loss_terms"]
 
-TERMS = ("matching", "dissipation", "damping_floor", "local_stability", "decay", "effort", "rollout")
+TERMS = ("matching", "dissipation", "damping_floor", "local_stability", "decay", "effort", "set_decrease", "set_coverage", "rollout")
 
 
 def _masked_mean(values: Tensor, mask: Tensor) -> Tensor:
@@ -96,6 +98,8 @@ def loss_terms(
         "decay": _masked_mean(torch.relu(rate + nets.decay_rate), d) if float(nets.decay_rate) > 0 else x.new_zeros(()),
         "local_stability": x.new_zeros(()),
         "effort": x.new_zeros(()),
+        "set_decrease": x.new_zeros(()),
+        "set_coverage": x.new_zeros(()),
         "rollout": x.new_zeros(()),  # set by the trainer in its `rollout_epochs` (`rollout.rollout_cost`)
     }
     c_face = None
@@ -112,6 +116,7 @@ def loss_terms(
         dmu_dx = nets.g_perp @ (dfd_dx - df_dx_inside)
         terms["local_stability"] = dmu_dx.flatten(1).norm(dim=-1).mean()
     diagnostics = {
+        "H": H,
         "inside_share": (1 - d).mean().detach(),
         "dissipation_ok": _masked_mean(((dH.unsqueeze(-2) @ R @ dH.unsqueeze(-1)).squeeze() > (dH * xi).sum(-1)).to(x.dtype), d).detach(),
         "max_mu": mu_norm.max().detach(),

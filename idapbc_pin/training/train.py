@@ -26,12 +26,14 @@ from ..control.linear import fastest_pole
 from ..control.nets import build_nets
 from ..errors import IdapbcError
 from ..model import System
+from ..model.boxes import verification_box
 from ..recovery import box_gate as _gate
 from ..recovery.box_law import box_fallback, fallback_gain
 from ..run import Run, check_checkpoints, load_weights, read_checkpoint, read_config
 from ._trainer import Trainer, checkpoint, metrics_row, open_metrics, restore, save_snapshot, snapshot, start
 from .loss import TERMS, loss_terms
 from .rollout import rollout_cost, rollout_gate, rollout_starts
+from .verification import box_faces, verification_terms
 
 __all__ = ["TrainingDiverged", "train"]
 
@@ -254,18 +256,6 @@ def _sample(system: System, n: int, gen: torch.Generator) -> np.ndarray:
     return (lo + (hi - lo) * torch.rand(n, system.n, generator=gen, dtype=torch.float64)).numpy()
 
 
-def _face_samples(system: System, n: int, gen: torch.Generator) -> np.ndarray:
-    """(n, system.n) uniform samples of the training box's faces: a uniform point of the box with
-    one uniformly chosen coordinate moved to its lower or upper bound."""
-    lo, hi = (torch.as_tensor(b, dtype=torch.float64) for b in system.domain)
-    x = lo + (hi - lo) * torch.rand(n, system.n, generator=gen, dtype=torch.float64)
-    axis = torch.randint(0, system.n, (n,), generator=gen)
-    upper = torch.rand(n, generator=gen, dtype=torch.float64) < 0.5
-    rows = torch.arange(n)
-    x[rows, axis] = torch.where(upper, hi[axis], lo[axis])
-    return x.numpy()
-
-
 def _step(trainer: Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float], dict[str, torch.Tensor], float]:
     """One epoch: fresh samples, ε, the loss terms, one Adam step, the adaptive weights' update.
 
@@ -287,9 +277,12 @@ def _step(trainer: Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float],
     if config.effort_term and system.limited:
         # a stream of its own, a function of (seed, epoch): the domain samples stay those of a run without limits
         face_gen = torch.Generator().manual_seed(1_000_003 * config.seed + epoch + 1)
-        x_face = trainer.tensor(_face_samples(system, config.face_samples, face_gen))
+        x_face = trainer.tensor(box_faces(*system.domain, config.face_samples, face_gen))
         effort = trainer.tensor(np.array(system.effort))
     terms, diag = loss_terms(nets, xt, f, eps, config.kappa, df_in, inside, x_face=x_face, effort=effort)
+    if config.verification_terms:
+        verification, trainer.counterexamples = _verification(trainer, epoch, xt)
+        terms.update(verification)
     rolling = epoch >= config.epochs - config.rollout_epochs
     if rolling:  # the last epochs train on simulations of the saturated loop alone
         if epoch == config.epochs - config.rollout_epochs:
@@ -324,6 +317,21 @@ def _step(trainer: Trainer, epoch: int) -> tuple[torch.Tensor, dict[str, float],
     eps_value = float(eps)
     trainer.eps_ema = eps_value if trainer.eps_ema is None else 0.95 * trainer.eps_ema + 0.05 * eps_value
     return total, values, diag, eps_value
+
+
+def _verification(trainer: Trainer, epoch: int, xt: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+    """The opt-in terms of `verification.verification_terms` for this epoch: `samples` fresh states
+    of the verification box (a stream of their own, a function of (seed, epoch)) plus the
+    counter-examples kept from the last epoch, and `face_samples` states of its faces."""
+    config, system, nets = trainer.config, trainer.system, trainer.nets
+    gen = torch.Generator().manual_seed(2_000_003 * config.seed + epoch + 1)
+    lo, hi = verification_box(system, config.verification_scale)
+    x_v = lo + (hi - lo) * torch.rand(config.samples, system.n, generator=gen, dtype=torch.float64).numpy()
+    if trainer.counterexamples is not None and trainer.counterexamples.shape[0]:
+        x_v = np.concatenate([x_v, trainer.counterexamples.to("cpu", torch.float64).numpy()])
+    x_face = box_faces(lo, hi, config.face_samples, gen)
+    effort = trainer.tensor(np.array(system.effort)) if system.limited else None
+    return verification_terms(nets, nets.H(xt), trainer.tensor(x_v), trainer.tensor(system.f(x_v)), trainer.tensor(x_face), effort)
 
 
 def _all_finite(tensors) -> bool:
