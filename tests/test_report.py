@@ -19,6 +19,9 @@ from idapbc_pin.evaluation.robustness import MeasuredController, default_conditi
 from idapbc_pin.reporting.figure_data import figure_data
 from idapbc_pin.reporting.plot import MARGIN_FLOOR, plot
 from idapbc_pin.reporting.report import extra_damping_rho, figure, report
+from idapbc_pin.reporting.slice import basin_slice
+from idapbc_pin.certificate.certify import certify
+from idapbc_pin.sim.metrics import success
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.states import uniform_states
 
@@ -74,6 +77,25 @@ def test_panels_hold_the_simulated_trajectories(tiny_run):
     titles = [ax.get_title(loc="left") for ax in fig.axes]
     assert [s[:2] for s in titles] == ["a)", "b)", "c)", "d)", "e)"]
     assert fig.axes[2].get_yscale() == "log"
+
+
+def test_the_slice_marks_the_grid_states_that_reach_x_star_and_draws_the_certified_set(tiny_run):
+    cert = certify(tiny_run, n=500, settle=0, invariant=8, settle_T=3.0, write=False, scale=2.0).to_dict()
+    s = basin_slice(tiny_run.controller, cert, n=4, T=3.0)
+    system = tiny_run.system
+    # independently: the same grid states simulated without early stops
+    A, B = np.meshgrid(s.basin_a, s.basin_b)
+    x0 = np.tile(system.x_star, (16, 1))
+    x0[:, 0], x0[:, 1] = A.ravel(), B.ravel()
+    np.testing.assert_array_equal(s.basin.ravel(), success(simulate(system, tiny_run.controller, x0, T=3.0), system))
+    assert (s.basin_a[0], s.basin_a[-1]) == tuple(cert["verification_box"]["lo"][:1] + cert["verification_box"]["hi"][:1])
+    assert s.c == (cert["sublevel"]["c"] if cert["sublevel"]["confidence"]["passed"] else None)
+    x0 = uniform_states(system, 1, "half", seed=1)
+    fig = plot([figure_data(tiny_run, x0, T=1.0)], s)
+    panel = next(ax for ax in fig.axes if ax.get_title(loc="left").startswith("f)"))
+    assert any(c.get_gid() == "basin" for c in panel.collections)
+    if s.c is not None and s.H.min() < s.c:
+        assert any(c.get_gid() == "certified:NIDA-PBC" for c in panel.collections)
 
 
 def test_extra_damping_row_uses_the_raised_rho(tiny_run):

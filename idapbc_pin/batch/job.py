@@ -160,7 +160,7 @@ def _stages(job: Job, workdir: Path, record: dict, recover_workers: int = 1):
             write_json(run.path / "certificate.json", cert)
         record["files"]["certificate"] = "certificate.json"
     with stage("figure"):
-        png = Path(figure(run, n=job.figure["n"], T=job.figure["T"], seed=ev["seed"], limits=ev["limits"]))
+        png = Path(figure(run, n=job.figure["n"], T=job.figure["T"], seed=ev["seed"], limits=ev["limits"], certificate=cert))
         record["files"]["figure"] = str(png.relative_to(run.path)) if png.is_relative_to(run.path) else str(png)
     with stage("html"):
         viewer = view(run, n=job.view["n"], T=job.view["T"], seed=ev["seed"], pick="success", open_server=False, limits=ev["limits"])

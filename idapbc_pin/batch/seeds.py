@@ -29,7 +29,6 @@ SEED_TABLE_START, SEED_TABLE_END = "<!-- seed-table:start -->", "<!-- seed-table
 MEDIAN_COLUMNS = (
     "nida_success_domain", "lqr_success_domain", "nida_success_half", "lqr_success_half",
     "nida_radius", "lqr_radius", "nida_settle_domain", "lqr_settle_domain",
-    "sublevel_coverage", "lqr_sublevel_coverage",
 )  # fmt: skip
 
 
@@ -90,8 +89,7 @@ def seed_median_markdown(summary_csvs) -> str:
     """The README's table of medians over training seeds, from several summary.csv files (seed 0 first).
 
     Per robot: NIDA-PBC's success on the training box and on its half, per seed and as a median,
-    next to LQR's (the same for every seed); the median ROA radius, settling time and certified share
-    of both; and on how many seeds NIDA-PBC applies the linear law outside the box.
+    next to LQR's (the same for every seed); the median ROA radius and settling time of both; and on how many seeds NIDA-PBC applies the linear law outside the box.
     """
     robots = seed_medians(summary_csvs)
     if not robots:
@@ -109,16 +107,16 @@ def seed_median_markdown(summary_csvs) -> str:
             f"{_per_seed(rows, 'nida_success_half')} → **{cell('nida_success_half')}** / {cell('lqr_success_half')}",
             f"{cell('nida_radius', _r)} / {cell('lqr_radius', _r)}",
             f"{cell('nida_settle_domain', _s)} / {cell('lqr_settle_domain', _s)}",
-            f"{cell('sublevel_coverage')} / {cell('lqr_sublevel_coverage')}",
             f"{entry['fallback']} of {len(rows)}" + (f"; a recovery law: {entry['recovery']} of {len(rows)}" if entry["recovery"] else ""),
         ])  # fmt: skip
     head = ["robot", "seeds", "success, domain: NIDA-PBC per seed → median / LQR", "success, half box: NIDA-PBC per seed → median / LQR",
-            "ROA radius: NIDA-PBC / LQR", "median settling: NIDA-PBC / LQR", "certified share: NIDA-PBC / LQR",
+            "ROA radius: NIDA-PBC / LQR", "median settling: NIDA-PBC / LQR",
             "seeds with the linear law (or a recovery law) outside the box"]  # fmt: skip
     files = ", ".join(f"`{Path(p).name}`" for p in summary_csvs)
     note = (
         f"Generated from {files} by `idapbc_pin.batch.seed_median_markdown`: the zoo trained with seeds 0, 1 and 2, every "
         "run judged on the same states (as in the zoo table above); per-seed success rates in %, then the median; LQR "
-        "does not depend on the training seed. Radius, settling and certified share are medians over the seeds."
+        "does not depend on the training seed. Radius and settling are medians over the seeds; the certified shares are in "
+        "the zoo table (seed 0)."
     )
     return _table(head, body) + "\n\n" + note + "\n"

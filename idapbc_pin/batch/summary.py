@@ -203,8 +203,7 @@ def zoo_table_markdown(summary_csv) -> str:
             _lead(r, "half"), f"{_r(r.get('nida_radius'))} / {_r(r.get('lqr_radius'))}",
             f"{_s(r['nida_settle_domain'])} / {_s(r['lqr_settle_domain'])}",
             f"{_s(r.get('nida_peak_half'), '')} / {_s(r.get('lqr_peak_half'), '')} (limit {r.get('limit') or '—'})", r["les"] or "—",
-            f"{_share(r['sublevel_coverage'])} / {_share(r.get('lqr_sublevel_coverage'))}"
-            + (f" ({_p(r['invariant_share'])} / {_p(r.get('lqr_invariant_share'))})" if r.get("invariant_share") not in ("", None) else ""),
+            _evidence(r),
             _outside(r), _dur(r["train_seconds"]),
         ])  # fmt: skip
     head = ["robot", "actuated", "success, domain: NIDA-PBC / LQR", "success, half box: NIDA-PBC / LQR",
@@ -229,6 +228,15 @@ def zoo_table_markdown(summary_csv) -> str:
         "replaces the networks outside an inner box (README, \"A recovery law for weak actuators\")."
     )
     return _table(head, body) + "\n\n" + note + "\n"
+
+
+def _evidence(r: dict) -> str:
+    """'certified / certified (invariant / invariant)' of a summary row; "—" for a summary made before
+    the verification box (its sublevel shares measured another, in-box test)."""
+    if r.get("invariant_share") in ("", None):
+        return "—"
+    return (f"{_share(r['sublevel_coverage'])} / {_share(r.get('lqr_sublevel_coverage'))} "
+            f"({_p(r['invariant_share'])} / {_p(r.get('lqr_invariant_share'))})")
 
 
 def _judge_phrase(judge: str) -> str:

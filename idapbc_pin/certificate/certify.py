@@ -115,7 +115,7 @@ def certify(
     n_hessian : subsample on which ∇²H_d is checked.
     settle : trajectories from near x* and as many from the half box for the settled equilibrium
         (0: skip the simulation).
-    settle_T, dt : their horizon and step, s (dt None: 2 ms, or shorter for a stiff loop, `judge_step`).
+    settle_T, dt : their horizon (and the invariant share's) and step, s (dt None: 2 ms, or shorter for a stiff loop, `judge_step`).
     write : write ``<run>/certificate.json`` (atomic) when given a run.
     limits : check the true loop with the system's effort limits (f + g·sat(u); the default);
         False lifts them.
@@ -147,7 +147,7 @@ def certify(
     region = certified_region(ctrl, TrueLoop(system, ctrl, bounds.bound), system.x_star, vbox, (lo, hi),
                               np.random.default_rng([seed, 1]), epsilon=share_bound, beta=beta)
     base = certify_baseline(system, vbox, (lo, hi), np.random.default_rng([seed, 1]), bounds.bound, share_bound, beta) if baseline and hasattr(system, "linearization") else None
-    invariant_share = box_invariant_share(system, _laws(ctrl, base, system), vbox, int(invariant), seed, limits=limits) if invariant > 0 else None
+    invariant_share = box_invariant_share(system, _laws(ctrl, base, system), vbox, int(invariant), seed, settle_T, limits) if invariant > 0 else None
     cert = Certificate(
         label=LABEL,
         system=str(getattr(system, "name", type(system).__name__)),

@@ -4,6 +4,10 @@
     clamped at 1e-6, violations (≤ 0) marked, bars where the state has left the training box X
     d) u(t)   e) H_d(t) with E = H_ε shaded and the entry time t_E of each trajectory dotted (also in c)
 
+and, given a `SliceData`, a last row: f) the slice through x* over (q₀, q₁) of the basin (grid
+states that reach x*) with the certified sets {H_d < c} and {δᵀSδ < c_LQR}, the training box and
+the verification box.
+
 Colours are the rollouts, line styles the components. No pyplot: nothing is shown.
 """
 
@@ -19,6 +23,7 @@ import numpy as np
 from .._io import atomic_write_bytes
 from ..errors import IdapbcError
 from .figure_data import FigureData
+from .slice import SliceData
 
 __all__ = ["MARGIN_FLOOR", "plot", "save_png"]
 
@@ -143,8 +148,38 @@ def _rollout_legend(fig, rows: Sequence[FigureData], colors) -> None:
     fig.legend(handles, labels, loc="outside lower center", ncols=len(handles), fontsize=9)
 
 
-def plot(rows: Sequence[FigureData]):
-    """Draw rows of the figure (5 panels each); returns the matplotlib `Figure` (Agg, not shown).
+def _pct(share) -> str:
+    if share is None:
+        return "—"
+    pct = 100 * float(share)
+    return f"{pct:.1f} %" if pct >= 1 or pct == 0 else f"{pct:.2g} %"
+
+
+def _slice_panel(ax, s: SliceData) -> None:
+    """f) the basin slice (gid ``basin``) with the certified sets' contours (gids ``certified:NIDA-PBC``,
+    ``certified:LQR``) and both boxes."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Rectangle
+
+    ax.pcolormesh(s.basin_a, s.basin_b, s.basin.astype(float), cmap="Greens", vmin=-0.3, vmax=1.6, shading="nearest", gid="basin")
+    handles = [Patch(color="#74c476", label="reaches x* (NIDA-PBC, limits applied)")]
+    for level, field, style, name in ((s.c, s.H, "-", "NIDA-PBC"), (s.c_lqr, s.V_lqr, "--", "LQR")):
+        if level is not None and np.nanmin(field) < level:
+            ax.contour(s.a, s.b, field, levels=[level], colors="k", linestyles=style, linewidths=1.6).set_gid(f"certified:{name}")
+            cert, inv = s.shares.get(name, (None, None))
+            handles.append(Line2D([], [], color="k", ls=style, label=f"certified {name}: {_pct(cert)} of the box (invariant {_pct(inv)})"))
+    for (lo, hi), color, label in ((s.train_box, "tab:blue", "training box"), (s.verification_box, "tab:red", "verification box")):
+        ax.add_patch(Rectangle(lo, hi[0] - lo[0], hi[1] - lo[1], fill=False, ec=color, lw=1.4))
+        handles.append(Line2D([], [], color=color, label=label))
+    ax.set_title("f) slice through x*: basin and certified sets", fontsize=10, loc="left")
+    ax.set_xlabel(s.names[0])
+    ax.set_ylabel(s.names[1])
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+
+
+def plot(rows: Sequence[FigureData], slice_data: SliceData | None = None):
+    """Draw rows of the figure (5 panels each) and, given `slice_data`, the slice row; returns the
+    matplotlib `Figure` (Agg, not shown).
 
     Every data line carries a gid ``"<panel>:<trajectory>:<component>"`` with panel in
     ``q, p, margin, u, H``; panel c) shows max(margin, 1e-6).
@@ -155,8 +190,14 @@ def plot(rows: Sequence[FigureData]):
     rows = list(rows)
     if not rows:
         raise IdapbcError("nothing to plot. Fix: pass at least one FigureData row.")
-    fig = Figure(figsize=(22, 4.5 * len(rows) + 0.6), layout="constrained")
-    subfigs = np.atleast_1d(fig.subfigures(len(rows), 1))
+    fig = Figure(figsize=(22, 4.5 * (len(rows) + (slice_data is not None)) + 0.6), layout="constrained")
+    subfigs = np.atleast_1d(fig.subfigures(len(rows) + (slice_data is not None), 1))
+    if slice_data is not None:
+        ax_slice = subfigs[-1].subplots(1, 3, width_ratios=[1.2, 1.3, 2.5])
+        ax_slice[1].axis("off")
+        ax_slice[2].axis("off")
+        _slice_panel(ax_slice[0], slice_data)
+        subfigs = subfigs[:-1]
     axes = np.stack([sf.subplots(1, 5) for sf in subfigs])
     for sf, d in zip(subfigs, rows):
         sf.suptitle(d.label, x=0.005, ha="left", fontsize=11, fontweight="bold")

@@ -25,6 +25,7 @@ from ..sim.states import initial_states, uniform_states
 from ..viewer import view
 from .figure_data import FigureData, figure_data
 from .plot import plot, save_png
+from .slice import basin_slice
 
 __all__ = ["DEFAULT_EXTRA_RHO", "extra_damping_rho", "figure", "report"]
 
@@ -75,8 +76,11 @@ def figure(
     seed: int = 0,
     extra: bool = True,
     limits: bool = True,
+    certificate: dict | None = None,
+    slice_n: int = 13,
 ) -> Path:
-    """The paper's figure for a run: a PNG with rows (trained ρ, extra damping) × panels a)–e).
+    """The paper's figure for a run: a PNG with rows (trained ρ, extra damping) × panels a)–e), and
+    given a certificate, a row with the slice through x* of the basin and the certified sets.
 
     Parameters
     ----------
@@ -88,6 +92,8 @@ def figure(
         `DEFAULT_EXTRA_RHO`, scaled to R_d); ``extra=False`` leaves the row out.
     path : where to write (default ``<run>/figure.png``); written atomically.
     limits : clip the input to the effort limits (the default); False lifts them.
+    certificate : ``Certificate.to_dict()`` (``certificate.json``): draws panel f), the slice over
+        (q₀, q₁) of the basin (`slice_n`² rollouts of T s) and of the certified sets (`basin_slice`).
 
     Returns
     -------
@@ -99,7 +105,8 @@ def figure(
             raise IdapbcError("figure of a bare controller needs path=... . Fix: pass path or a Run.")
         path = run_dir / "figure.png"
     rows = _figure_rows(ctrl, eps, x0, n, T, dt, seed, rho_extra, extra, limits)
-    return save_png(plot(rows), Path(path))
+    slice_data = basin_slice(ctrl, certificate, slice_n, T, limits) if certificate is not None and ctrl.system.nq >= 2 else None
+    return save_png(plot(rows, slice_data), Path(path))
 
 
 def report(
@@ -132,7 +139,8 @@ def report(
     cert = certify(run, n=n_certify, seed=seed, settle_T=T, limits=limits)
     ctrl, _, eps, _ = resolve_controller(run)
     rows = _figure_rows(ctrl, eps, None, n_figure, T, None, seed, rho_extra, True, limits)
-    fig_path = save_png(plot(rows), run.path / "figure.png")
+    slice_data = basin_slice(ctrl, cert.to_dict(), T=T, limits=limits) if ctrl.system.nq >= 2 else None
+    fig_path = save_png(plot(rows, slice_data), run.path / "figure.png")
     parts = [format_evaluation(evaluation), cert.table(), f"figure: {fig_path}"]
     if html:
         viewer = view(run, n=3, T=10.0, seed=seed, pick="success", open_server=False, limits=limits)
