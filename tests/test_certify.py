@@ -392,3 +392,13 @@ def test_certificate_json_of_a_run_has_the_baseline(tiny_run):
     assert 0.0 <= data["baseline"]["sublevel"]["covered_fraction"] <= 1.0
     assert data["baseline"]["controller"] == "LQR" and data["limits"]["applied"] is False
     assert set(data["invariant_share"]) == {"NIDA-PBC", "LQR"}
+
+
+def test_certify_in_two_processes_gives_the_certificate_of_one(tiny_run):
+    """The simulations (invariant shares, settling) run beside the sampled checks: the count of
+    processes changes the time, never a figure."""
+    kw = dict(n=500, n_hessian=50, settle=1, settle_T=3.0, invariant=6, write=False)
+    one, two = certify(tiny_run, workers=1, **kw).to_dict(), certify(tiny_run, workers=2, **kw).to_dict()
+    for d in (one, two):
+        d.pop("wall_time")
+    assert one == two and set(one["invariant_share"]) == {"NIDA-PBC", "LQR"}

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from .._io import write_json
+from .._parallel import JobPool
 from ..control.baseline import LQRController
 from ..errors import IdapbcError
 from ..run import resolve_run
@@ -102,6 +103,7 @@ def certify(
     share_bound: float = 1e-3,
     beta: float = 1e-6,
     invariant: int = 200,
+    workers: int = 1,
 ) -> Certificate:
     """Check the paper's conditions on `n` uniform samples of the training box.
 
@@ -126,6 +128,9 @@ def certify(
     share_bound, beta : the certified set's statement: the share of it where H_d does not
         decrease is ≤ share_bound (ε) with confidence ≥ 1 − β (N = ⌈ln(3/β)/ε⌉ fresh samples).
     invariant : training-box states simulated for the invariant share in V_box (0: skip).
+    workers : processes for the simulations (invariant shares, settling), which then run beside the
+        sampled checks; 1: all in this process, in turn; 0: one per core. The count changes the
+        time, never a result.
 
     Returns
     -------
@@ -139,15 +144,20 @@ def certify(
     rng = np.random.default_rng(seed)
     lo, hi = (_f64(b) for b in system.domain)
     bounds = input_limits(system, limits)
-    terms = closed_loop_terms(ctrl, lo + (hi - lo) * rng.random((n, system.n)), system, bounds.bound)
-    structural = check_structural(ctrl, system, terms, n_hessian)
-    les = local_stability(ctrl, system)
-    equilibrium = settled_equilibrium(ctrl, system, int(settle), settle_T, dt, seed, limits) if settle > 0 else None
     vbox = verification_box(system, scale, box)
-    region = certified_region(ctrl, TrueLoop(system, ctrl, bounds.bound), system.x_star, vbox, (lo, hi),
-                              np.random.default_rng([seed, 1]), epsilon=share_bound, beta=beta)
-    base = certify_baseline(system, vbox, (lo, hi), np.random.default_rng([seed, 1]), bounds.bound, share_bound, beta) if baseline and hasattr(system, "linearization") else None
-    invariant_share = box_invariant_share(system, _laws(ctrl, base, system), vbox, int(invariant), seed, settle_T, limits) if invariant > 0 else None
+    with_baseline = baseline and hasattr(system, "linearization")
+    with JobPool(workers) as pool:  # the simulations run beside the sampled checks
+        laws = {"NIDA-PBC": ctrl, **({"LQR": LQRController(system)} if with_baseline else {})}
+        shares = [pool.submit(_invariant_job, (system, {name: law}, vbox, int(invariant), seed, settle_T, limits)) for name, law in laws.items()] if invariant > 0 else []
+        settling = pool.submit(_settle_job, (ctrl, system, int(settle), settle_T, dt, seed, limits)) if settle > 0 else None
+        terms = closed_loop_terms(ctrl, lo + (hi - lo) * rng.random((n, system.n)), system, bounds.bound)
+        structural = check_structural(ctrl, system, terms, n_hessian)
+        les = local_stability(ctrl, system)
+        region = certified_region(ctrl, TrueLoop(system, ctrl, bounds.bound), system.x_star, vbox, (lo, hi),
+                                  np.random.default_rng([seed, 1]), epsilon=share_bound, beta=beta)
+        base = certify_baseline(system, vbox, (lo, hi), np.random.default_rng([seed, 1]), bounds.bound, share_bound, beta) if with_baseline else None
+        invariant_share = {k: v for f in shares for k, v in f.result().items()} or None
+        equilibrium = settling.result() if settling is not None else None
     cert = Certificate(
         label=LABEL,
         system=str(getattr(system, "name", type(system).__name__)),
@@ -178,6 +188,11 @@ def certify(
     return cert
 
 
-def _laws(ctrl, base, system) -> dict:
-    """The laws whose invariant share is measured: NIDA-PBC, and LQR when its certificate was made."""
-    return {"NIDA-PBC": ctrl} if base is None else {"NIDA-PBC": ctrl, "LQR": LQRController(system)}
+def _invariant_job(job) -> dict[str, float]:
+    """`box_invariant_share` of one law (a `JobPool` job: (system, {name: law}, box, n, seed, T, limits))."""
+    return box_invariant_share(*job)
+
+
+def _settle_job(job):
+    """`settled_equilibrium` (a `JobPool` job: (ctrl, system, n_each, T, dt, seed, limits))."""
+    return settled_equilibrium(*job)

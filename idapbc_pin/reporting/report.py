@@ -136,7 +136,7 @@ def report(
     """
     run = resolve_run(run)
     evaluation = evaluate_run(run, n=n_roa, T=T, seed=seed, limits=limits, radius=radius, workers=workers)
-    cert = certify(run, n=n_certify, seed=seed, settle_T=T, limits=limits)
+    cert = certify(run, n=n_certify, seed=seed, settle_T=T, limits=limits, workers=workers)
     ctrl, _, eps, _ = resolve_controller(run)
     rows = _figure_rows(ctrl, eps, None, n_figure, T, None, seed, rho_extra, True, limits)
     slice_data = basin_slice(ctrl, cert.to_dict(), T=T, limits=limits) if ctrl.system.nq >= 2 else None
