@@ -119,18 +119,16 @@ def certify(
         (0: skip the simulation).
     settle_T, dt : their horizon (and the invariant share's) and step, s (dt None: 2 ms, or shorter for a stiff loop, `judge_step`).
     write : write ``<run>/certificate.json`` (atomic) when given a run.
-    limits : check the true loop with the system's effort limits (f + g·sat(u); the default);
-        False lifts them.
+    limits : check the true loop with the effort limits (f + g·sat(u); the default); False lifts them.
     baseline : also certify the LQR baseline's δᵀSδ in the same verification box (skipped for a
         system without ``linearization``).
-    scale : the verification box V_box = x* + scale·(X − x*), angles capped at x* ± π
-        (`verification_box`).  box : an explicit V_box (lo, hi) ⊇ X instead.
+    scale, box : the verification box V_box = x* + scale·(X − x*), angles capped at x* ± π, or an
+        explicit one ⊇ X: (lo, hi), or {coordinate: (lo, hi)} over the scaled box (`verification_box`).
     share_bound, beta : the certified set's statement: the share of it where H_d does not
         decrease is ≤ share_bound (ε) with confidence ≥ 1 − β (N = ⌈ln(3/β)/ε⌉ fresh samples).
     invariant : training-box states simulated for the invariant share in V_box (0: skip).
-    workers : processes for the simulations (invariant shares, settling), which then run beside the
-        sampled checks; 1: all in this process, in turn; 0: one per core. The count changes the
-        time, never a result.
+    workers : processes for the simulations (invariant shares, settling), beside the sampled
+        checks; 1: this process, in turn; 0: one per core. The count changes the time, never a result.
 
     Returns
     -------
