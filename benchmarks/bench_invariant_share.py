@@ -1,11 +1,12 @@
 """Goal: measure how much of the training box any certificate of a trained loop could cover.
 
-A certified sublevel set lies inside the training box and V decreases on it, so every trajectory that
-starts in it never leaves the box and reaches x*. The share of box states whose trajectory does both
-(`ip.invariant_share`, simulated with the run's judge and effort limits) is therefore a ceiling on
-the certified share of H_d, of LQR's δᵀSδ, or of any other function, for that law and that box.
-This script prints it for NIDA-PBC and LQR next to the certified shares in the run's
-certificate.json (when `certify` or `report` wrote one), and for boxes 2× and 4× as wide.
+A certified sublevel set lies inside its verification box and V decreases on it, so every trajectory
+that starts in it never leaves that box and reaches x*. The share of training-box states whose
+trajectory does both (`ip.invariant_share`, simulated with the run's judge and effort limits) is
+therefore a ceiling on the certified share of H_d, of LQR's δᵀSδ, or of any other function, for that
+law and that box. This script prints it for the training box and boxes 2× and 4× as wide (`certify`'s
+default verification box is the 4× one, angles within ±π), for NIDA-PBC and LQR, next to the
+certified shares in the run's certificate.json (when `certify` or `report` wrote one).
 Run: python benchmarks/bench_invariant_share.py RUN [RUN ...] [--n 500] [--seed 5]
 """
 
