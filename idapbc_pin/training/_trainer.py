@@ -69,7 +69,7 @@ def start(system: System, config: TrainConfig, run_dir: Path, state: dict | None
         optimizer.load_state_dict(state["optimizer"])
         for group in optimizer.param_groups:  # a resume may lower the learning rate
             group["lr"] = config.lr
-        weights.weights = dict(state["weights"])
+        weights.weights = {**weights.weights, **state["weights"]}  # a term added since the checkpoint starts at 1 (zero unless trained)
         gen.set_state(state["generator"])
         trainer.epoch, trainer.best, trainer.eps_ema, trainer.elapsed = int(state["epoch"]), float(state["best"]), state["epsilon"], float(state["elapsed"])
         trainer.rollout_skipped = int(state.get("rollout_skipped", 0))  # absent from checkpoints of older runs
