@@ -51,6 +51,9 @@ def verification_box(system, scale: float = DEFAULT_SCALE, box=None) -> tuple[np
         raise IdapbcError(f"the verification box needs {lo.size} finite bounds on each side, got {vlo.tolist()} and {vhi.tolist()}. "
                           "Fix: give one LO:HI per state coordinate.")
     if np.any(vlo > lo + 1e-12) or np.any(vhi < hi - 1e-12):
-        raise IdapbcError(f"the verification box {vlo.tolist()} … {vhi.tolist()} does not contain the training box "
-                          f"{lo.tolist()} … {hi.tolist()}. Fix: widen it to hold the training box.")
+        def text(a, b):
+            return "[" + ", ".join(f"{x:.3g}:{y:.3g}" for x, y in zip(a, b)) + "]"
+
+        raise IdapbcError(f"the verification box {text(vlo, vhi)} does not contain the training box {text(lo, hi)}. "
+                          "Fix: widen it to hold the training box.")
     return vlo, vhi
