@@ -3,9 +3,9 @@
 Writes variants of the zoo URDFs (heavier or lighter links, continuous joints, more joint damping)
 into a temporary folder, loads each from its path as a user would (`load_system(path, actuated=…)`,
 so the default training box follows the variant's own masses), trains it with every default of the fast preset
-(`TrainConfig.fast(seed=…)`), then fits a recovery law as `train` does by default (`--recover auto`:
-where saturated LQR fails from ≥ 10 of 100 half-box states, 15-60 min per robot; `--recover never`
-judges the IDA-PBC law alone, as this benchmark did before that default) and judges NIDA-PBC and LQR (Q = I, R = I) with MuJoCo from the same
+(`TrainConfig.fast(seed=…)`), without a recovery law as `train` by default (`--recover never`;
+`--recover auto` fits one where saturated LQR fails from ≥ 10 of 100 half-box states, 15-60 min per
+robot) and judges NIDA-PBC and LQR (Q = I, R = I) with MuJoCo from the same
 uniform states (their own seed, not the evaluation's seed 0), with the URDF's effort limits on both,
 and prints NIDA-PBC's lead with its 95 % interval (`idapbc_pin.evaluation.paired`).
 Run: python benchmarks/bench_outside_zoo.py [--n 200] [--seed 0] [--judge-seed 1] [--recover auto|always|never] [--only NAME ...]
@@ -91,7 +91,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="training seed")
     parser.add_argument("--judge-seed", type=int, default=1, help="seed of the judged states")
     parser.add_argument("--only", nargs="+", default=None, help=f"variants to run (default all: {', '.join(v.name for v in VARIANTS)})")
-    parser.add_argument("--recover", choices=RECOVER_MODES, default="auto", help="a recovery law after training, as `train --recover` (default auto)")
+    parser.add_argument("--recover", choices=RECOVER_MODES, default="never", help="a recovery law after training, as `train --recover` (default never, as train's)")
     parser.add_argument("--out", default=None, help="where to write URDFs and runs (default: a temporary folder)")
     args = parser.parse_args()
     torch.set_num_threads(1)
