@@ -210,7 +210,7 @@ def certified_region(
             continue
         out = V >= core
         worst = np.argsort(-(Vd[out] / np.maximum(V[out], 1e-300)))[:n_starts]
-        cx, cV = counterexamples(fn, loop, x[out][worst], c, core, x_star, vlo, vhi)
+        _, cV = counterexamples(fn, loop, x[out][worst], c, core, x_star, vlo, vhi)
         if cV.size:
             c_viol = min(c_viol, float(cV.min()))
             c, n_cex = float(cV.min()), n_cex + int(cV.size)
