@@ -15,6 +15,7 @@ import math
 from pathlib import Path
 
 from .._io import atomic_write_bytes
+from ..certificate.result import share_text
 from ..errors import IdapbcError
 from ..training.loss import TERMS
 from ._files import read_json_or_none
@@ -80,14 +81,6 @@ def read_summary(summary_csv) -> list[dict]:
 def _p(v: str) -> str:
     """A fraction as a percentage."""
     return "—" if v in ("", None) else f"{100 * float(v):.1f} %"
-
-
-def _share(v: str) -> str:
-    """A small share as a percentage with two significant digits below 1 %."""
-    if v in ("", None):
-        return "—"
-    pct = 100 * float(v)
-    return f"{pct:.1f} %" if pct >= 1 or pct == 0 else f"{pct:.2g} %"
 
 
 def _s(v: str, unit: str = " s") -> str:
@@ -235,7 +228,7 @@ def _evidence(r: dict) -> str:
     the verification box (its sublevel shares measured another, in-box test)."""
     if r.get("invariant_share") in ("", None):
         return "—"
-    return (f"{_share(r['sublevel_coverage'])} / {_share(r.get('lqr_sublevel_coverage'))} "
+    return (f"{share_text(r['sublevel_coverage'], 2)} / {share_text(r.get('lqr_sublevel_coverage'), 2)} "
             f"({_p(r['invariant_share'])} / {_p(r.get('lqr_invariant_share'))})")
 
 

@@ -8,16 +8,19 @@ from dataclasses import dataclass
 
 from .._io import to_json
 
-__all__ = ["LABEL", "BaselineCertificate", "Certificate", "Confidence", "Dissipation", "Equilibrium", "LocalStability", "Region", "Structural"]
+__all__ = ["LABEL", "share_text", "BaselineCertificate", "Certificate", "Confidence", "Dissipation", "Equilibrium", "LocalStability", "Region", "Structural"]
 
 #: How the certificate labels itself in its table and JSON.
 LABEL = "sampled certificate, not a proof"
 
 
-def _pct(share: float) -> str:
-    """A share of a box as a percentage with enough digits for small sets: '12.3 %', '0.0123 %'."""
-    pct = 100 * share
-    return f"{pct:.1f} %" if pct >= 1 else f"{pct:.3g} %"
+def share_text(share, digits: int = 3) -> str:
+    """A share of a box as a percentage, with `digits` significant digits below 1 %: '12.3 %',
+    '0.0123 %', '0.0 %'; '—' for None or '' (a summary cell without a value)."""
+    if share in ("", None):
+        return "—"
+    pct = 100 * float(share)
+    return f"{pct:.1f} %" if pct >= 1 or pct == 0 else f"{pct:.{digits}g} %"
 
 
 @dataclass(frozen=True)
@@ -222,7 +225,7 @@ class Certificate:
                         f"{e.n_settled}/{n_sim} settled, ‖x̄ − x*‖ = {e.offset:.2e} (near x*), max {e.max_offset:.2e}"))
         sl, conf = self.sublevel, self.sublevel.confidence
         out.append(("certified set {H_d < c} beyond the core", sl.certified,
-                    f"c = {sl.c:.4g} (core {sl.core:.3g}), {_pct(sl.covered_fraction)} of the training box; "
+                    f"c = {sl.c:.4g} (core {sl.core:.3g}), {share_text(sl.covered_fraction)} of the training box; "
                     f"{conf.samples} fresh samples {'passed' if conf.passed else 'did not pass'} (ε = {conf.epsilon:g}, β = {conf.beta:g})"))
         return out
 
@@ -253,13 +256,13 @@ class Certificate:
     def _shares_line(self) -> str:
         """Both certified shares and invariant shares side by side (NIDA-PBC's H_d, LQR's δᵀSδ)."""
         inv = self.invariant_share or {}
-        line = f"certified share of the training box: NIDA-PBC {{H_d < {self.sublevel.c:.3g}}} {_pct(self.sublevel.covered_fraction)}"
+        line = f"certified share of the training box: NIDA-PBC {{H_d < {self.sublevel.c:.3g}}} {share_text(self.sublevel.covered_fraction)}"
         if self.baseline is not None:
             b = self.baseline.sublevel
-            line += f"  |  LQR {{δᵀSδ < {b.c:.3g}}} {_pct(b.covered_fraction)}"
+            line += f"  |  LQR {{δᵀSδ < {b.c:.3g}}} {share_text(b.covered_fraction)}"
         if inv:
             line += "\ninvariant share (reach x* without leaving V_box; the ceiling of any certified set): " + ", ".join(
-                f"{name} {_pct(v)}" for name, v in inv.items())
+                f"{name} {share_text(v)}" for name, v in inv.items())
         return line
 
     def table(self) -> str:

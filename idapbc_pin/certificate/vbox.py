@@ -25,6 +25,7 @@ from .terms import _f64, hessians
 
 __all__ = ["DEFAULT_SCALE", "SetFrame", "radial_boundary", "sample_set", "set_frame", "verification_box", "zero_failure_samples"]
 
+
 def zero_failure_samples(epsilon: float, beta: float) -> int:
     """N = ⌈ln(1/β)/ε⌉: if N i.i.d. samples of a set, drawn after the set is fixed, all pass a test,
     the share of the set where it fails is ≤ ε with confidence ≥ 1 − β, since (1 − ε)^N ≤ e^{−εN} ≤ β

@@ -36,8 +36,11 @@ def stays_inside(traj: Trajectory, system, scale: float = 1.0, box=None) -> np.n
     if not scale > 0:
         raise ValueError(f"scale must be > 0, got {scale}")
     x_star = np.asarray(system.x_star, float)
-    bounds = system.domain if box is None else box
-    lo, hi = ((1.0 if box is not None else scale) * (np.asarray(b, float) - x_star) for b in bounds)
+    if box is None:
+        box, x_scale = system.domain, scale
+    else:
+        x_scale = 1.0
+    lo, hi = (x_scale * (np.asarray(b, float) - x_star) for b in box)
     d = wrap_angles(traj.x - x_star, np.asarray(system.angle_mask))
     return np.all((d >= lo - 1e-12) & (d <= hi + 1e-12), axis=(1, 2)) & ~traj.diverged
 

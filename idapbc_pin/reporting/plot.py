@@ -21,6 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from .._io import atomic_write_bytes
+from ..certificate.result import share_text
 from ..errors import IdapbcError
 from .figure_data import FigureData
 from .slice import SliceData
@@ -148,13 +149,6 @@ def _rollout_legend(fig, rows: Sequence[FigureData], colors) -> None:
     fig.legend(handles, labels, loc="outside lower center", ncols=len(handles), fontsize=9)
 
 
-def _pct(share) -> str:
-    if share is None:
-        return "—"
-    pct = 100 * float(share)
-    return f"{pct:.1f} %" if pct >= 1 or pct == 0 else f"{pct:.2g} %"
-
-
 def _slice_panel(ax, s: SliceData) -> None:
     """f) the basin slice (gid ``basin``) with the certified sets' contours (gids ``certified:NIDA-PBC``,
     ``certified:LQR``) and both boxes."""
@@ -167,7 +161,7 @@ def _slice_panel(ax, s: SliceData) -> None:
         if level is not None and np.nanmin(field) < level:
             ax.contour(s.a, s.b, field, levels=[level], colors="k", linestyles=style, linewidths=1.6).set_gid(f"certified:{name}")
             cert, inv = s.shares.get(name, (None, None))
-            handles.append(Line2D([], [], color="k", ls=style, label=f"certified {name}: {_pct(cert)} of the box (invariant {_pct(inv)})"))
+            handles.append(Line2D([], [], color="k", ls=style, label=f"certified {name}: {share_text(cert, 2)} of the box (invariant {share_text(inv, 2)})"))
     for (lo, hi), color, label in ((s.train_box, "tab:blue", "training box"), (s.verification_box, "tab:red", "verification box")):
         ax.add_patch(Rectangle(lo, hi[0] - lo[0], hi[1] - lo[1], fill=False, ec=color, lw=1.4))
         handles.append(Line2D([], [], color=color, label=label))
