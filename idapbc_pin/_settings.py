@@ -33,8 +33,9 @@ def read_table(path: str | Path, table: str, what: str, fix: str) -> dict:
 
 def typed_values(cls, data: dict, what: str) -> dict:
     """`data`'s values checked against the types of `cls`'s field defaults (int, float, bool, str,
-    tuples of numbers, nested dataclasses given as tables); -> keyword arguments for `cls`. An
-    unknown key or a value of the wrong type raises a one-line `IdapbcError` naming it."""
+    tuples of numbers, nested dataclasses given as tables; a None default takes a str); -> keyword
+    arguments for `cls`. An unknown key or a value of the wrong type raises a one-line `IdapbcError`
+    naming it."""
     names = [f.name for f in dataclasses.fields(cls)]
     unknown = sorted(set(data) - set(names))
     if unknown:
@@ -53,10 +54,13 @@ def typed_values(cls, data: dict, what: str) -> dict:
             value = tuple(float(v) for v in value) if ok else value
         elif isinstance(ref, float) and isinstance(value, int) and not isinstance(value, bool):
             value, ok = float(value), True
+        elif ref is None:  # an optional text setting (None: unset), such as RecoveryConfig.ray
+            ok = isinstance(value, str)
         else:
             ok = isinstance(value, type(ref)) and (isinstance(ref, bool) or not isinstance(value, bool))
         if not ok:
-            raise IdapbcError(f"{what} key '{key}' must be {type(ref).__name__}, got {value!r}. Fix: change that value.")
+            kind = "str" if ref is None else type(ref).__name__
+            raise IdapbcError(f"{what} key '{key}' must be {kind}, got {value!r}. Fix: change that value.")
         out[key] = value
     return out
 

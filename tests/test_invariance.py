@@ -17,6 +17,7 @@ from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.evaluation.invariance import box_invariant_share, invariant_share, stays_inside
 from idapbc_pin.sim.metrics import success
+from idapbc_pin.sim.states import uniform_states
 
 from .conftest import sample_domain
 
@@ -85,3 +86,18 @@ def test_a_scale_that_is_not_positive_is_refused():
     traj = simulate(system, LQRController(system), system.x_star[None], T=0.1)
     with pytest.raises(ValueError, match="scale must be > 0"):
         stays_inside(traj, system, scale=0.0)
+
+
+def test_rollouts_that_leave_the_box_or_converge_stop_with_the_verdicts_of_the_full_horizon():
+    """`box_invariant_share` stops a row once it leaves the box, rests or enters the terminal set: the
+    same share as full 20 s rollouts of the same states."""
+    system = ip.load_system("furuta")  # its arm may spin out of any box and keep spinning
+    lqr = LQRController(system)
+    box = verification_box(system, scale=2.0)
+    x0 = uniform_states(system, 24, "domain", 5)
+    full = simulate(system, lqr, x0, T=20.0)
+    expected = success(full, system) & stays_inside(full, system, box=box)
+    cut = simulate(system, lqr, x0, T=20.0, stop_settled=True, stop_converged=True, stop_outside=box)
+    np.testing.assert_array_equal(success(cut, system) & stays_inside(cut, system, box=box), expected)
+    assert 0 < expected.sum() < len(x0) and not stays_inside(cut, system, box=box).all()
+    assert box_invariant_share(system, {"LQR": lqr}, box, n=24, seed=5)["LQR"] == pytest.approx(expected.mean())

@@ -406,6 +406,7 @@ def test_roa_runs_every_controller_from_the_same_states(systems):
         box="half",
         T=10.0,
         dt=0.02,
+        stop_converged=False,  # else the first calls are the terminal set's probes near x*
     )
     np.testing.assert_allclose(calls["lqr"], calls["open"])
     np.testing.assert_allclose(calls["lqr"], result.x0, atol=1e-12)

@@ -5,8 +5,9 @@ job, so N workers use N cores and the same seeds give the same results whichever
 worker that dies (killed, out of memory, segfault) fails its job only: the driver writes that
 job's ``job.json``. A driver that dies on its own (SIGTERM or SIGKILL to it alone) takes its local
 workers with it: each interrupts its job as Ctrl-C would (`idapbc_pin._parallel.stop_with_parent`).
-Ray is an optional extra; a remote node that cannot see the batch directory ships its job directory
-back as an archive (`idapbc_pin.batch._shipping`).
+Ray is an optional extra, imported and started or joined as for every other fan-out
+(`idapbc_pin._parallel.import_ray`, `init_ray`); a remote node that cannot see the batch directory
+ships its job directory back as an archive (`idapbc_pin.batch._shipping`).
 """
 
 from __future__ import annotations
@@ -18,8 +19,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 from .._io import write_json
-from .._parallel import THREAD_ENV, available_cores, stop_with_parent, thread_env
-from ..errors import IdapbcError
+from .._parallel import THREAD_ENV, available_cores, import_ray, init_ray, stop_with_parent, thread_env
 from ._shipping import unpack_dir
 from .job import run_job
 from .pipeline import Job
@@ -96,40 +96,13 @@ def _run_pool(jobs: list[Job], batch_dir: Path, tracker: Tracker, workers: int) 
                 pool.shutdown(wait=True, cancel_futures=True)
 
 
-def import_ray():
-    """The `ray` module, or an `IdapbcError` with the install hint when it is not installed."""
-    try:
-        import ray
-    except ModuleNotFoundError as exc:
-        if exc.name and exc.name.split(".")[0] == "ray":
-            raise IdapbcError("Ray is not installed. Fix: pip install 'idapbc-pin[ray]'") from None
-        raise
-    return ray
-
-
-def _init_ray(ray, address: str, workers: int | None) -> None:
-    """Start a local Ray instance (``"auto"`` without ``$RAY_ADDRESS``) or join a cluster."""
-    try:
-        if address == "auto" and not os.environ.get("RAY_ADDRESS"):
-            ray.init(address="local", num_cpus=workers or available_cores(), include_dashboard=False, log_to_driver=False)
-        else:  # a cluster: the given address, or $RAY_ADDRESS (set by `ray job submit`) for "auto"
-            ray.init(address=None if address == "auto" else address, log_to_driver=False)
-    except (ConnectionError, RuntimeError, ValueError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise IdapbcError(
-            f"cannot start or join Ray at '{address}': {first}. Fix: check the address with `ray status` on the head node "
-            "(HOST:6379 from a node, ray://HOST:10001 from outside); a cluster with token authentication (the default of recent "
-            "`ray start`) also needs RAY_AUTH_MODE=token and its token on this machine."
-        ) from None
-
-
 def _run_ray(jobs: list[Job], batch_dir: Path, tracker: Tracker, address: str, workers: int | None, token: str) -> None:
     """Ray tasks (num_cpus=1 each) running the same `run_job`; results that a remote node wrote
     into its own temporary folder come back as an archive and are unpacked here."""
     ray = import_ray()
     started_here = not ray.is_initialized()
     if started_here:
-        _init_ray(ray, address, workers)
+        init_ray(ray, address, workers)
     try:
         limit = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         remote = ray.remote(num_cpus=1, max_retries=0)(run_job)

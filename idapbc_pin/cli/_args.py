@@ -9,13 +9,14 @@ import inspect
 import json
 from dataclasses import fields, is_dataclass
 
+from .._parallel import import_ray
 from ..errors import IdapbcError
 from ..run import CHECKPOINTS, DEFAULT_CHECKPOINT
 
 __all__ = ["add_box_argument", "add_command", "add_checkpoint_argument", "add_effort_argument", "add_horizon_argument", "add_limits_argument",
-           "add_radius_argument", "add_rho_argument", "add_run_argument", "add_seed_argument", "add_states_argument",
+           "add_radius_argument", "add_ray_argument", "add_rho_argument", "add_run_argument", "add_seed_argument", "add_states_argument",
            "add_system_arguments", "add_workers_argument", "add_x0_argument", "config_keys", "key_range", "key_value",
-           "library_default", "positive_int", "system_kwargs", "workers_of", "x0_of"]
+           "library_default", "positive_int", "ray_of", "system_kwargs", "workers_of", "x0_of"]
 
 SOURCE_HELP = "URDF path, zoo name, built-in name (paper_*) or erd:<example-robot-data URDF stem>"
 
@@ -27,12 +28,15 @@ def library_default(function, name: str):
 
 def config_keys(config, table: str) -> str:
     """'key = default, …' of a config dataclass instance, as TOML values (a nested dataclass as its
-    own ``[table.name]`` table): the keys a config file may set, for help text."""
+    own ``[table.name]`` table; an unset optional one as ``key (unset)``): the keys a config file
+    may set, for help text."""
     flat, nested = [], []
     for f in fields(config):
         value = getattr(config, f.name)
         if is_dataclass(value):
             nested.append(f"[{table}.{f.name}]: {config_keys(value, f'{table}.{f.name}')}")
+        elif value is None:
+            flat.append(f"{f.name} (unset)")
         else:
             flat.append(f"{f.name} = {json.dumps(list(value) if isinstance(value, tuple) else value)}")
     return "; ".join([", ".join(flat), *nested])
@@ -134,6 +138,20 @@ def workers_of(args: argparse.Namespace) -> int:
     if args.workers < 0:
         raise IdapbcError(f"--workers must be ≥ 0, got {args.workers}. Fix: 0 (one process per core) or a count such as 2.")
     return args.workers
+
+
+def add_ray_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """--ray auto|ADDRESS: run `what` as Ray tasks (None when not given; `ray_of`)."""
+    parser.add_argument("--ray", metavar="auto|ADDRESS", help=f"run {what} as Ray tasks: 'auto' starts a local Ray instance ($RAY_ADDRESS's cluster when set), "
+                        "ADDRESS joins a cluster (HOST:6379 on a node, ray://HOST:10001 from outside); pip install 'idapbc-pin[ray]'")
+
+
+def ray_of(args: argparse.Namespace) -> str | None:
+    """``args.ray`` (None when not given); where Ray is not installed, a one-line `IdapbcError` with
+    the install hint before anything runs."""
+    if args.ray is not None:
+        import_ray()
+    return args.ray
 
 
 # ------------------------------------------------------------------------------------ the states

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._args import add_command
+from ._args import add_command, add_ray_argument
 
 __all__ = ["add_batch_command"]
 
@@ -32,8 +32,7 @@ def add_batch_command(subparsers) -> argparse.ArgumentParser:
     p = add_command(subparsers, "batch", _cmd_batch, help="train, evaluate (ROA vs LQR), certify and replay every job of a pipeline file; one summary")
     p.add_argument("pipeline", metavar="PIPELINE", help="pipeline TOML file (pipelines/zoo.toml, pipelines/paper.toml, ...)")
     p.add_argument("--workers", type=int, metavar="N", help="jobs at a time (default: one per core); 1 runs them in this process")
-    p.add_argument("--ray", metavar="auto|ADDRESS", help="run the jobs as Ray tasks: 'auto' starts a local Ray instance ($RAY_ADDRESS's cluster when set), "
-                   "ADDRESS joins a cluster (HOST:6379 on a node, ray://HOST:10001 from outside); pip install 'idapbc-pin[ray]'")
+    add_ray_argument(p, "the jobs")
     p.add_argument("--only", nargs="+", action="extend", metavar="NAME", help="run only these jobs")
     p.add_argument("--smoke", action="store_true", help="shrink every job (few epochs, tiny networks, small ROA) for a quick end-to-end check")
     p.add_argument("--out", metavar="DIR", help="batch directory (default: resume the latest unfinished runs/batch-* of this pipeline, else a new runs/batch-<stamp>)")

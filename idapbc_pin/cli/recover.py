@@ -5,15 +5,16 @@ from __future__ import annotations
 import argparse
 
 from ..recovery.stage import RecoveryConfig, recover, refit, regate
-from ._args import add_command, add_run_argument, add_workers_argument, config_keys, workers_of
+from ._args import add_command, add_ray_argument, add_run_argument, add_workers_argument, config_keys, ray_of, workers_of
 
 __all__ = ["add_recover_command"]
 
 
 def _config(args: argparse.Namespace) -> RecoveryConfig:
-    """The --config file's settings (or the defaults), with --workers when given."""
+    """The --config file's settings (or the defaults), with --workers and --ray when given."""
     config = RecoveryConfig.from_file(args.config) if args.config else RecoveryConfig()
-    return config if args.workers is None else config.replace(workers=workers_of(args))
+    config = config if args.workers is None else config.replace(workers=workers_of(args))
+    return config if args.ray is None else config.replace(ray=ray_of(args))
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
@@ -50,6 +51,7 @@ def add_recover_command(subparsers) -> argparse.ArgumentParser:
                    help="TOML file with a [recovery] table (or top-level keys; a [recovery.plan] table for the plans' search) or JSON: "
                         "any RecoveryConfig field (starts, teacher, margin, fits, width, steps, form, …; listed below)")
     add_workers_argument(p, "searching plans, fitting and running the gate's simulations (overrides the file's workers)")
+    add_ray_argument(p, "the plans, fits and gate simulations")
     again = p.add_mutually_exclusive_group()
     again.add_argument("--regate", action="store_true",
                        help="judge the law the last recover fitted again (kept or refused), with the gate's settings of the config; no plans, no fit: minutes")

@@ -9,7 +9,8 @@ from ..config import FIELD_HELP, TrainConfig
 from ..errors import IdapbcError
 from ..recovery.config import RecoveryConfig
 from ..recovery.trigger import RECOVER_TIME
-from ._args import add_limits_argument, add_seed_argument, add_system_arguments, add_workers_argument, config_keys, system_kwargs, workers_of
+from ._args import (add_limits_argument, add_ray_argument, add_seed_argument, add_system_arguments, add_workers_argument, config_keys, ray_of,
+                    system_kwargs, workers_of)
 
 __all__ = ["add_model_commands", "add_train_command"]
 
@@ -44,9 +45,13 @@ FLAGS = ("epochs", "lr", "device")
 
 
 def _recovery_config(args: argparse.Namespace) -> RecoveryConfig:
-    """The recovery stage's settings: the --recover-config file's (or the defaults), with --workers when given."""
+    """The recovery stage's settings: the --recover-config file's (or the defaults), with --workers and
+    --ray when given (--ray only with --recover auto|always)."""
     config = RecoveryConfig.from_file(args.recover_config) if args.recover_config else RecoveryConfig()
-    return config if args.workers is None else config.replace(workers=workers_of(args))
+    config = config if args.workers is None else config.replace(workers=workers_of(args))
+    if args.ray is not None and args.recover == "never":
+        raise IdapbcError("--ray runs the recovery stage as Ray tasks, which train runs only with --recover. Fix: add --recover auto (or always), or drop --ray.")
+    return config if args.ray is None else config.replace(ray=ray_of(args))
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
@@ -162,4 +167,5 @@ def add_train_command(sub) -> None:
                         "--recover alone: always")
     p.add_argument("--recover-config", metavar="FILE", dest="recover_config",
                    help="the recovery stage's settings: a TOML file with a [recovery] table, as `idapbc-pin recover --config` reads")
+    add_ray_argument(p, "the recovery stage (with --recover)")
     p.set_defaults(func=_cmd_train)

@@ -141,7 +141,7 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
     names, nb = list(controllers), len(boxes)
     states = {box: roa_states(system, n, box, seed) for box in boxes}
     known_box = {box: scale for scale, box in ((1.0, "domain"), (0.5, "half")) if box in boxes}
-    ready = {(i, j): (run_score_job, score_job(system, name, controllers[name], states[box], T, dt, limits=limits))
+    ready = {(i, j): (run_score_job, score_job(system, name, controllers[name], states[box], T, dt, limits=limits, stop_converged=True))
              for i, name in enumerate(names) for j, box in enumerate(boxes)}
     futures, in_flight = {}, {}
     for i, name in enumerate(names):

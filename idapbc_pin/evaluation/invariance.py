@@ -90,7 +90,7 @@ def invariant_share(
     for name, ctrl in controllers.items():
         ok, ins = [], []
         for start in range(0, n, chunk):
-            traj = simulate(system, ctrl, x0[start : start + chunk], T=T, limits=limits)
+            traj = simulate(system, ctrl, x0[start : start + chunk], T=T, limits=limits, stop_converged=True)
             good = success(traj, system)
             ok.append(good)
             ins.append(np.stack([good & stays_inside(traj, system, s) for s in scales], axis=1))
@@ -103,10 +103,11 @@ def box_invariant_share(system, controllers: Mapping[str, object], box, n: int =
                         T: float = 20.0, limits: bool = True) -> dict[str, float]:
     """{controller: share of `n` uniform domain states whose trajectory succeeds without leaving
     `box` = (lo, hi)} (the ceiling of any certified set in that box). Rows stop once they rest in
-    the success box (`simulate(stop_settled=True)`): the verdicts are those of the full horizon."""
+    the success box or enter the terminal set, or once they leave `box` (`simulate`): the verdicts
+    are those of the full horizon."""
     x0 = uniform_states(system, n, "domain", seed)
     shares = {}
     for name, ctrl in controllers.items():
-        traj = simulate(system, ctrl, x0, T=T, limits=limits, stop_settled=True)
+        traj = simulate(system, ctrl, x0, T=T, limits=limits, stop_settled=True, stop_converged=True, stop_outside=box)
         shares[name] = float(np.mean(success(traj, system) & stays_inside(traj, system, box=box)))
     return shares

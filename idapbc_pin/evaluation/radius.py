@@ -164,7 +164,7 @@ class _Prober:
         for end in sorted({min(first, self.n), self.n}):
             rows = order[done:end]
             # a batch stops once enough of its states rest for the probe to pass: its count is then a lower bound
-            res = score(self.system, self.name, self.ctrl, x0[rows], **self.sim_kw, stop_settled=True, enough_settled=self.need - ok)[0]
+            res = score(self.system, self.name, self.ctrl, x0[rows], **self.sim_kw, stop_settled=True, stop_converged=True, enough_settled=self.need - ok)[0]
             failed[rows] = ~res.success
             ok, done = ok + int(np.count_nonzero(res.success)), end
             if done - ok > self.n - self.need:  # too many failures already: decided

@@ -166,19 +166,21 @@ def score(
     hold: bool = True,
     threads: int | None = None,
     stop_settled: bool = False,
+    stop_converged: bool = False,
     enough_settled: int | None = None,
 ) -> tuple[ControllerScore, Trajectory]:
     """Simulate one controller from x0 (N, n) on `system` (the judge) and score the rollouts.
 
-    T, dt, method, saturation, limits, hold, threads, stop_settled, enough_settled : passed to
-    `simulate` (limits: the system's effort limits apply unless False; stop_settled: for callers
-    that read `success` only, since a row's settling time and peak input then stop where the row
-    stopped; enough_settled: for callers that read the count of successes only). Returns the score
-    and the rollouts.
+    T, dt, method, saturation, limits, hold, threads, stop_settled, stop_converged, enough_settled :
+    passed to `simulate` (limits: the system's effort limits apply unless False; stop_settled: for
+    callers that read `success` only, since a row's settling time and peak input then stop where
+    the row stopped; stop_converged: the scores are the full horizon's, the rollouts of converged
+    rows end where they stopped; enough_settled: for callers that read the count of successes
+    only). Returns the score and the rollouts.
     """
     t0 = time.perf_counter()
     traj = simulate(system, ctrl, x0, T=T, dt=dt, method=method, saturation=saturation, limits=limits, hold=hold, threads=threads,
-                    stop_settled=stop_settled, enough_settled=enough_settled)
+                    stop_settled=stop_settled, stop_converged=stop_converged, enough_settled=enough_settled)
     wall = time.perf_counter() - t0
     result = ControllerScore(
         name=name,
@@ -208,6 +210,7 @@ def roa(
     hold: bool = True,
     threads: int | None = None,
     workers: int = 1,
+    stop_converged: bool = True,
 ) -> RoaResult:
     """Region-of-attraction estimate: every controller from the very same `n` uniform states.
 
@@ -224,6 +227,9 @@ def roa(
     workers : processes simulating the controllers side by side (1: in this process, 0: one per
         core; `idapbc_pin._parallel.process_map`); the count changes the time, never a score (a score's
         ``wall_time`` is its own simulation's).
+    stop_converged : a rollout that enters its loop's terminal set stops there, its verdict known
+        (`simulate`); False integrates every state for the whole horizon. The laws must not depend
+        on time.
 
     Returns
     -------
@@ -231,7 +237,7 @@ def roa(
     """
     x0 = roa_states(system, n, box, seed)
     dt = judge_step(system, controllers, T, dt)
-    kw = dict(method=method, saturation=saturation, limits=limits, hold=hold, threads=threads)
+    kw = dict(method=method, saturation=saturation, limits=limits, hold=hold, threads=threads, stop_converged=stop_converged)
     jobs = [score_job(system, name, ctrl, x0, T, dt, **kw) for name, ctrl in controllers.items()]
     scores = {s.name: s for s in process_map(run_score_job, jobs, workers)}
     return roa_result(system, box, x0, T, dt, seed, scores, limits=limits, saturation=saturation, hold=hold)

@@ -60,6 +60,8 @@ class RecoveryConfig(Settings):
     workers : processes that search the plans, fit the laws and run the gate's simulations (0: one
         per available core, at most 16). The count changes the time only, never a plan, label, law
         or verdict.
+    ray : None (`workers` processes), or run that work as Ray tasks: ``"auto"`` (a local instance,
+        or $RAY_ADDRESS's cluster) or a cluster's address; the back-end changes the time only.
     plan : the cross-entropy search of each plan (`plans.PlanSettings`).
     stop_when_lost : end the DAgger rounds, before labelling, when the first fit brings none of the
         first round's starts to x* and fewer than half of them end in the near box (`ends_near`; the
@@ -90,6 +92,7 @@ class RecoveryConfig(Settings):
     half_loss: int = 2
     confirm_states: int = 200
     workers: int = 0
+    ray: str | None = None
     plan: PlanSettings = field(default_factory=PlanSettings)
     stop_when_lost: bool = True
     levels: tuple = (0.1, 0.25, 0.5)
@@ -105,6 +108,7 @@ class RecoveryConfig(Settings):
             (self.start_box in START_BOXES, f"start_box must be one of {', '.join(START_BOXES)}"),
             (self.teacher in TEACHERS, f"teacher must be one of {', '.join(TEACHERS)}"),
             (self.form in FORMS, f"form must be one of {', '.join(FORMS)}"),
+            (self.ray is None or (isinstance(self.ray, str) and self.ray.strip() != ""), "ray must be \"auto\" or a cluster address"),
         ]
         for ok, what in checks:
             if not ok:

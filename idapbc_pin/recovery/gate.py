@@ -84,7 +84,7 @@ def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig, progress: bool =
 
 def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) -> tuple[int, dict]:
     """`choose_inner` for each of several fitted `laws` on the same gate states (the run's law
-    simulated once, every law in `config.workers` processes; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
+    simulated once, every law in `config.workers` processes or Ray tasks, `config.ray`; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
     (ties: the first), or when it keeps none the one with the most successes at its best candidate
     (the law ``recovery-refused.npz`` then holds, so that `regate` judges the most promising fit). With more than one law the gate also holds
     "fits": each law's successes at its own chosen r, "fit": k, and "fit_gates": every law's own gate
@@ -157,7 +157,7 @@ class _Confirmation:
 def _counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, config, progress: bool) -> list[tuple[int, int, int]]:
     """(half box, training box, near box) successes of each law of `ctrls` from the gate's states x0."""
     counts, start = [], time.perf_counter()
-    for ok, _ in compare_laws(system, [(c, x0) for c in ctrls], T=GATE_HORIZON, dt=PLAN_STEP, workers=config.workers):
+    for ok, _ in compare_laws(system, [(c, x0) for c in ctrls], T=GATE_HORIZON, dt=PLAN_STEP, workers=config.workers, ray=config.ray):
         counts.append((int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())))
         if progress:
             print(f"  gate: {len(counts)}/{len(ctrls)} laws simulated from its {len(x0)} states  [{time.perf_counter() - start:.0f} s]", flush=True)

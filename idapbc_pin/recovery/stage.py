@@ -71,6 +71,9 @@ __all__ = ["FORMS", "LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "START_BOXES"
 
 #: A label every LABEL_EVERY ticks (10 ms) over the first LABEL_SPAN ticks (6 s) of a successful start.
 LABEL_EVERY, LABEL_SPAN = 5, 3000
+#: The labelled span, s: a rollout's record is complete up to it, and rows that enter their loop's
+#: terminal set after it stop there (`simulate`'s stop_converged: their success is known).
+LABEL_TIME = LABEL_SPAN * PLAN_STEP
 #: Lost starts whose plans are searched together (`plans.search_plans`): 16 × 48 candidates per batch.
 PLAN_BATCH = 16
 #: Chunks the starts of one labelling step are split into, whatever the number of workers: a batch's
@@ -86,7 +89,7 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
     system, x0, first, plan_seed, settings, teacher = job
     torch.set_num_threads(1)
     law = LQRController(system) if teacher is None else teacher
-    traj = simulate(system, law, x0, T=20.0, dt=PLAN_STEP)
+    traj = simulate(system, law, x0, T=20.0, dt=PLAN_STEP, stop_converged=True, stop_from=LABEL_TIME)
     ok = success(traj, system)
     X = [traj.x[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
     U = [system.saturate(traj.u[i, :LABEL_SPAN:LABEL_EVERY]) for i in np.flatnonzero(ok)]
@@ -99,7 +102,8 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
         # Each plan is judged alone: numpy's matrix product (LQR's -Kδ) rounds a batch of one
         # differently, and judging it in a batch would move existing runs' labels by rounding.
         for plan, i in zip(plans, group):
-            t = simulate(system, PlanThenLaw(plan[None], settings.horizon, law), x0[i : i + 1], T=20.0, dt=PLAN_STEP)
+            t = simulate(system, PlanThenLaw(plan[None], settings.horizon, law), x0[i : i + 1], T=20.0, dt=PLAN_STEP,
+                         stop_converged=law if settings.horizon <= LABEL_TIME else False, stop_from=LABEL_TIME)
             if success(t, system)[0]:
                 recovered += 1
                 X.append(t.x[0, :LABEL_SPAN:LABEL_EVERY])
@@ -114,13 +118,13 @@ def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfi
     `teacher` (a law (N, n) -> (N, m), picklable), or saturated LQR when None; it also catches every
     plan after its horizon. The plan of start i draws from the stream (plan_seed, i). The starts are
     split into `LABEL_CHUNKS` chunks for `config.workers` processes (the system and the teacher are
-    pickled to them), so the labels do not depend on the number of workers."""
+    pickled to them; Ray tasks with `config.ray`), so the labels depend on neither the count nor the back-end."""
     start = time.perf_counter() if start is None else start
-    workers = resolve_workers(config.workers)
+    workers = config.workers if config.ray else resolve_workers(config.workers)  # Ray: 0 leaves the count to the cluster
     chunks = [c for c in np.array_split(np.arange(len(x0)), LABEL_CHUNKS) if c.size]
     jobs = [(system, x0[c], int(c[0]), plan_seed, config.plan, teacher) for c in chunks]
     parts = []
-    for k, part in enumerate(process_map(_label_chunk, jobs, workers)):
+    for k, part in enumerate(process_map(_label_chunk, jobs, workers, config.ray)):
         parts.append(part)
         if progress:
             print(f"  plans: chunk {k + 1}/{len(jobs)}  [{time.perf_counter() - start:.0f} s]", flush=True)
@@ -140,8 +144,8 @@ def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int,
     runs on `networks` (the run's controller without a fallback, `_fit`), everywhere but at x*."""
     start = time.perf_counter() if start is None else start
     x0 = uniform_states(system, config.dagger_starts, config.start_box, config.plan_seed + 300 + r)
-    traj = simulate(system, networks.with_fallback(law) if law.residual else law.law, x0, T=20.0, dt=PLAN_STEP)
-    failed = np.flatnonzero(~success(traj, system))
+    traj = simulate(system, networks.with_fallback(law) if law.residual else law.law, x0, T=20.0, dt=PLAN_STEP, stop_converged=True)
+    failed = np.flatnonzero(~success(traj, system))  # failures never stop early: their records are whole
     if r == 0 and failed.size == len(x0) and config.stop_when_lost and ends_near(traj.x[:, -1], system).mean() < 0.5:
         if progress:
             print(f"DAgger round 1/{config.dagger}: the law fails from all {failed.size} starts, most ending outside the near box: no DAgger rounds "
@@ -277,7 +281,7 @@ def _gate_fits(run, system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, conf
     laws = [law]
     base = base_inputs(networks, X, system.effort) if config.form == "residual" else None
     jobs = [(system, X, U, config.width, config.steps, config.fit_seed + k, base) for k in range(1, config.fits)]
-    for k, (more, mse) in enumerate(process_map(fit_job, jobs, config.workers), start=1):
+    for k, (more, mse) in enumerate(process_map(fit_job, jobs, config.workers, config.ray), start=1):
         laws.append(more)
         if progress:
             print(f"fit {k + 1}/{config.fits} (seed {config.fit_seed + k}): mean squared error {mse:.4f}  [{time.perf_counter() - start:.0f} s]", flush=True)

@@ -67,7 +67,7 @@ def limits_bind(system, states: int = BIND_STATES, seed: int = BIND_SEED, box: s
     lqr = LQRController(system)
 
     def count(limits: bool) -> int:
-        return int(success(simulate(system, lqr, x0, T=20.0, dt=PLAN_STEP, limits=limits, stop_settled=True), system).sum())
+        return int(success(simulate(system, lqr, x0, T=20.0, dt=PLAN_STEP, limits=limits, stop_settled=True, stop_converged=True), system).sum())
 
     sat = count(True)
     free = count(False) if system.limited else sat

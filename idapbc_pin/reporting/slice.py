@@ -81,7 +81,7 @@ def basin_slice(ctrl, certificate: dict | None = None, n: int = 13, T: float = 2
         return a, b, x
 
     ga, gb, x0 = grid(int(n))
-    traj = simulate(system, ctrl, x0, T=T, limits=limits, stop_settled=True)
+    traj = simulate(system, ctrl, x0, T=T, limits=limits, stop_settled=True, stop_converged=True)
     basin = success(traj, system).reshape(int(n), int(n))
     fa, fb, xf = grid(int(fine))
     H = np.asarray(ctrl.H_d(xf), float).reshape(int(fine), int(fine))

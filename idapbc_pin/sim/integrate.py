@@ -24,11 +24,12 @@ import numpy as np
 
 from .judge import Judge
 from .limits import input_limits
-from .metrics import at_target, window_samples
 from .step import judge_step
+from .stops import Stops
+from .terminal import terminal_set
 from .trajectory import Trajectory
 
-__all__ = ["DIVERGENCE_BOUND", "Controller", "simulate"]
+__all__ = ["DIVERGENCE_BOUND", "Controller", "loop_terminal_set", "simulate"]
 
 #: A state whose |q| or |v| exceeds this (rad, m, rad/s, m/s) counts as diverged and is frozen.
 DIVERGENCE_BOUND = 1e6
@@ -246,56 +247,35 @@ def _initial_state(system, x0: np.ndarray, bound: float):
     return q, v, bad
 
 
-class _Settle:
-    """`simulate`'s ``stop_settled``: which rows have rested in the success box (DESIGN §4,
-    `idapbc_pin.sim.metrics.at_target`) at `needed` consecutive record samples, the samples its
-    success test reads, and so stop being integrated (`done`, (N,) bool)."""
+def _step_map(rhs, dt: float, bound: float, hold: bool):
+    """One RK4 step of dt of the loop, (q, v (N, nq)) -> (q', v', bad (N,)), for `terminal_set`."""
 
-    def __init__(self, system, n_rows: int, steps: list[int], dt: float, enough: int | None = None):
-        self.system = system
-        self.needed = window_samples(np.asarray(steps, float) * dt)
-        self.run_length, self.done = np.zeros(n_rows, int), np.zeros(n_rows, bool)
-        self.enough = enough
+    def step(q, v):
+        dq, dv, u, _, bad = rhs(q, v)
+        qn, vn, bad_n = _rk4_advance(rhs, q, v, (dq, dv, bad, u), 1, dt, bound, hold)
+        return qn, vn, bad | bad_n
 
-    def decided(self) -> bool:
-        """Whether `enough` rows have rested in the success box (never, without `enough`)."""
-        return self.enough is not None and int(self.done.sum()) >= self.enough
-
-    @staticmethod
-    def applies(steps: list[int]) -> bool:
-        """Only on an evenly spaced record (the window is counted in samples)."""
-        gaps = np.diff(steps)
-        return gaps.size > 0 and bool(np.all(gaps == gaps[0]))
-
-    def stop(self, q, v, live):
-        """Count the live rows' (q, v (N, nq) of every row, `live` their indices) consecutive samples
-        in the box and mark those that reached `needed` as done. Returns (len(live),) bool: stopped."""
-        inside = at_target(q[live], v[live], self.system)
-        self.run_length[live] = np.where(inside, self.run_length[live] + 1, 0)
-        stopped = self.run_length[live] >= self.needed
-        self.done[live[stopped]] = True
-        return stopped
-
-    def batch_of_one_padded(self, rhs):
-        """`rhs` evaluated on two copies of a lone row once rows have stopped: a batch of one takes
-        other BLAS kernels (gemv, not gemm) whose rounding differs, and without the stop that row
-        would still be in a batch with the stopped ones."""
-
-        def padded(q, v, held=None):
-            if q.shape[0] != 1 or not self.done.any():
-                return rhs(q, v, held)
-            out = rhs(np.repeat(q, 2, axis=0), np.repeat(v, 2, axis=0), None if held is None else np.repeat(held, 2, axis=0))
-            return tuple(None if o is None else o[:1] for o in out)
-
-        return padded
+    return step
 
 
-def _record(rhs, advance, q, v, x_last, diverged, steps: list[int], m: int, settle: _Settle | None = None):
+def loop_terminal_set(system, ctrl: Controller, dt: float | None = None, *, saturation=None, limits: bool = True, hold: bool = True,
+                      bound: float = DIVERGENCE_BOUND, threads: int | None = None):
+    """The `TerminalSet` (`idapbc_pin.sim.terminal`) of `ctrl`'s loop as `simulate` integrates it
+    with RK4 (same arguments; dt None: `judge_step`'s for a 20 s horizon), or None where it has
+    none; `simulate(stop_converged=True)` stops rollouts in it."""
+    nq, m = int(system.nq), int(system.m)
+    dt = judge_step(system, {"ctrl": ctrl}, 20.0, dt)
+    clip = input_limits(system, limits, saturation).bound
+    rhs = _vector_field(Judge(system, threads), ctrl, clip, bound, np.asarray(system.x_star, float)[:nq], m)
+    return terminal_set(system, _step_map(rhs, dt, bound, hold))
+
+
+def _record(rhs, advance, q, v, x_last, diverged, steps: list[int], m: int, settle: Stops | None = None):
     """Sample the closed loop at `steps`, advancing the live rows in between.
 
     q, v (N, nq) and x_last (N, n) are updated in place; returns X (N, K, n), V (N, K, nq),
     U (N, K, m) and diverged (N,), rows frozen at their last good sample once they go bad, or (with
-    `settle`) once they have rested in the success box for its window (not flagged).
+    `settle`) once their verdict is known (`Stops`; not flagged).
     """
     N, K = q.shape[0], len(steps)
     X, V, U = np.empty((N, K, x_last.shape[1])), np.empty((N, K, q.shape[1])), np.empty((N, K, m))
@@ -309,13 +289,15 @@ def _record(rhs, advance, q, v, x_last, diverged, steps: list[int], m: int, sett
             u_last[live[~b]] = u[~b]
             diverged[live[b]] = True
             live, dq, dv, u = live[~b], dq[~b], dv[~b], u[~b]
-            if settle is not None:
-                go_on = ~settle.stop(q, v, live)
+            if settle is not None and step >= settle.first:
+                go_on = ~settle.stop(q, v, x_last, live)
                 live, dq, dv, u = live[go_on], dq[go_on], dv[go_on], u[go_on]
         X[:, r], V[:, r], U[:, r] = x_last, v, u_last
+        if settle is not None and settle.left.any():  # rows that left the box: NaN from the next sample on
+            x_last[settle.left], v[settle.left], u_last[settle.left] = np.nan, np.nan, np.nan
         if r == K - 1:
             break
-        if not live.size or (settle is not None and settle.decided()):  # every row diverged or rests, or enough rest
+        if not live.size or (settle is not None and settle.decided()):  # every row diverged or stopped, or enough stopped
             X[:, r + 1 :], V[:, r + 1 :], U[:, r + 1 :] = x_last[:, None], v[:, None], u_last[:, None]
             X[live, r + 1 :], V[live, r + 1 :], U[live, r + 1 :] = np.nan, np.nan, np.nan  # rows still moving: undecided
             break
@@ -342,6 +324,9 @@ def simulate(
     atol: float = 1e-9,
     threads: int | None = None,
     stop_settled: bool = False,
+    stop_converged: bool | Controller = False,
+    stop_outside=None,
+    stop_from: float = 0.0,
     enough_settled: int | None = None,
 ) -> Trajectory:
     """Closed loop of the true plant from a batch of initial states.
@@ -372,21 +357,35 @@ def simulate(
     bound : a state with |q| or |v| above this, or non-finite, is frozen and flagged diverged.
     threads : Pinocchio threads for URDF plants (default `DEFAULT_THREADS`).
     stop_settled : stop integrating a row once it has been in the success box at every sample of
-        the last `SUCCESS_WINDOW` seconds (`idapbc_pin.sim.metrics`); its record holds that sample
-        from then on, so `success` reads True for it (settling time and peak input are those up
-        to then). For callers that need the success verdict only (the gates of `train` and
-        `recover`, the ROA radius search, the test for room under the limits). The batch
-        shrinks as rows stop, and BLAS's matrix-vector kernels round a row differently in another
-        batch, so the other rows agree with a run without the stop to the last bits, not bit for
-        bit (a lone row is evaluated beside a copy of itself: a batch of one takes other kernels).
-    enough_settled : with `stop_settled`, stop the whole batch once this many rows rest (for a
-        caller that needs a count of successes only: the ROA radius's probes); the rows still moving
-        then hold NaN in the rest of their record, so `success` reads False for them.
+        the last `SUCCESS_WINDOW` seconds; its record holds that sample from then on, so `success`
+        reads True for it (settling time and peak input are those up to then): for callers that
+        need the success verdict only (gates, the ROA radius). The batch shrinks as rows stop, so
+        the other rows agree with a run without the stop to the last bits (BLAS rounds a row
+        differently in another batch; a lone row is evaluated beside a copy of itself).
+    stop_converged : stop integrating a row once it enters the loop's terminal set
+        (`idapbc_pin.sim.terminal`: inside the success box, and the loop lowers a quadratic
+        Lyapunov function there at every step, checked on samples), with ``converged`` True: its
+        record holds that sample from then on, so `success` and `settling_time` read what the full
+        horizon gives, its equilibrium offset is 0 (its limit is x*) and its peak input is that up
+        to then. For a law that does not depend on time, with ``"rk4"`` (else no stop); the rows
+        stopped this way are in the same batch-size caveat as `stop_settled`'s. A controller
+        instead of True: the terminal set of that law's loop, for a `ctrl` that acts as that law
+        from `stop_from` on (a plan followed by a feedback law); `ctrl` itself is then never probed.
+    stop_outside : None, or a box (lo, hi) (n,) each of x = (q, p): a row is integrated no further
+        once a sample leaves it (angles wrapped about x*), and its record holds NaN from the next
+        sample on, so `success` reads False for it. For callers that need "succeeds without
+        leaving the box" only (`idapbc_pin.evaluation.invariance.box_invariant_share`).
+    stop_from : the stops above apply from this time on (s); the record up to it is that of the
+        full horizon, bit for bit.
+    enough_settled : with `stop_settled` or `stop_converged`, stop the whole batch once this many
+        rows have stopped (for a caller that needs a count of successes only: the ROA radius's
+        probes); the rows still moving then hold NaN in the rest of their record, so `success`
+        reads False for them.
 
     Returns
     -------
     Trajectory with t (T_k,), x (N, T_k, n), q and v (N, T_k, nq), u (N, T_k, m) (the applied,
-    clipped input), diverged (N,).
+    clipped input), diverged (N,), converged (N,) (all False without `stop_converged`).
     """
     nq, n, m = int(system.nq), int(system.n), int(system.m)
     x0 = _as_batch(x0, n, "x0")
@@ -395,12 +394,15 @@ def simulate(
     x_star = np.asarray(system.x_star, float)
     clip = input_limits(system, limits, saturation).bound
     rhs = _vector_field(Judge(system, threads), ctrl, clip, bound, x_star[:nq], m)
-    settle = _Settle(system, x0.shape[0], steps, dt, enough_settled) if stop_settled and _Settle.applies(steps) else None
+    terminal = None
+    if stop_converged is not False and method == "rk4":  # the terminal set of ctrl's loop, or of the law ctrl turns into
+        terminal = loop_terminal_set(system, ctrl if stop_converged is True else stop_converged, dt, saturation=saturation,
+                                     limits=limits, hold=hold, bound=bound, threads=threads)
+    settle = Stops.build(system, x0.shape[0], steps, dt, stop_settled, terminal, enough_settled, stop_outside, stop_from)
     if settle is not None:
         rhs = settle.batch_of_one_padded(rhs)
     q, v, bad0 = _initial_state(system, x0, bound)
     x_last = np.where(bad0[:, None], x_star, x0).copy()
-    advance = _stepper(rhs, method, dt, bound, rtol, atol, hold)
-    X, V, U, diverged = _record(rhs, advance, q, v, x_last, bad0, steps, m, settle)
-    t = np.asarray(steps, float) * dt
-    return Trajectory(t=t, x=X, q=X[..., :nq], v=V, u=U, diverged=diverged)
+    X, V, U, diverged = _record(rhs, _stepper(rhs, method, dt, bound, rtol, atol, hold), q, v, x_last, bad0, steps, m, settle)
+    converged = settle.converged & ~diverged if settle is not None else np.zeros(x0.shape[0], bool)
+    return Trajectory(t=np.asarray(steps, float) * dt, x=X, q=X[..., :nq], v=V, u=U, diverged=diverged, converged=converged)

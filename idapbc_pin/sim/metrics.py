@@ -78,9 +78,12 @@ def settling_time(traj: Trajectory, system, tol: float = SUCCESS_TOL) -> np.ndar
 
 def equilibrium_offset(traj: Trajectory, system, window: float = SUCCESS_WINDOW) -> np.ndarray:
     """(N,) ‖x̄ − x*‖₂ with x̄ the mean of x = (q, p) over the last `window` seconds (angle
-    components of x − x* wrapped sample by sample before averaging); nan for diverged rows."""
+    components of x − x* wrapped sample by sample before averaging); nan for diverged rows, 0 for
+    rows stopped inside the terminal set (``traj.converged``: their limit is x*)."""
     dx = wrap_angles(traj.x[:, _window(traj.t, window)] - np.asarray(system.x_star), system.angle_mask)
     out = np.linalg.norm(dx.mean(axis=1), axis=-1)
+    if traj.converged is not None:
+        out[traj.converged] = 0.0
     out[traj.diverged] = np.nan
     return out
 

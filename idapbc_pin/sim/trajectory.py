@@ -22,6 +22,9 @@ class Trajectory:
     u : (N, T_k, m) applied inputs (after saturation), N·m or N.
     diverged : (N,) bool; a diverged row is frozen at its last finite state within the bound
         (state and input then repeat that last value).
+    converged : (N,) bool or None; a converged row stopped inside the loop's terminal set
+        (`idapbc_pin.sim.terminal`), where it stays in the success box and tends to x*; its state
+        and input then repeat the sample where it stopped.
     """
 
     t: np.ndarray
@@ -30,6 +33,7 @@ class Trajectory:
     v: np.ndarray
     u: np.ndarray
     diverged: np.ndarray
+    converged: np.ndarray | None = None
 
     @property
     def n_states(self) -> int:
