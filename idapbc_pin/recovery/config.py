@@ -63,6 +63,8 @@ class RecoveryConfig(Settings):
     ray : None (`workers` processes), or run that work as Ray tasks: ``"auto"`` (a local instance,
         or $RAY_ADDRESS's cluster) or a cluster's address; the back-end changes the time only.
     plan : the cross-entropy search of each plan (`plans.PlanSettings`).
+    judge_T : horizon of the rollouts that judge a start (the teacher's, each plan's, each DAgger
+        round's), s: at least 8 (6 s of labels, then the 2 s success window).
     stop_when_lost : end the DAgger rounds, before labelling, when the first fit brings none of the
         first round's starts to x* and fewer than half of them end in the near box (`ends_near`; the
         gate then judges that law).
@@ -94,6 +96,7 @@ class RecoveryConfig(Settings):
     workers: int = 0
     ray: str | None = None
     plan: PlanSettings = field(default_factory=PlanSettings)
+    judge_T: float = 20.0
     stop_when_lost: bool = True
     levels: tuple = (0.1, 0.25, 0.5)
     form: str = "direct"
@@ -108,6 +111,7 @@ class RecoveryConfig(Settings):
             (self.start_box in START_BOXES, f"start_box must be one of {', '.join(START_BOXES)}"),
             (self.teacher in TEACHERS, f"teacher must be one of {', '.join(TEACHERS)}"),
             (self.form in FORMS, f"form must be one of {', '.join(FORMS)}"),
+            (self.judge_T >= 8.0, "judge_T must be ≥ 8 s (6 s of labels, then the success window)"),
             (self.ray is None or (isinstance(self.ray, str) and self.ray.strip() != ""), "ray must be \"auto\" or a cluster address"),
         ]
         for ok, what in checks:

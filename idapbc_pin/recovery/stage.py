@@ -86,10 +86,10 @@ LABEL_CHUNKS = 8
 def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
     """Worker: (X (K, n), U (K, m), the teacher's successes, plans that reached x*) for one chunk of
     starts (teacher None: saturated LQR)."""
-    system, x0, first, plan_seed, settings, teacher = job
+    system, x0, first, plan_seed, settings, teacher, T = job
     torch.set_num_threads(1)
     law = LQRController(system) if teacher is None else teacher
-    traj = simulate(system, law, x0, T=20.0, dt=PLAN_STEP, stop_converged=True, stop_from=LABEL_TIME)
+    traj = simulate(system, law, x0, T=T, dt=PLAN_STEP, stop_converged=True, stop_from=LABEL_TIME)
     ok = success(traj, system)
     X = [traj.x[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
     U = [system.saturate(traj.u[i, :LABEL_SPAN:LABEL_EVERY]) for i in np.flatnonzero(ok)]
@@ -102,7 +102,7 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
         # Each plan is judged alone: numpy's matrix product (LQR's -Kδ) rounds a batch of one
         # differently, and judging it in a batch would move existing runs' labels by rounding.
         for plan, i in zip(plans, group):
-            t = simulate(system, PlanThenLaw(plan[None], settings.horizon, law), x0[i : i + 1], T=20.0, dt=PLAN_STEP,
+            t = simulate(system, PlanThenLaw(plan[None], settings.horizon, law), x0[i : i + 1], T=T, dt=PLAN_STEP,
                          stop_converged=law if settings.horizon <= LABEL_TIME else False, stop_from=LABEL_TIME)
             if success(t, system)[0]:
                 recovered += 1
@@ -122,7 +122,7 @@ def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfi
     start = time.perf_counter() if start is None else start
     workers = config.workers if config.ray else resolve_workers(config.workers)  # Ray: 0 leaves the count to the cluster
     chunks = [c for c in np.array_split(np.arange(len(x0)), LABEL_CHUNKS) if c.size]
-    jobs = [(system, x0[c], int(c[0]), plan_seed, config.plan, teacher) for c in chunks]
+    jobs = [(system, x0[c], int(c[0]), plan_seed, config.plan, teacher, config.judge_T) for c in chunks]
     parts = []
     for k, part in enumerate(process_map(_label_chunk, jobs, workers, config.ray)):
         parts.append(part)
@@ -144,7 +144,7 @@ def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int,
     runs on `networks` (the run's controller without a fallback, `_fit`), everywhere but at x*."""
     start = time.perf_counter() if start is None else start
     x0 = uniform_states(system, config.dagger_starts, config.start_box, config.plan_seed + 300 + r)
-    traj = simulate(system, networks.with_fallback(law) if law.residual else law.law, x0, T=20.0, dt=PLAN_STEP, stop_converged=True)
+    traj = simulate(system, networks.with_fallback(law) if law.residual else law.law, x0, T=config.judge_T, dt=PLAN_STEP, stop_converged=True)
     failed = np.flatnonzero(~success(traj, system))  # failures never stop early: their records are whole
     if r == 0 and failed.size == len(x0) and config.stop_when_lost and ends_near(traj.x[:, -1], system).mean() < 0.5:
         if progress:
