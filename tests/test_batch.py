@@ -270,18 +270,23 @@ def test_smoke_pipeline_on_two_workers_gives_a_complete_summary(smoke_batch):
         assert json.loads((result.path / name / "job.json").read_text())["row"]["status"] == "done"
 
 
-def test_zoo_table_renders_from_a_summary(smoke_batch):
-    table = zoo_table_markdown(smoke_batch.summary_csv)
+#: A summary a zoo batch wrote (the README's table is generated from it): the table tests read it
+#: rather than wait for a batch of their own.
+ZOO_SUMMARY = ROOT / "pipelines" / "results" / "zoo-summary.csv"
+
+
+def test_zoo_table_renders_from_a_summary():
+    table = zoo_table_markdown(ZOO_SUMMARY)
     assert table.startswith("| robot | actuated | success, domain: NIDA-PBC / LQR")
     assert "`furuta`" in table and "`reaction_wheel`" in table
-    assert zoo_table_markdown(smoke_batch.summary_csv) == table  # deterministic
+    assert zoo_table_markdown(ZOO_SUMMARY) == table  # deterministic
     readme = "intro\n<!-- zoo-table:start -->\nold\n<!-- zoo-table:end -->\nrest\n"
     assert readme_zoo_block(replace_zoo_table(readme, table)) == table.strip()
 
 
-def test_the_zoo_table_names_a_recovery_law_where_a_run_keeps_one(smoke_batch, tmp_path):
-    rows = read_summary(smoke_batch.summary_csv)
-    assert [r["recovery"] for r in rows] == ["no", "no"]  # --smoke: recover = "never"
+def test_the_zoo_table_names_a_recovery_law_where_a_run_keeps_one(tmp_path):
+    rows = read_summary(ZOO_SUMMARY)
+    assert {r["recovery"] for r in rows} == {"no"}  # the zoo pipeline: recover = "never"
     before = {r["name"]: r["fallback"] for r in rows}
     rows[0]["recovery"] = "yes"  # as a job whose recover stage kept a law would write it
     path = tmp_path / "summary.csv"
@@ -292,7 +297,7 @@ def test_the_zoo_table_names_a_recovery_law_where_a_run_keeps_one(smoke_batch, t
     lines = {line.split(" | ")[0]: line for line in zoo_table_markdown(path).splitlines() if line.startswith("| `")}
     outside = {"yes": "linear law", "no": "networks"}
     assert "| recovery law |" in lines[f"| `{rows[0]['name']}`"]
-    assert f"| {outside[before[rows[1]['name']]]} |" in lines[f"| `{rows[1]['name']}`"]
+    assert f"| {outside[before[rows[1]['name']]]}" in lines[f"| `{rows[1]['name']}`"]  # the cell may go on (an inside gain)
 
 
 def test_a_job_failing_at_run_time_is_recorded_and_the_others_finish(tmp_path):
