@@ -21,7 +21,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..model.angles import wrap_angles
+from ..model.boxes import in_box
 from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import uniform_states
@@ -35,14 +35,10 @@ def stays_inside(traj: Trajectory, system, scale: float = 1.0, box=None) -> np.n
     `box` = (lo, hi) when given (angles wrapped about x*), and the trajectory did not diverge."""
     if not scale > 0:
         raise ValueError(f"scale must be > 0, got {scale}")
-    x_star = np.asarray(system.x_star, float)
     if box is None:
-        box, x_scale = system.domain, scale
-    else:
-        x_scale = 1.0
-    lo, hi = (x_scale * (np.asarray(b, float) - x_star) for b in box)
-    d = wrap_angles(traj.x - x_star, np.asarray(system.angle_mask))
-    return np.all((d >= lo - 1e-12) & (d <= hi + 1e-12), axis=(1, 2)) & ~traj.diverged
+        x_star = np.asarray(system.x_star, float)
+        box = tuple(x_star + scale * (np.asarray(b, float) - x_star) for b in system.domain)
+    return in_box(system, traj.x, box).all(axis=1) & ~traj.diverged
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,9 @@ import math
 import numpy as np
 
 from ..errors import IdapbcError
+from .angles import wrap_angles
 
-__all__ = ["DEFAULT_SCALE", "verification_box"]
+__all__ = ["DEFAULT_SCALE", "in_box", "verification_box"]
 
 #: Default width of the verification box, in multiples of the training box about x*.
 DEFAULT_SCALE = 4.0
@@ -57,3 +58,12 @@ def verification_box(system, scale: float = DEFAULT_SCALE, box=None) -> tuple[np
         raise IdapbcError(f"the verification box {text(vlo, vhi)} does not contain the training box {text(lo, hi)}. "
                           "Fix: widen it to hold the training box.")
     return vlo, vhi
+
+
+def in_box(system, x: np.ndarray, box) -> np.ndarray:
+    """(...) bool: the states x (..., n) lie in `box` = (lo, hi) (n,) each, angles of x − x* wrapped
+    (and within 1e-12 of a face); a non-finite component is outside."""
+    x_star = np.asarray(system.x_star, float)
+    d = wrap_angles(np.asarray(x, float) - x_star, np.asarray(system.angle_mask))
+    lo, hi = (np.asarray(b, float) - x_star for b in box)
+    return np.all((d >= lo - 1e-12) & (d <= hi + 1e-12), axis=-1)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.angles import wrap_angles
+from ..model.boxes import in_box
 from .metrics import at_target, window_samples
 
 __all__ = ["Stops"]
@@ -21,13 +21,13 @@ class Stops:
     bool). With `settled`, a row that has rested in the success box (DESIGN §4,
     `idapbc_pin.sim.metrics.at_target`) at `needed` consecutive record samples, the samples its
     success test reads; with `terminal` (a `TerminalSet`), a row inside it (`converged`, (N,) bool);
-    with `box` ((lo, hi) of x − x*, angles wrapped), a row that has left it (`left`, (N,) bool).
+    with `box` ((lo, hi) of x, `in_box`), a row that has left it (`left`, (N,) bool).
     Rows are tested from step `first` on."""
 
     def __init__(self, system, n_rows: int, steps: list[int], dt: float, settled: bool, terminal=None, enough: int | None = None,
                  box=None, first: int = 0):
         self.system, self.terminal, self.first = system, terminal, int(first)
-        self.box = None if box is None else tuple(np.asarray(b, float) - np.asarray(system.x_star, float) for b in box)
+        self.box = box
         self.left = np.zeros(n_rows, bool)
         self.needed = window_samples(np.asarray(steps, float) * dt) if settled else None
         self.run_length, self.done = np.zeros(n_rows, int), np.zeros(n_rows, bool)
@@ -57,8 +57,7 @@ class Stops:
         verdict is now known as done. Returns (len(live),) bool: stopped."""
         stopped = np.zeros(live.size, bool)
         if self.box is not None:
-            d = wrap_angles(x[live] - np.asarray(self.system.x_star, float), np.asarray(self.system.angle_mask))
-            out = np.any((d < self.box[0] - 1e-12) | (d > self.box[1] + 1e-12), axis=1)
+            out = ~in_box(self.system, x[live], self.box)
             self.left[live[out]] = True
             stopped |= out
         if self.needed is not None:
