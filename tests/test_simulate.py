@@ -20,7 +20,7 @@ from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import equilibrium_offset, peak_input, settling_time, success
 from idapbc_pin.sim.limits import input_limits
-from idapbc_pin.evaluation.radius import roa_radius
+from idapbc_pin.evaluation.radius import radius_job, roa_radius, run_probe_job, run_radius_job
 from idapbc_pin.sim.states import scaled_box
 from idapbc_pin.evaluation.roa import roa, score
 from idapbc_pin.sim.states import evaluation_box, half_box, uniform_states
@@ -569,6 +569,28 @@ def test_radius_probes_stop_rows_at_rest_without_changing_a_verdict():
         assert (need <= ok <= full) if passed else (ok <= full and done - ok > 200 - need), (scale, ok, done, full)
     assert verdicts == {True, False}  # the search probed both kinds
     assert stopped_rows < 0.6 * sum(rows)  # most states rest long before 20 s
+
+
+def test_a_search_probing_ahead_finds_the_radius_and_probes_of_one_probe_at_a_time():
+    """With a spare worker the search also runs the probe it needs next if the current one passes: a
+    right guess is that very probe (same draws, same order, same counts) and saves a round, a wrong
+    one is dropped and kept out of the record, so the radius, bracket and probes are those of the
+    search alone."""
+    system, used = SaturatedUnstable(), 0
+    for law in (strip_law, half_strip_law):
+        alone = run_radius_job(radius_job(system, "sat", law, n=60, seed=0, T=8.0, dt=0.05))
+        search, rounds, ahead = radius_job(system, "sat", law, n=60, seed=0, T=8.0, dt=0.05), 0, []
+        while (found := search.result()) is None:
+            wanted = search.wanted(spare=True)
+            for s, job in wanted:  # both at once, as two workers would run them
+                search.record(s, run_probe_job(job))
+            ahead += [s for s, _ in wanted[1:]]
+            rounds += 1
+        assert found == alone
+        kept = sum(s in found[4] for s in ahead)
+        assert rounds == len(found[4]) - kept  # the boxes' scales are simulated here too: no known results
+        used += kept
+    assert used > 0
 
 
 def test_radius_without_limits_and_below_the_range():

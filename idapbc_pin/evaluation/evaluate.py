@@ -23,7 +23,7 @@ from ..recovery.law import RecoveryLaw
 from ..run import Run
 from ..sim.limits import input_limits
 from ..sim.step import judge_step
-from .radius import RadiusResult, radius_job, radius_result, run_radius_job
+from .radius import RadiusResult, RadiusSearch, radius_job, radius_result, run_probe_job
 from .roa import RoaResult, roa_result, roa_states, run_score_job, score_job
 
 __all__ = ["BASELINE", "Evaluation", "baseline_job", "evaluate_run", "format_evaluation", "run_baseline_job"]
@@ -131,53 +131,76 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
               workers: int, progress: bool = False, done: dict | None = None) -> tuple[dict[str, RoaResult], RadiusResult | None]:
     """Every controller on every box, and each controller's radius search once its own boxes are in
     (they are its probes at s = 1 and 0.5), on one pool of `workers` processes. A free worker takes
-    the first ready job in the controllers' order (boxes, then the search): the first controller's
-    search, the longest job (NIDA-PBC's bisection), starts as soon as it can, while the other
-    controllers' rollouts fill the other workers. Each job is the computation `roa` and
+    the first ready job in the controllers' order (boxes, then the search's next probe): the first
+    controller's search, the longest chain of jobs (NIDA-PBC's bisection), goes on as soon as it can,
+    while the other controllers' rollouts fill the other workers; a worker with nothing else to do
+    probes ahead for a search (`RadiusSearch.wanted`). Each job is the computation `roa` and
     `roa_radius` run, so the results are theirs, whatever the workers. `progress`: a bar over the
-    jobs, with the elapsed time and an ETA. `done`: {controller: `run_baseline_job` result} already
-    computed, whose jobs are not run again."""
+    boxes and the searches, with the elapsed time and an ETA. `done`: {controller: `run_baseline_job`
+    result} already computed, whose jobs are not run again."""
     t0 = time.perf_counter()
-    names, nb = list(controllers), len(boxes)
+    names, nb, done = list(controllers), len(boxes), done or {}
     states = {box: roa_states(system, n, box, seed) for box in boxes}
     known_box = {box: scale for scale, box in ((1.0, "domain"), (0.5, "half")) if box in boxes}
     ready = {(i, j): (run_score_job, score_job(system, name, controllers[name], states[box], T, dt, limits=limits, stop_converged=True))
-             for i, name in enumerate(names) for j, box in enumerate(boxes)}
-    futures, in_flight = {}, {}
-    for i, name in enumerate(names):
-        if name in (done or {}):
-            for j, box in enumerate(boxes):
-                del ready[i, j]
-                futures[i, j] = _completed(done[name]["scores"][box])
-            if radius:
-                futures[i, nb] = _completed(done[name]["search"])
-    bar = tqdm(total=len(ready) + int(radius) * sum(name not in (done or {}) for name in names), disable=not progress, desc=f"evaluate {getattr(system, 'name', '')}", unit="job",
-               dynamic_ncols=True, mininterval=0.5 if sys.stderr.isatty() else 15.0)
+             for i, name in enumerate(names) for j, box in enumerate(boxes) if name not in done}
+    scores = {(i, j): done[name]["scores"][box] for i, name in enumerate(names) if name in done for j, box in enumerate(boxes)}
+    found = {i: done[name]["search"] for i, name in enumerate(names) if name in done and radius}
+    searches: dict[int, RadiusSearch] = {}
+    in_flight: dict[Future, tuple] = {}
+    bar = tqdm(total=len(ready) + int(radius) * sum(name not in done for name in names), disable=not progress,
+               desc=f"evaluate {getattr(system, 'name', '')}", unit="job", dynamic_ncols=True, mininterval=0.5 if sys.stderr.isatty() else 15.0)
+
+    def unfinished() -> bool:
+        return len(scores) < len(names) * nb or (radius and len(found) < len(names))
+
     with JobPool(workers) as pool, bar:
-        while ready or in_flight:
+        while unfinished():
+            ready = {key: job for key, job in ready.items() if len(key) == 2}  # boxes; then each search's next probe, unless in flight
+            ready |= {(i, nb, s): (run_probe_job, job) for i, search in searches.items() for s, job in search.wanted()[:1]
+                      if (i, nb, s) not in in_flight.values()}
             while ready and len(in_flight) < pool.workers:  # the first ready job in the controllers' order
                 key = min(ready)
-                futures[key] = future = pool.submit(*ready.pop(key))
-                in_flight[future] = key
-            done = [f for f in in_flight if f.done()] or list(wait(in_flight, return_when=FIRST_COMPLETED).done)
-            for future in done:
-                future.result()  # a worker's error surfaces here
-                i, j = in_flight.pop(future)
+                in_flight[pool.submit(*ready.pop(key))] = key
+            ahead = [((i, nb, s), job) for i, search in searches.items() for s, job in search.wanted(spare=True)[1:]
+                     if (i, nb, s) not in in_flight.values()]
+            if ahead and len(in_flight) < pool.workers:  # a spare worker: the probe a search needs next if its current one passes
+                key, job = ahead[0]
+                in_flight[pool.submit(run_probe_job, job)] = key
+            finished = [f for f in in_flight if f.done()] or list(wait(in_flight, return_when=FIRST_COMPLETED).done)
+            for future in finished:
+                key = in_flight.pop(future)
+                value = future.result()  # a worker's error surfaces here
+                if len(key) == 3:  # a probe of a search (or a probe ahead for a search already over: dropped)
+                    i, _, s = key
+                    if i not in searches:
+                        continue
+                    searches[i].record(s, value)
+                    if (result := searches[i].result()) is not None:
+                        found[i] = result
+                        del searches[i]
+                        bar.update()
+                    continue
+                scores[key] = value
                 bar.update()
-                if radius and j < nb and (i, nb) not in ready and (i, nb) not in futures and all(
-                        (i, b) in futures and futures[i, b].done() for b in range(nb)):
+                i = key[0]
+                if radius and i not in found and i not in searches and all((i, b) in scores for b in range(nb)):
                     name = names[i]
-                    known = {scale: roa_result(system, box, states[box], T, dt, seed, {name: futures[i, boxes.index(box)].result()},
-                                               limits=limits) for box, scale in known_box.items()}
-                    ready[i, nb] = (run_radius_job, radius_job(system, name, controllers[name], n=n, seed=seed, T=T, dt=dt, known=known,
-                                                               limits=limits))
-    results = {box: roa_result(system, box, states[box], T, dt, seed, {name: futures[i, j].result() for i, name in enumerate(names)},
+                    known = {scale: roa_result(system, box, states[box], T, dt, seed, {name: scores[i, boxes.index(box)]}, limits=limits)
+                             for box, scale in known_box.items()}
+                    searches[i] = radius_job(system, name, controllers[name], n=n, seed=seed, T=T, dt=dt, known=known, limits=limits)
+                    if (result := searches[i].result()) is not None:  # decided by the boxes alone
+                        found[i] = result
+                        del searches[i]
+                        bar.update()
+    # probes ahead still running when every search is over were guesses that turned out wrong: the pool stops them
+    results = {box: roa_result(system, box, states[box], T, dt, seed, {name: scores[i, j] for i, name in enumerate(names)},
                                limits=limits) for j, box in enumerate(boxes)}
-    found = None
+    radii = None
     if radius:
-        found = radius_result(system, {name: futures[i, nb].result() for i, name in enumerate(names)}, n=n, seed=seed, T=T, dt=dt,
+        radii = radius_result(system, {name: found[i] for i, name in enumerate(names)}, n=n, seed=seed, T=T, dt=dt,
                               limits=limits, wall_time=time.perf_counter() - t0)
-    return results, found
+    return results, radii
 
 
 def _completed(value) -> Future:

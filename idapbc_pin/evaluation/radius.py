@@ -18,6 +18,8 @@ that state has rested in the success box for the success window (its verdict is 
 ``simulate(stop_settled=True)``), and it stops the rest once 90 % of all its states rest (the probe
 passes whatever the others do: ``enough_settled``). The success share need not be monotone in s;
 the result is a scale that passes with the next probed scale above it failing, on the same seeds.
+A search runs probe by probe (`RadiusSearch`): alone in one process, or in a pool where a spare
+worker probes ahead, with the same result.
 """
 
 from __future__ import annotations
@@ -36,7 +38,10 @@ from ..sim.states import scaled_box, uniform_states
 from ..sim.step import judge_step
 from .roa import RoaResult, score
 
-__all__ = ["RADIUS_RANGE", "RADIUS_RESOLUTION", "RADIUS_THRESHOLD", "RadiusResult", "radius_job", "radius_result", "roa_radius", "run_radius_job"]
+__all__ = [
+    "RADIUS_RANGE", "RADIUS_RESOLUTION", "RADIUS_THRESHOLD", "RadiusResult", "RadiusSearch", "probe_job", "radius_job", "radius_result",
+    "roa_radius", "run_probe_job", "run_radius_job",
+]  # fmt: skip
 
 #: Scales searched: below the first the radius is reported as "< 0.05", at the last as "≥ 2".
 RADIUS_RANGE = (0.05, 2.0)
@@ -126,73 +131,134 @@ def _known_successes(known, name: str, x0: np.ndarray) -> np.ndarray | None:
     return np.asarray(known[name].success, bool)
 
 
-class _Prober:
-    """Whether one controller passes at scale s (cached per scale), simulating in batches.
-
-    The states of every scale are the same unit draws, scaled; the draws that failed at the nearest
-    larger probed scale are simulated first (a basin is roughly star-shaped about x*, so they are
-    the likeliest to fail again), so a failing probe is decided on a small batch.
-    """
-
-    def __init__(self, system, name, ctrl, n, seed, need, known, sim_kw):
-        self.system, self.name, self.ctrl, self.n, self.seed, self.need = system, name, ctrl, n, seed, need
-        self.known, self.sim_kw, self.probes = known, sim_kw, {}
-        self.failed: dict[float, np.ndarray] = {}  # {s: (n,) bool, the draws that did not succeed there (failed or left undecided)}
-
-    def passes(self, s: float) -> bool:
-        if s not in self.probes:
-            self.probes[s] = self._run(s)
-        return self.probes[s][0] >= self.need
-
-    def _order(self, s: float) -> tuple[np.ndarray, int]:
-        """The draws in the order simulated, and the size of the first batch: the draws that failed
-        at the nearest larger probed scale first (at least a quarter of the states: `_FIRST_SHARE`)."""
-        larger = [t for t in self.failed if t > s]
-        suspects = self.failed[min(larger)] if larger else np.zeros(self.n, bool)
-        order = np.concatenate([np.flatnonzero(suspects), np.flatnonzero(~suspects)])
-        return order, max(int(suspects.sum()), math.ceil(_FIRST_SHARE * self.n))
-
-    def _run(self, s: float) -> tuple[int, int]:
-        x0 = uniform_states(self.system, self.n, scaled_box(self.system, s), self.seed)
-        known = _known_successes(self.known.get(s), self.name, x0)
-        if known is not None:
-            self.failed[s] = ~known
-            return int(known.sum()), self.n
-        order, first = self._order(s)
-        failed = np.zeros(self.n, bool)
-        ok, done = 0, 0
-        for end in sorted({min(first, self.n), self.n}):
-            rows = order[done:end]
-            # a batch stops once enough of its states rest for the probe to pass: its count is then a lower bound
-            res = score(self.system, self.name, self.ctrl, x0[rows], **self.sim_kw, stop_settled=True, stop_converged=True, enough_settled=self.need - ok)[0]
-            failed[rows] = ~res.success
-            ok, done = ok + int(np.count_nonzero(res.success)), end
-            if done - ok > self.n - self.need:  # too many failures already: decided
-                break
-        self.failed[s] = failed
-        return ok, done
+def _order(n: int, suspects: np.ndarray | None) -> tuple[np.ndarray, int]:
+    """The draws in the order simulated, and the size of the first batch: the `suspects` ((n,) bool,
+    the draws that failed at the nearest larger probed scale) first, at least a quarter of the states
+    (`_FIRST_SHARE`)."""
+    suspects = np.zeros(n, bool) if suspects is None else suspects
+    order = np.concatenate([np.flatnonzero(suspects), np.flatnonzero(~suspects)])
+    return order, max(int(suspects.sum()), math.ceil(_FIRST_SHARE * n))
 
 
-def _search(probe: _Prober, s_lo: float, s_hi: float, resolution: float) -> tuple[float, tuple, bool, bool]:
-    """Bisection on `probe.passes`; -> (s, (s passing, s failing), below, above).
+def probe_job(system, name: str, ctrl: Controller, n: int, seed: int, need: int, s: float, suspects, sim_kw: dict) -> tuple:
+    """The job of `run_probe_job`: whether `ctrl` passes at scale `s` (`need` successes of the `n`
+    draws), the draws in `suspects` first."""
+    return (system, name, ctrl, n, seed, need, float(s), suspects, sim_kw)
+
+
+def run_probe_job(job) -> tuple[int, int, np.ndarray]:
+    """Worker: one probe, for a `probe_job`. Returns (successes, states simulated, (n,) bool the draws
+    that did not succeed: failed, or left undecided by an early stop)."""
+    system, name, ctrl, n, seed, need, s, suspects, sim_kw = job
+    x0 = uniform_states(system, n, scaled_box(system, s), seed)
+    order, first = _order(n, suspects)
+    failed = np.zeros(n, bool)
+    ok, done = 0, 0
+    for end in sorted({min(first, n), n}):
+        rows = order[done:end]
+        # a batch stops once enough of its states rest for the probe to pass: its count is then a lower bound
+        res = score(system, name, ctrl, x0[rows], **sim_kw, stop_settled=True, stop_converged=True, enough_settled=need - ok)[0]
+        failed[rows] = ~res.success
+        ok, done = ok + int(np.count_nonzero(res.success)), end
+        if done - ok > n - need:  # too many failures already: decided
+            break
+    return ok, done, failed
+
+
+def _bisect(s_lo: float, s_hi: float, resolution: float):
+    """The search as a generator: it yields the scales to probe, in order, is sent back whether each
+    passes, and returns (s, (s passing, s failing), below, above).
 
     The ends of the range are assumed to pass (s_lo) and fail (s_hi) and only probed when the
     bisection ends next to them: most searches never simulate them.
     """
     start = min(max(1.0, s_lo), s_hi)
-    if probe.passes(start):
+    if (yield start):
         a, b = start, s_hi
     else:
         half = max(s_lo, 0.5 * start)
-        a, b = (half, start) if half < start and probe.passes(half) else (s_lo, half)
+        a, b = (half, start) if half < start and (yield half) else (s_lo, half)
     while b - a > resolution * (1 + 1e-9):
         mid = 0.5 * (a + b)
-        a, b = (mid, b) if probe.passes(mid) else (a, mid)
-    if not probe.passes(a):  # only s_lo can still be unprobed here
+        a, b = (mid, b) if (yield mid) else (a, mid)
+    if not (yield a):  # only s_lo can still be unprobed here
         return s_lo, (None, s_lo), True, False
-    if b == s_hi and probe.passes(s_hi):
+    if b == s_hi and (yield s_hi):
         return s_hi, (s_hi, None), False, True
     return a, (a, b), False, False
+
+
+def _replay(passed: Mapping[float, bool], s_range: tuple[float, float], resolution: float) -> tuple[list, float | None, tuple | None]:
+    """The bisection over the verdicts known so far ({s: passes}): (the scales probed on its path, in
+    order; the next scale it needs, or None; its result once it needs none)."""
+    search, path = _bisect(*s_range, resolution), []
+    try:
+        s = next(search)
+        while s in passed:
+            if s not in path:
+                path.append(s)
+            s = search.send(passed[s])
+        return path, s, None
+    except StopIteration as stop:
+        return path, None, stop.value
+
+
+class RadiusSearch:
+    """One controller's bisection, driven probe by probe: `wanted` names the probe jobs it can use now,
+    `record` takes their results. Every probe is the job the search would run alone, one probe at a time
+    (the same scale, the same draws in the same order), so the result does not depend on how many run
+    at once.
+
+    With a spare worker, the search also asks for the probe it would need next if the one in flight
+    passes (the upper half's midpoint): a probe whose draws and order are already fixed, since the
+    failures it reads first are those of the nearest larger scale, never the midpoint below it. A
+    guess that turns out wrong is dropped and kept out of the record.
+    """
+
+    def __init__(self, system, name: str, ctrl: Controller, *, n: int, seed: int, need: int, sim_kw: dict, known,
+                 s_range: tuple[float, float], resolution: float):
+        self.system, self.name, self.ctrl, self.n, self.seed, self.need, self.sim_kw = system, name, ctrl, n, seed, need, sim_kw
+        self.s_range, self.resolution = s_range, resolution
+        self.counts: dict[float, tuple[int, int]] = {}  # {s: (successes, states simulated)}
+        self.failed: dict[float, np.ndarray] = {}  # {s: (n,) bool, the draws that did not succeed there}
+        for s, res in known.items():  # already simulated (the evaluation's boxes), where its states are this scale's
+            x0 = uniform_states(system, n, scaled_box(system, s), seed)
+            ok = _known_successes(res, name, x0)
+            if ok is not None:
+                self.counts[s], self.failed[s] = (int(ok.sum()), n), ~ok
+
+    def _state(self, extra: Mapping[float, bool] | None = None):
+        passed = {s: k >= self.need for s, (k, _) in self.counts.items()}
+        return _replay({**passed, **(extra or {})}, self.s_range, self.resolution)
+
+    def _job(self, s: float, path: list) -> tuple:
+        larger = [t for t in path if t > s]
+        return probe_job(self.system, self.name, self.ctrl, self.n, self.seed, self.need, s,
+                         self.failed[min(larger)] if larger else None, self.sim_kw)
+
+    def wanted(self, spare: bool = False) -> list[tuple[float, tuple]]:
+        """[(s, probe job)]: the probe the search needs next, then, with `spare`, the one it needs
+        after that if this one passes (when that is a new scale); [] once it has its result."""
+        path, needed, _ = self._state()
+        if needed is None:
+            return []
+        out = [(needed, self._job(needed, path))]
+        if spare:
+            _, after, _ = self._state({needed: True})
+            if after is not None and after > needed:
+                out.append((after, self._job(after, path)))
+        return out
+
+    def record(self, s: float, result: tuple[int, int, np.ndarray]) -> None:
+        """Take a probe's result (`run_probe_job`)."""
+        ok, done, failed = result
+        self.counts[s], self.failed[s] = (ok, done), failed
+
+    def result(self) -> tuple | None:
+        """`run_radius_job`'s result once the search is over (else None): the radius, the bracket,
+        below, above, and {s: (successes, states simulated)} of the probes on its path."""
+        path, needed, found = self._state()
+        return None if needed is not None else (*found, {s: self.counts[s] for s in path})
 
 
 def roa_radius(
@@ -252,20 +318,22 @@ def _settings(n, s_range, resolution, threshold) -> tuple[int, float, float, int
 
 def radius_job(system, name: str, ctrl: Controller, *, n: int, seed: int, T: float, dt: float, known=None, s_range=RADIUS_RANGE,
                resolution: float = RADIUS_RESOLUTION, threshold: float = RADIUS_THRESHOLD, method: str = "rk4", saturation=None,
-               limits: bool = True, threads: int | None = None) -> tuple:
-    """The job of `run_radius_job` (for `process_map` or `JobPool`): one controller's search, with the
-    arguments of `roa_radius` (dt resolved; `known` may hold results of this controller only)."""
+               limits: bool = True, threads: int | None = None) -> RadiusSearch:
+    """One controller's search with the arguments of `roa_radius` (dt resolved; `known` may hold
+    results of this controller only): a `RadiusSearch`, and the job of `run_radius_job`."""
     n, s_lo, s_hi, need = _settings(n, s_range, resolution, threshold)
     sim_kw = dict(T=T, dt=dt, method=method, saturation=saturation, limits=limits, threads=threads)
     known = {float(s): r for s, r in (known or {}).items()}
-    return (system, name, ctrl, n, seed, need, known, sim_kw, (s_lo, s_hi), float(resolution))
+    return RadiusSearch(system, name, ctrl, n=n, seed=seed, need=need, sim_kw=sim_kw, known=known, s_range=(s_lo, s_hi),
+                        resolution=float(resolution))
 
 
-def run_radius_job(job) -> tuple[float, tuple, bool, bool, dict]:
-    """Worker: one controller's search, for a `radius_job`; returns `_search`'s result and the probes."""
-    system, name, ctrl, n, seed, need, known, sim_kw, (s_lo, s_hi), resolution = job
-    probe = _Prober(system, name, ctrl, n, seed, need, known, sim_kw)
-    return (*_search(probe, s_lo, s_hi, resolution), probe.probes)
+def run_radius_job(search: RadiusSearch) -> tuple[float, tuple, bool, bool, dict]:
+    """Worker: one controller's whole search, one probe at a time, in this process."""
+    while (found := search.result()) is None:
+        (s, job), *_ = search.wanted()
+        search.record(s, run_probe_job(job))
+    return found
 
 
 def radius_result(system, found: Mapping[str, tuple], *, n: int, seed: int, T: float, dt: float, s_range=RADIUS_RANGE,
