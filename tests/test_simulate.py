@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-import idapbc_pin as ip
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate

@@ -154,6 +154,12 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
     def unfinished() -> bool:
         return len(scores) < len(names) * nb or (radius and len(found) < len(names))
 
+    def close_if_over(i: int) -> None:  # a search with its result leaves the pool's work
+        if (result := searches[i].result()) is not None:
+            found[i] = result
+            del searches[i]
+            bar.update()
+
     with JobPool(workers) as pool, bar:
         while unfinished():
             ready = {key: job for key, job in ready.items() if len(key) == 2}  # boxes; then each search's next probe, unless in flight
@@ -162,11 +168,11 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
             while ready and len(in_flight) < pool.workers:  # the first ready job in the controllers' order
                 key = min(ready)
                 in_flight[pool.submit(*ready.pop(key))] = key
-            ahead = [((i, nb, s), job) for i, search in searches.items() for s, job in search.wanted(spare=True)[1:]
-                     if (i, nb, s) not in in_flight.values()]
-            if ahead and len(in_flight) < pool.workers:  # a spare worker: the probe a search needs next if its current one passes
-                key, job = ahead[0]
-                in_flight[pool.submit(run_probe_job, job)] = key
+            if len(in_flight) < pool.workers:  # a spare worker: the probe a search needs next if its current one passes
+                ahead = [((i, nb, s), job) for i, search in searches.items() for s, job in search.wanted(spare=True)[1:]
+                         if (i, nb, s) not in in_flight.values()]
+                for key, job in ahead[:1]:
+                    in_flight[pool.submit(run_probe_job, job)] = key
             finished = [f for f in in_flight if f.done()] or list(wait(in_flight, return_when=FIRST_COMPLETED).done)
             for future in finished:
                 key = in_flight.pop(future)
@@ -176,10 +182,7 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
                     if i not in searches:
                         continue
                     searches[i].record(s, value)
-                    if (result := searches[i].result()) is not None:
-                        found[i] = result
-                        del searches[i]
-                        bar.update()
+                    close_if_over(i)
                     continue
                 scores[key] = value
                 bar.update()
@@ -189,10 +192,7 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
                     known = {scale: roa_result(system, box, states[box], T, dt, seed, {name: scores[i, boxes.index(box)]}, limits=limits)
                              for box, scale in known_box.items()}
                     searches[i] = radius_job(system, name, controllers[name], n=n, seed=seed, T=T, dt=dt, known=known, limits=limits)
-                    if (result := searches[i].result()) is not None:  # decided by the boxes alone
-                        found[i] = result
-                        del searches[i]
-                        bar.update()
+                    close_if_over(i)  # decided by the boxes alone
     # probes ahead still running when every search is over were guesses that turned out wrong: the pool stops them
     results = {box: roa_result(system, box, states[box], T, dt, seed, {name: scores[i, j] for i, name in enumerate(names)},
                                limits=limits) for j, box in enumerate(boxes)}
