@@ -39,18 +39,13 @@ def _rows(path: Path) -> list[dict]:
 
 
 def _references() -> list[Path]:
-    """Folders with best.pt, last.pt and metrics.csv: the committed run's, then one per machine kind."""
+    """Folders with checkpoints/{best,last}.pt and metrics.csv: the committed run's, then one per machine kind."""
     run = DATA / "reference_run"
     return [run, *sorted(p for p in (DATA / "reference_training").glob("*") if p.is_dir())]
 
 
 def _checkpoint(folder: Path, name: str) -> dict:
-    path = folder / "checkpoints" / f"{name}.pt" if (folder / "checkpoints").is_dir() else folder / f"{name}.pt"
-    return torch.load(path, weights_only=True)
-
-
-def _metrics(folder: Path) -> Path:
-    return folder / "metrics.csv"
+    return torch.load(folder / "checkpoints" / f"{name}.pt", weights_only=True)
 
 
 def _relative_gap(ref: dict, new: dict) -> float:
@@ -103,10 +98,10 @@ def test_weights_are_bit_identical_to_the_committed_run(fresh, reference, name):
 def test_metrics_are_identical_to_the_committed_run(fresh, reference):
     rows = _rows(fresh / "reference_run" / "metrics.csv")
     if reference is not None:
-        assert rows == _rows(_metrics(reference))
+        assert rows == _rows(reference / "metrics.csv")
         return
     folder, _ = _nearest(fresh, "last")
-    ref = _rows(_metrics(folder))
+    ref = _rows(folder / "metrics.csv")
     assert [r.keys() for r in rows] == [r.keys() for r in ref] and len(rows) == len(ref)
     for a, b in zip(rows, ref):
         for key in a:

@@ -9,7 +9,7 @@ same torques: a refactor that changes a result fails it.
 
 float32 training rounds differently on another CPU (its BLAS kernels), by about 5e-5 of the weights
 after these 12 epochs. ``python tests/data/make_reference_run.py --machine`` trains the same config on
-this machine and keeps only what depends on it, the checkpoints and metrics.csv, under
+this machine and keeps only what depends on it, checkpoints/ and metrics.csv, under
 ``reference_training/<machine>/`` (`machine`); the test accepts the weights of any committed reference.
 """
 
@@ -69,10 +69,9 @@ def main_machine(here: Path) -> Path:
         main(Path(tmp))
         target = here / "reference_training" / machine()
         shutil.rmtree(target, ignore_errors=True)
-        target.mkdir(parents=True)
-        for name in ("best.pt", "last.pt"):
-            shutil.copy(Path(tmp) / "reference_run" / "checkpoints" / name, target / name)
-        shutil.copy(Path(tmp) / "reference_run" / "metrics.csv", target / "metrics.csv")
+        (target / "checkpoints").mkdir(parents=True)
+        for name in ("checkpoints/best.pt", "checkpoints/last.pt", "metrics.csv"):
+            shutil.copy(Path(tmp) / "reference_run" / name, target / name)
     return target
 
 
