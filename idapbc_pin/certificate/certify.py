@@ -24,6 +24,8 @@ For a trained run (or any object with the controller interface, see `idapbc_pin.
 * the **invariant share**: the share of X's states whose trajectory reaches x* without leaving
   V_box, for both controllers (`idapbc_pin.evaluation.invariance`): no certified set in V_box can
   cover more of X;
+* where the loop has an interval form (the closed-form plants), the certified sets **verified**
+  by interval arithmetic with box splitting (`idapbc_pin.certificate.verified`);
 * the **same certified-set test for the LQR baseline** on its own Lyapunov function δᵀSδ
   (`idapbc_pin.certificate.baseline`), in the same V_box.
 
@@ -35,6 +37,7 @@ checked as such.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -55,6 +58,7 @@ from .region import TrueLoop, certified_region
 from .result import LABEL, Certificate
 from .terms import _f64, closed_loop_terms
 from .vbox import DEFAULT_SCALE, verification_box
+from .verified import check_mode, verify_sets
 
 __all__ = ["certify", "resolve_controller"]
 
@@ -104,6 +108,7 @@ def certify(
     beta: float = 1e-6,
     invariant: int = 200,
     workers: int = 1,
+    verify: str = "auto",
 ) -> Certificate:
     """Check the paper's conditions on `n` uniform samples of the training box.
 
@@ -115,8 +120,7 @@ def certify(
     seed : seed of every random draw.
     epsilon : level ε of E = H_ε; default the run's estimate (``summary.json``), else 0.
     n_hessian : subsample on which ∇²H_d is checked.
-    settle : trajectories from near x* and as many from the half box for the settled equilibrium
-        (0: skip the simulation).
+    settle : trajectories from near x* and as many from the half box for the settled equilibrium (0: none).
     settle_T, dt : their horizon (and the invariant share's) and step, s (dt None: 2 ms, or shorter for a stiff loop, `judge_step`).
     write : write ``<run>/certificate.json`` (atomic) when given a run.
     limits : check the true loop with the effort limits (f + g·sat(u); the default); False lifts them.
@@ -129,6 +133,8 @@ def certify(
     invariant : training-box states simulated for the invariant share in V_box (0: skip).
     workers : processes for the simulations (invariant shares, settling), beside the sampled
         checks; 1: this process, in turn; 0: one per core. The count changes the time, never a result.
+    verify : prove the certified sets by interval arithmetic (`idapbc_pin.certificate.verified`):
+        "auto" (loops with an interval form and 2 states), "always" (any size, box budget), "never".
 
     Returns
     -------
@@ -139,6 +145,7 @@ def certify(
     n = int(n)
     if n < 16:
         raise IdapbcError(f"n must be at least 16 samples, got {n}. Fix: pass a larger --n.")
+    check_mode(verify)
     rng = np.random.default_rng(seed)
     lo, hi = (_f64(b) for b in system.domain)
     bounds = input_limits(system, limits)
@@ -151,9 +158,7 @@ def certify(
         terms = closed_loop_terms(ctrl, lo + (hi - lo) * rng.random((n, system.n)), system, bounds.bound)
         structural = check_structural(ctrl, system, terms, n_hessian)
         les = local_stability(ctrl, system)
-        region = certified_region(ctrl, TrueLoop(system, ctrl, bounds.bound), system.x_star, vbox, (lo, hi),
-                                  np.random.default_rng([seed, 1]), epsilon=share_bound, beta=beta)
-        base = certify_baseline(system, vbox, (lo, hi), np.random.default_rng([seed, 1]), bounds.bound, share_bound, beta) if with_baseline else None
+        region, base = _certified_sets(ctrl, system, vbox, (lo, hi), bounds.bound, seed, share_bound, beta, with_baseline, verify)
         invariant_share = {k: v for f in shares for k, v in f.result().items()} or None
         equilibrium = settling.result() if settling is not None else None
     cert = Certificate(
@@ -184,6 +189,17 @@ def certify(
     if write and path is not None:
         write_json(path / "certificate.json", cert.to_dict(), sort_keys=False)
     return cert
+
+
+def _certified_sets(ctrl, system, vbox, tbox, bound, seed, share_bound, beta, with_baseline, verify):
+    """(H_d's certified set, LQR's `BaselineCertificate` or None), each with its `Verified`."""
+    region = certified_region(ctrl, TrueLoop(system, ctrl, bound), system.x_star, vbox, tbox,
+                              np.random.default_rng([seed, 1]), epsilon=share_bound, beta=beta)
+    base = certify_baseline(system, vbox, tbox, np.random.default_rng([seed, 1]), bound, share_bound, beta) if with_baseline else None
+    proven = verify_sets(ctrl, system, region, base.sublevel if base else None, vbox, tbox, bound, np.random.default_rng([seed, 2]), verify)
+    region = dataclasses.replace(region, verified=proven[0])
+    base = dataclasses.replace(base, sublevel=dataclasses.replace(base.sublevel, verified=proven[1])) if base else None
+    return region, base
 
 
 def _invariant_job(job) -> dict[str, float]:

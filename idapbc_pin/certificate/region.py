@@ -36,7 +36,7 @@ from .result import Confidence, Region
 from .terms import _f64, hessians
 from .vbox import sample_set, set_frame, zero_failure_samples
 
-__all__ = ["TrueLoop", "certified_region", "counterexamples", "linear_core"]
+__all__ = ["TrueLoop", "certified_region", "counterexamples", "covered_share", "linear_core"]
 
 #: Rounds of the confidence draw (a failure lowers c and draws again); enters the bound as ln(R/β).
 CONFIDENCE_ROUNDS = 3
@@ -224,11 +224,25 @@ def certified_region(
     )
 
 
+def covered_share(fn, c: float, frame, x, draws: int, tbox, rng) -> float:
+    """vol({V < c} ∩ X)/vol(X) from the set's samples x (`sample_set`, `draws` frame draws) and as
+    many uniform samples of X: whichever estimate has the smaller relative variance, (1 − p)/k for
+    k hits of p = k/draws (the frame's, good for a set small in X; the uniform one, exact for a set
+    that holds X)."""
+    tlo, thi = tbox
+    k_frame = int(np.all((x >= tlo) & (x <= thi), axis=1).sum())
+    by_frame = frame.volume * k_frame / draws / float(np.prod(thi - tlo))
+    n = max(int(x.shape[0]), 1)
+    k_box = int((_value(fn, tlo + (thi - tlo) * rng.random((n, tlo.size))) < c).sum())
+    if k_box == 0 or (k_frame > 0 and (1 - k_frame / draws) / k_frame < (1 - k_box / n) / k_box):
+        return float(by_frame)
+    return k_box / n
+
+
 def _confidence(fn, loop, x_star, c, core, vbox, tbox, rng, epsilon, beta):
     """Step 4 of the module doc -> (final c, Confidence, covered share of X, share of V_box); the
     shares are 0 unless the last round passed."""
     vlo, vhi = vbox
-    tlo, thi = tbox
     need = zero_failure_samples(epsilon, beta / CONFIDENCE_ROUNDS)
     failures, passed, k = 0, False, 0
     covered = share_v = 0.0
@@ -237,15 +251,12 @@ def _confidence(fn, loop, x_star, c, core, vbox, tbox, rng, epsilon, beta):
             break
         frame = set_frame(fn, c, x_star, vlo, vhi, rng)
         x, draws = sample_set(fn, c, frame, need, rng)
-        vol_box = frame.volume
-        in_train = np.all((x >= tlo) & (x <= thi), axis=1)
-        covered = vol_box * float(in_train.sum()) / draws / float(np.prod(thi - tlo))
-        share_v = vol_box * x.shape[0] / draws / float(np.prod(vhi - vlo))
+        share_v = frame.volume * x.shape[0] / draws / float(np.prod(vhi - vlo))
         V, _, bad = _violations(fn, loop, x, core)
         if x.shape[0] < need:
             break
         if not bad.any():
-            passed = True
+            passed, covered = True, covered_share(fn, c, frame, x, draws, tbox, rng)
             break
         failures += int(bad.sum())
         c = float(V[bad].min())

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from .._io import to_json
 
-__all__ = ["LABEL", "share_text", "BaselineCertificate", "Certificate", "Confidence", "Dissipation", "Equilibrium", "LocalStability", "Region", "Structural"]
+__all__ = ["LABEL", "share_text", "BaselineCertificate", "Certificate", "Confidence", "Dissipation", "Equilibrium", "LocalStability", "Region", "Structural", "Verified"]
 
 #: How the certificate labels itself in its table and JSON.
 LABEL = "sampled certificate, not a proof"
@@ -96,6 +96,24 @@ class Confidence:
 
 
 @dataclass(frozen=True)
+class Verified:
+    """The interval-arithmetic check of a certified set (`idapbc_pin.certificate.verified`).
+
+    passed : every box was decided: V decreases on {core ≤ V < c} along the exact loop.
+    c : the verified level (0 unless passed).  boxes : boxes evaluated.
+    covered_fraction : share of the training box X inside {V < c} (sampled; 0 unless passed).
+    reason : why a level was not verified ('' when one was).  seconds : wall time.
+    """
+
+    passed: bool
+    c: float
+    boxes: int
+    covered_fraction: float
+    reason: str
+    seconds: float
+
+
+@dataclass(frozen=True)
 class Region:
     """The certified set {V < c} in the verification box (`idapbc_pin.certificate.region`).
 
@@ -108,6 +126,7 @@ class Region:
     covered_fraction : vol(set ∩ X) / vol(X), the training box X (0 unless `confidence.passed`).
     verification_share : vol(set) / vol(V_box).
     confidence : `Confidence`.
+    verified : the interval-arithmetic check of the set (`Verified`), or None where not run.
     """
 
     c: float
@@ -121,6 +140,7 @@ class Region:
     covered_fraction: float
     verification_share: float
     confidence: Confidence
+    verified: Verified | None = None
 
     @property
     def certified(self) -> bool:
@@ -265,6 +285,17 @@ class Certificate:
                 f"{name} {share_text(v)}" for name, v in inv.items())
         return line
 
+    def _verified_line(self) -> str:
+        """What interval arithmetic proved of each certified set (`idapbc_pin.certificate.verified`)."""
+        parts = []
+        for name, fn, region in (("NIDA-PBC", "H_d", self.sublevel), ("LQR", "δᵀSδ", self.baseline.sublevel if self.baseline else None)):
+            v = None if region is None else region.verified
+            if v is None:
+                continue
+            parts.append(f"{name} {{{fn} < {v.c:.4g}}} {share_text(v.covered_fraction)} of the training box ({v.boxes} boxes, {v.seconds:.1f} s)"
+                         if v.passed else f"{name} not verified: {v.reason}")
+        return "verified by interval arithmetic (a proof outside the core): " + ("  |  ".join(parts) if parts else "not run")
+
     def table(self) -> str:
         """A short human-readable table."""
         sl = self.sublevel
@@ -287,6 +318,7 @@ class Certificate:
             f"({sl.n_violations} samples, {sl.n_counterexamples} counter-examples)"
         )
         lines.append(self._shares_line())
+        lines.append(self._verified_line())
         if self.local_stability.eigenvalues:
             eig = ", ".join(f"{re:.3g}" + (f"{im:+.3g}j" if abs(im) > 1e-12 else "") for re, im in self.local_stability.eigenvalues)
             lines.append(f"closed-loop eigenvalues at x*: {eig}")

@@ -42,7 +42,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_certify(args: argparse.Namespace) -> int:
     cert = certify(_run(args), n=args.n, seed=args.seed, epsilon=args.epsilon, settle=args.settle, limits=not args.no_limits,
                    scale=args.scale, box=dict(args.verification_box) if args.verification_box else None, invariant=args.invariant,
-                   workers=workers_of(args))
+                   workers=workers_of(args), verify=args.verify)
     print(cert.table())
     print(f"wrote {Path(args.run) / 'certificate.json'}")
     return 0
@@ -106,6 +106,8 @@ def add_eval_commands(subparsers) -> None:
                    help="verification-box bounds of a coordinate (joint or p_<joint>), repeatable; it must hold the training box")
     p.add_argument("--invariant", type=int, default=library_default(certify, "invariant"), metavar="N",
                    help="training-box states simulated for the invariant share in the verification box (default %(default)s; 0: skip)")
+    p.add_argument("--verify", choices=("auto", "always", "never"), default=library_default(certify, "verify"),
+                   help="prove the certified sets by interval arithmetic: auto (2-state loops with an interval form), always, never (default %(default)s)")
     add_workers_argument(p, "the simulations (invariant shares, settling), beside the sampled checks")
     p.set_defaults(func=_cmd_certify)
 
