@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import idapbc_pin as ip
-from idapbc_pin.certificate.region import TrueLoop, certified_region, counterexamples, linear_core
+from idapbc_pin.certificate.region import TrueLoop, certified_region, counterexamples, covered_share, linear_core
 from idapbc_pin.certificate.vbox import sample_set, set_frame, verification_box, zero_failure_samples
 
 
@@ -89,6 +89,17 @@ def test_samples_of_an_elongated_ellipse_are_uniform_on_it_and_its_area_is_right
     assert x.shape[0] / draws == pytest.approx(math.pi / 4 / 1.4**2, abs=0.02)
     # uniform: the share inside the concentric ellipse of half the level is ½ (area ∝ level in 2-D)
     assert np.mean(fn.H_d(x) < c / 2) == pytest.approx(0.5, abs=0.015)
+
+
+def test_the_covered_share_is_exact_for_a_set_that_holds_the_box_and_right_for_a_small_one():
+    fn, rng = Quadratic(np.eye(2)), np.random.default_rng(1)
+    vlo, vhi = np.full(2, -10.0), np.full(2, 10.0)
+    for c, tbox, share in ((3.0, (np.full(2, -1.0), np.full(2, 1.0)), 1.0),  # the disc r² < 3 holds the box
+                           (1e-3, (np.full(2, -1.0), np.full(2, 1.0)), math.pi * 1e-3 / 4)):  # a disc of 0.08 % of it
+        frame = set_frame(fn, c, np.zeros(2), vlo, vhi, rng)
+        x, draws = sample_set(fn, c, frame, 15000, rng)
+        got = covered_share(fn, c, frame, x, draws, tbox, rng)
+        assert got == share if share == 1.0 else got == pytest.approx(share, rel=0.03)
 
 
 def test_the_linearisation_core_of_a_linear_loop_is_the_largest_allowed_and_empty_when_unstable():
