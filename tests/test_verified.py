@@ -82,6 +82,8 @@ def test_arithmetic_sums_and_products_with_a_matrix_hold_their_values():
     assert _holds(A @ W, pa @ W) and _holds(A.clip(-1, 0.5), np.clip(pa, -1, 0.5))
     assert _holds(A * 3.0 - 1.0, pa * 3.0 - 1.0)
     assert np.all(((A @ W).hi - (A @ W).lo) <= (A.hi - A.lo) @ np.abs(W) * (1 + 1e-12) + 1e-12)  # the hull, no wider
+    loose = Interval(np.array([-2.0]), np.array([1.0]))  # an enclosure of s that reaches −1: unbounded, never narrow
+    assert loose.ratio_one_plus().lo[0] == -np.inf and loose.psi().hi[0] == np.inf and loose.psi().lo[0] == 0.0
     with pytest.raises(ValueError, match="reaches 0"):
         Interval(np.array([-1.0]), np.array([1.0])).reciprocal()
 

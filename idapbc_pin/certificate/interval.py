@@ -186,14 +186,19 @@ class Interval:
         return Interval(_down(self.lo - r), _up(self.hi + r))
 
     def ratio_one_plus(self) -> "Interval":
-        """s/(1 + s) for s > −1, increasing (ψ'(s) of the anchored H_d)."""
+        """s/(1 + s) for s > −1, increasing (ψ'(s) of the anchored H_d); an interval that reaches −1
+        (a loose enclosure of s) gives (−∞, f(hi)]."""
         f = lambda s: s / (1.0 + s)  # noqa: E731
-        return _libm(f(self.lo), f(self.hi))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = _libm(f(self.lo), f(self.hi))
+        return Interval(np.where(self.lo > -1, r.lo, -np.inf), np.where(self.hi > -1, r.hi, -np.inf))
 
     def psi(self) -> "Interval":
-        """ψ(s) = s − log(1 + s) for s > −1: ≥ 0, decreasing below 0 and increasing above."""
-        f = lambda s: s - np.log1p(s)  # noqa: E731
-        a, b = f(self.lo), f(self.hi)
+        """ψ(s) = s − log(1 + s) for s > −1: ≥ 0, decreasing below 0 and increasing above; +∞ at an
+        end at or below −1 (a loose enclosure of s)."""
+        f = lambda s: s - np.log1p(np.maximum(s, -1.0))  # noqa: E731  (+∞ at s ≤ −1: ψ grows without bound there)
+        with np.errstate(divide="ignore"):
+            a, b = f(self.lo), f(self.hi)
         lo = np.where((self.lo <= 0) & (self.hi >= 0), 0.0, np.minimum(a, b))
         # the difference cancels: its error is log1p's, relative to s, not to the result
         err = LIBM_REL * np.maximum(np.abs(self.lo), np.abs(self.hi)) + _TINY
