@@ -199,3 +199,16 @@ def test_certify_verifies_the_mass_spring_dampers_sets_and_says_why_not_elsewher
     assert not never.sublevel.verified.passed and never.sublevel.verified.reason == "not asked for"
     with pytest.raises(ip.IdapbcError, match="verify must be"):
         certify(run, n=2000, settle=0, invariant=0, write=False, verify="sometimes")
+
+
+def test_a_free_form_set_stopped_by_a_rising_state_is_verified_a_little_below_it(tmp_path):
+    """The free form (H_d = D + ε‖δ‖², no quadratic floor): its sampled set ends at a state where Ḣ_d ≥ 0,
+    so the level just below it cannot be decided within its share of the boxes, and a lower one is proved."""
+    torch.set_num_threads(1)
+    system = ip.load_system("paper_mass_spring_damper")
+    config = ip.TrainConfig(epochs=300, width=16, depth=2, samples=64, form="free")
+    run = ip.train(system, config, out=tmp_path, progress=False)
+    cert = certify(run, n=2000, settle=0, invariant=0, write=False)
+    assert run.controller.flow().P is None and cert.sublevel.c < cert.sublevel.c_boundary  # stopped by a violation
+    v = cert.sublevel.verified
+    assert v.passed and cert.sublevel.core < v.c < 0.999 * cert.sublevel.c, cert.table()

@@ -38,8 +38,10 @@ from .vbox import sample_set, set_frame
 
 __all__ = ["MODES", "check_mode", "not_verified", "verify_level", "verified_set", "verify_sets"]
 
-#: Levels tried, as fractions of the sampled set's level, until one is verified.
+#: Levels tried, as fractions of the sampled set's level, until one is verified; each may use an
+#: equal share of what is left of the box budget.
 LEVELS = (0.999, 0.99, 0.9, 0.5)
+_OVER = "over the box budget"
 
 
 def _bounds(rate, X: Interval, floor):
@@ -97,7 +99,7 @@ def _run(rate, X: Interval, decide, floor, scale, budget: int, batch: int, axes=
             continue
         count += B.shape[0]
         if count > budget:
-            return f"more than {budget} boxes", count
+            return _OVER, count
         undecided, fail = decide(*_bounds(rate, B, floor))
         if fail:
             return fail, count
@@ -140,7 +142,7 @@ def verify_level(rate, c: float, core: float, vbox, floor=None, *, budget: int =
             why, k = _run(rate, _grid(lo, hi, grid, i, at), face, floor, scale, budget - total, batch, np.arange(n) != i)
             total += k
             if why:
-                return why, total
+                return (f"more than {budget} boxes" if why == _OVER else why), total
 
     def inside(V_lo, V_hi, Vd_hi, Vd_mid_lo, V_mid):
         undecided = ~((V_lo >= c) | (V_hi < core) | (Vd_hi < 0))
@@ -148,27 +150,26 @@ def verify_level(rate, c: float, core: float, vbox, floor=None, *, budget: int =
         return undecided, ("a state of the set outside the core where V̇ ≥ 0" if bad.any() else None)
 
     why, k = _run(rate, _grid(lo, hi, grid), inside, floor, scale, budget - total, batch)
-    return why, total + k
+    return (f"more than {budget} boxes" if why == _OVER else why), total + k
 
 
 def verified_set(rate, c: float, core: float, vbox, share, floor=None, *, budget: int = 500_000, levels=LEVELS) -> Verified:
-    """The highest of ``levels``·c verified (`verify_level`), within `budget` boxes in all.
+    """The highest of ``levels``·c verified (`verify_level`), within `budget` boxes in all (each level
+    an equal share of what is left).
 
     share : callable level -> share of the training box X inside {V < level} (sampled).
     """
     t0 = time.perf_counter()
     used, reasons = 0, []
-    for frac in levels:
+    for k_level, frac in enumerate(levels):
         level = frac * c
         if not level > core:
             break
-        why, k = verify_level(rate, level, core, vbox, floor, budget=budget - used)
+        why, k = verify_level(rate, level, core, vbox, floor, budget=(budget - used) // (len(levels) - k_level))
         used += k
         if why is None:
             return Verified(passed=True, c=level, boxes=used, covered_fraction=share(level), reason="", seconds=time.perf_counter() - t0)
         reasons.append(f"{frac:g}·c: {why}")
-        if used >= budget:
-            break
     return not_verified("; ".join(reasons) or "no set beyond the core", used, time.perf_counter() - t0)
 
 
