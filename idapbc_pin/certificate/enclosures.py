@@ -5,7 +5,8 @@ For a batch of boxes X (an `Interval` of shape (N, n)) they return intervals tha
 state in each box, the value in exact arithmetic of:
 
 * the open loop f(x), for plants written in closed form (`plant_enclosure`: the paper's
-  mass-spring-damper); a URDF plant has no interval form here (Pinocchio computes in floating point);
+  mass-spring-damper and its two-coordinate mechanical plants); a URDF plant has no interval form
+  here (Pinocchio computes in floating point);
 * ∇H_d(x) and f̃_d(x) = (J_d − R_d)∇H_d of the controller as deployed (`FlowEnclosure`, formula for
   formula the numpy `DesiredFlow`, its float32 or float64 weights taken exactly in float64);
 * the true loop F = f + g·sat(u), u = (gᵀg)⁻¹gᵀ(f̃_d − f), and V̇ = ∇Vᵀ F, for H_d (`flow_rate`) and
@@ -34,7 +35,7 @@ def _msd(plant: MassSpringDamperPlant, X: Interval) -> Interval:
     q, p = X[:, 0], X[:, 1]
     spring = (q.square() * 0.5 + plant.k) * q
     friction = p.square() * (p.abs() + 1.0) * plant.b
-    acc = (-(spring + friction)) * (1.0 / plant.m)
+    acc = (-(spring + friction)) * Interval.point(plant.m).reciprocal()
     return Interval(np.stack([p.lo, acc.lo], axis=1), np.stack([p.hi, acc.hi], axis=1))
 
 
@@ -45,7 +46,7 @@ def _cos_coupled(plant: CosCoupledPlant, X: Interval) -> Interval:
     s = q @ plant.a[:, None]
     kc, ks = s.cos()[:, 0] * plant.k, s.sin()[:, 0] * plant.k
     d1, d2 = plant.diag
-    inv_det = (kc.square() * -1.0 + d1 * d2).meet((1 - 1e-12) * (d1 * d2 - plant.k**2)).reciprocal()  # det ≥ d₁d₂ − k² > 0
+    inv_det = (kc.square() * -1.0 + Interval.point(d1) * d2).meet((1 - 1e-12) * (d1 * d2 - plant.k**2)).reciprocal()  # det ≥ d₁d₂ − k² > 0
     p1, p2 = p[:, 0], p[:, 1]
     v1 = (p1 * d2 - kc * p2) * inv_det
     v2 = (p2 * d1 - kc * p1) * inv_det
@@ -96,6 +97,7 @@ class FlowEnclosure:
         self.flow = flow
         f64 = lambda a: None if a is None else np.asarray(a, np.float64)  # noqa: E731
         self.x_star, self.x_scale = f64(flow.x_star), f64(flow.x_scale)
+        self.inv_scale = Interval.point(self.x_scale).reciprocal()  # 1/x_scale, rounded outward
         self.W_in, self.b_in = f64(flow.icnn_in[0]), f64(flow.icnn_in[1])
         self.W_z = [f64(W) for W in flow.icnn_z]
         self.out, self.h0, self.g0 = f64(flow.icnn_out), f64(flow.icnn_h0), f64(flow.icnn_g0)
@@ -103,7 +105,7 @@ class FlowEnclosure:
         self.depth, self.width = len(flow.icnn_x), self.out.shape[0]
 
     def _icnn(self, d: Interval):
-        u = d * (1.0 / self.x_scale) if self.map is None else d @ self.map.T
+        u = d * self.inv_scale if self.map is None else d @ self.map.T
         inputs = u @ self.W_in + self.b_in
         z, slopes = None, []
         for k in range(self.depth):
@@ -130,7 +132,7 @@ class FlowEnclosure:
         lo = np.concatenate([p.lo for p in parts], axis=1)
         hi = np.concatenate([p.hi for p in parts], axis=1)
         g = Interval(lo, hi) @ self.W_in.T - self.g0
-        dD = g * (1.0 / self.x_scale) if self.map is None else g @ self.map
+        dD = g * self.inv_scale if self.map is None else g @ self.map
         ds = dD + d * (2 * self.eps)
         if self.P is None:
             return s, ds, np.ones(X.shape[0], bool)
@@ -167,7 +169,7 @@ class FlowEnclosure:
         """(H_d (N,), ∇H_d (N, n), f̃_d (N, n), tangent (N,)) over the boxes X (N, n) (`value_and_grad`)."""
         fl = self.flow
         H, grad, convex = self.value_and_grad(X)
-        u = (X - self.x_star) * (1.0 / self.x_scale)
+        u = (X - self.x_star) * self.inv_scale
         if fl.input_bound is not None:
             b = float(fl.input_bound)
             u = u.clip(-b, b)
@@ -176,7 +178,7 @@ class FlowEnclosure:
         Lt_col = (L.swap(1, 2) * col).sum(-1)
         f_d = (self._J(u) * col).sum(-1) - (L * Lt_col[:, None, :]).sum(-1)
         if fl.rho:
-            f_d = f_d - (Interval.point(np.asarray(fl.S, np.float64) * float(fl.rho)) * col).sum(-1)
+            f_d = f_d - (Interval.point(np.asarray(fl.S, np.float64)) * float(fl.rho) * col).sum(-1)
         return H, grad, f_d, convex
 
 

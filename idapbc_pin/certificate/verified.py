@@ -3,15 +3,17 @@ outside the core, where the loop has an interval form (`idapbc_pin.certificate.e
 
 For a level c (below the sampled set's, `idapbc_pin.certificate.region`) and the core level c₀:
 
-1. **Faces.** V ≥ c on every face of the verification box V_box: the connected part of {V < c}
-   that holds x* then lies inside V_box.
-2. **Inside.** Every box of a cover of V_box is, by its enclosures, either outside the set
-   (V ≥ c on it), inside the core (V < c₀ on it), or a box on which V̇ < 0. A box that is none of
-   these is halved along its widest side (in V_box's units) and tried again.
+1. **Faces.** V ≥ c on every face of the verification box V_box (where the cover below reaches it):
+   the connected part of {V < c} that holds x* then lies inside V_box.
+2. **Inside.** Every box of a cover of the set (V_box, cut to the bounding box of {δᵀQδ < c} where
+   V ≥ δᵀQδ) is, by its enclosures, either outside the set (V ≥ c on it), inside the core (V < c₀
+   on it), or a box on which V̇ < 0. A box that is none of these is halved along its widest side
+   (in V_box's units) and tried again.
 
 V is bounded on a box B by the mean-value form V(m) + ∇V(B)·(B − m) (m its centre), intersected with
-its direct enclosure, and from below by its tangent plane at m where that plane bounds V (V convex;
-see `enclosures.FlowEnclosure.value_and_grad`); V̇ by its direct enclosure. When every box is decided the set is **verified**:
+its direct enclosure, and from below by its tangent plane at m where that plane bounds V (V convex,
+`enclosures.FlowEnclosure.value_and_grad`); V̇ by its direct enclosure. When every box is decided,
+the set is **verified**:
 along the exact loop (the deployed law in exact arithmetic on its weights, the closed-form plant,
 the effort limits), V decreases on {c₀ ≤ V < c}, so a trajectory starting in the set stays in it and
 enters the core. The core's own decrease rests on the linearisation (`region.linear_core`), as in
@@ -58,8 +60,8 @@ def _bounds(rate, X: Interval, floor):
     lo = np.where(tangent[N:], np.maximum(lo, plane.lo), lo)
     if floor is not None:
         x_star, Q = floor
-        dm, d = m - x_star, X - x_star
-        quad = ((d @ (2 * Q)) * (X - m)).sum(-1) + np.einsum("ni,ij,nj->n", dm, Q, dm) * (1 - 1e-12)
+        dm, d = Interval.point(m) - x_star, X - x_star
+        quad = ((d @ (2 * Q)) * (X - m)).sum(-1) + (dm @ Q * dm).sum(-1)  # its mean-value form
         lo = np.maximum(lo, np.maximum(quad.lo, (d @ Q * d).sum(-1).lo))
     return lo, hi, Vdb.hi, Vd[N:].lo, Vm.hi
 
