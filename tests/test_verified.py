@@ -126,7 +126,7 @@ def test_the_learned_loops_enclosure_holds_H_d_its_gradient_and_its_rate(case):
     rng = np.random.default_rng(3)
     box = _boxes(rng, 600, 1.5 * lo, 1.5 * hi, 0.04)  # a third of them beyond the training box, some across its faces
     pts = _inside(box, 24, rng).reshape(-1, system.n)
-    H, grad, Vd, convex = flow_rate(system, FlowEnclosure(ctrl.flow()), ctrl._g_pinv, bound, fallback, box)
+    H, grad, Vd, _ = flow_rate(system, FlowEnclosure(ctrl.flow()), ctrl._g_pinv, bound, fallback, box)
     rate = np.einsum("ni,ni->n", ctrl.grad_H_d(pts), TrueLoop(system, ctrl, bound)(pts))
     shape = (box.shape[0], 24)
     assert _holds(H, ctrl.H_d(pts).reshape(shape))

@@ -36,7 +36,7 @@ def _msd(plant: MassSpringDamperPlant, X: Interval) -> Interval:
     spring = (q.square() * 0.5 + plant.k) * q
     friction = p.square() * (p.abs() + 1.0) * plant.b
     acc = (-(spring + friction)) * Interval.point(plant.m).reciprocal()
-    return Interval(np.stack([p.lo, acc.lo], axis=1), np.stack([p.hi, acc.hi], axis=1))
+    return Interval.stack([p, acc], axis=1)
 
 
 def _cos_coupled(plant: CosCoupledPlant, X: Interval) -> Interval:
@@ -53,9 +53,7 @@ def _cos_coupled(plant: CosCoupledPlant, X: Interval) -> Interval:
     sq = q.sin()
     vv = v1 * v2
     pdot = [ks * vv * (-plant.a[j]) + sq[:, j] * plant.c[j] for j in range(2)]
-    lo = np.stack([v1.lo, v2.lo, pdot[0].lo, pdot[1].lo], axis=1)
-    hi = np.stack([v1.hi, v2.hi, pdot[0].hi, pdot[1].hi], axis=1)
-    return Interval(lo, hi)
+    return Interval.stack([v1, v2, *pdot], axis=1)
 
 
 def enclosable(system, fallback=None) -> str | None:
@@ -129,9 +127,7 @@ class FlowEnclosure:
             parts[k] = slopes[k] * delta
             if k > 0:
                 delta = parts[k] @ self.W_z[k - 1]
-        lo = np.concatenate([p.lo for p in parts], axis=1)
-        hi = np.concatenate([p.hi for p in parts], axis=1)
-        g = Interval(lo, hi) @ self.W_in.T - self.g0
+        g = Interval.concat(parts, axis=1) @ self.W_in.T - self.g0
         dD = g * self.inv_scale if self.map is None else g @ self.map
         ds = dD + d * (2 * self.eps)
         if self.P is None:
@@ -154,7 +150,7 @@ class FlowEnclosure:
         s = None if fl.row_scale is None else np.asarray(fl.row_scale, np.float64)
         if fl.l0 is None:
             diag = r_d.softplus()
-            entries = Interval(np.concatenate([diag.lo, r_o.lo], 1), np.concatenate([diag.hi, r_o.hi], 1))
+            entries = Interval.concat([diag, r_o], axis=1)
             entries = entries if s is None else entries * s
         else:
             at = np.asarray(fl.r_at_target, np.float64)
@@ -162,13 +158,13 @@ class FlowEnclosure:
             step = r_o - at[n:]
             step = step if s is None else step * s[n:]
             low = step + np.asarray(fl.l0, np.float64)
-            entries = Interval(np.concatenate([diag.lo, low.lo], 1), np.concatenate([diag.hi, low.hi], 1))
+            entries = Interval.concat([diag, low], axis=1)
         return (entries @ np.asarray(fl.lower_basis, np.float64)).reshape(-1, n, n)
 
     def f_d(self, X: Interval) -> tuple[Interval, Interval, Interval, np.ndarray]:
         """(H_d (N,), ∇H_d (N, n), f̃_d (N, n), tangent (N,)) over the boxes X (N, n) (`value_and_grad`)."""
         fl = self.flow
-        H, grad, convex = self.value_and_grad(X)
+        H, grad, tangent = self.value_and_grad(X)
         u = (X - self.x_star) * self.inv_scale
         if fl.input_bound is not None:
             b = float(fl.input_bound)
@@ -179,13 +175,17 @@ class FlowEnclosure:
         f_d = (self._J(u) * col).sum(-1) - (L * Lt_col[:, None, :]).sum(-1)
         if fl.rho:
             f_d = f_d - (Interval.point(np.asarray(fl.S, np.float64)) * float(fl.rho) * col).sum(-1)
-        return H, grad, f_d, convex
+        return H, grad, f_d, tangent
 
 
-def _loop(system, f: Interval, u: Interval, bound, target: Interval | None = None, exact=None) -> Interval:
+def _input_matrix(system) -> np.ndarray:
+    """g (n, m), constant for every system here (g = [0; B])."""
+    return np.asarray(system.g(np.asarray(system.x_star, float)), np.float64)
+
+
+def _loop(g: np.ndarray, f: Interval, u: Interval, bound, target: Interval | None = None, exact=None) -> Interval:
     """F = f + g·sat(u) over the boxes; ``target`` (the same field where u is the learned law and is
     not clipped, Πf̃_d + (I − Π)f) is intersected in on the rows of ``exact`` where u stays within the bound."""
-    g = np.asarray(system.g(np.asarray(system.x_star, float)), np.float64)  # constant input matrix (n, m)
     if bound is None:
         sat, free = u, np.ones(u.shape[0], bool)
     else:
@@ -221,14 +221,13 @@ def flow_rate(system, enclosure: FlowEnclosure, g_pinv, bound, fallback, X: Inte
     """(H_d, ∇H_d, Ḣ_d = ∇H_dᵀF, tangent) over the boxes X, F the deployed law's true loop (outer law
     `fallback`); tangent (N,) bool: see `FlowEnclosure.value_and_grad`."""
     f = plant_enclosure(system, X)
-    H, grad, f_d, convex = enclosure.f_d(X)
-    g_pinv = np.asarray(g_pinv, np.float64)
-    g = np.asarray(system.g(np.asarray(system.x_star, float)), np.float64)
+    H, grad, f_d, tangent = enclosure.f_d(X)
+    g_pinv, g = np.asarray(g_pinv, np.float64), _input_matrix(system)
     u, learned = _outer(fallback, X, (f_d - f) @ g_pinv.T)
     Pi = g @ g_pinv
     target = f @ (np.eye(Pi.shape[0]) - Pi).T + f_d @ Pi.T
-    F = _loop(system, f, u, bound, target, learned)
-    return H, grad, (grad * F).sum(-1), convex
+    F = _loop(g, f, u, bound, target, learned)
+    return H, grad, (grad * F).sum(-1), tangent
 
 
 def lqr_rate(system, lqr, S: np.ndarray, bound, X: Interval):
@@ -239,5 +238,5 @@ def lqr_rate(system, lqr, S: np.ndarray, bound, X: Interval):
     V = (d @ S * d).sum(-1)
     f = plant_enclosure(system, X)
     u = d @ (-np.asarray(lqr.K, np.float64)).T + np.asarray(lqr.u_star, np.float64)
-    F = _loop(system, f, u, bound)
+    F = _loop(_input_matrix(system), f, u, bound)
     return V, grad, (grad * F).sum(-1), np.ones(X.shape[0], bool)

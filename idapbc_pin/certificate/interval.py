@@ -71,6 +71,16 @@ class Interval:
     def mid(self) -> np.ndarray:
         return 0.5 * (self.lo + self.hi)
 
+    @classmethod
+    def concat(cls, parts, axis: int = -1) -> "Interval":
+        """Intervals joined along an existing axis."""
+        return cls(np.concatenate([p.lo for p in parts], axis), np.concatenate([p.hi for p in parts], axis))
+
+    @classmethod
+    def stack(cls, parts, axis: int = -1) -> "Interval":
+        """Intervals of one shape stacked along a new axis."""
+        return cls(np.stack([p.lo for p in parts], axis), np.stack([p.hi for p in parts], axis))
+
     def __getitem__(self, key) -> "Interval":
         return Interval(self.lo[key], self.hi[key])
 

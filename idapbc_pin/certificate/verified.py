@@ -51,7 +51,7 @@ def _bounds(rate, X: Interval, floor):
     per box; ``floor`` = (x*, Q) with V ≥ δᵀQδ adds that quadratic's lower bound."""
     m = X.mid
     N = X.shape[0]
-    both = Interval(np.concatenate([X.lo, m]), np.concatenate([X.hi, m]))
+    both = Interval.concat([X, Interval.point(m)], axis=0)
     V, grad, Vd, tangent = rate(both)
     Vb, Gb, Vdb, Vm, Gm = V[:N], grad[:N], Vd[:N], V[N:], grad[N:]
     mv = (Gb * (X - m)).sum(-1) + Vm  # mean-value form
@@ -76,7 +76,7 @@ def _split(X: Interval, scale: np.ndarray, axes: np.ndarray | None = None) -> In
     mid = X.mid[rows, k]
     lo2, hi1 = X.lo.copy(), X.hi.copy()
     hi1[rows, k], lo2[rows, k] = mid, mid
-    return Interval(np.concatenate([X.lo, lo2]), np.concatenate([hi1, X.hi]))
+    return Interval.concat([Interval(X.lo, hi1), Interval(lo2, X.hi)], axis=0)
 
 
 def _grid(lo: np.ndarray, hi: np.ndarray, k: int, fixed: int | None = None, at: float | None = None) -> Interval:
