@@ -8,6 +8,7 @@ The paper gives no learning rate: 5e-4 (docs/results-history.md). `TrainConfig.f
 from __future__ import annotations
 
 from dataclasses import dataclass
+from numbers import Integral
 from pathlib import Path
 
 from ._settings import Settings, read_table
@@ -163,6 +164,7 @@ class TrainConfig(Settings):
             (self.epsilon >= 0, "epsilon must be ≥ 0 (0 = automatic)"),
             (0 < self.inside_fraction < 1, "inside_fraction must be in (0, 1)"),
             (self.dtype in ("float64", "float32"), "dtype must be 'float64' or 'float32'"),
+            (isinstance(self.seed, Integral) and not isinstance(self.seed, bool) and self.seed >= 0, f"seed must be an integer ≥ 0, got {self.seed!r}"),
             (self.threads >= 1, "threads must be ≥ 1"),
             (self.checkpoint_every >= 1, "checkpoint_every must be ≥ 1"),
             (self.face_samples >= 1, "face_samples must be ≥ 1"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,7 +21,10 @@ JOINT = """  <joint name="{name}" type="{type}"><parent link="{parent}"/><child 
     <origin xyz="0 0 {z}"/><axis xyz="0 1 0"/><limit lower="-4" upper="4" effort="10" velocity="10"/></joint>"""
 
 
-def _pendulum(joint_type="revolute", mass2=0.5, inertia2=0.01, com2=0.25):
+def _pendulum(joint_type="revolute", mass2=0.5, inertia2=0.01, com2=0.25, mimic=False):
+    j2 = JOINT.format(name="j2", type="revolute", parent="l1", child="l2", z=0.5)
+    if mimic:  # j2 = 1·j1 + 0: Pinocchio would build an independent joint
+        j2 = j2.replace("</joint>", '<mimic joint="j1" multiplier="1" offset="0"/></joint>')
     return "\n".join(
         [
             '<?xml version="1.0"?>',
@@ -29,7 +33,7 @@ def _pendulum(joint_type="revolute", mass2=0.5, inertia2=0.01, com2=0.25):
             LINK.format(name="l1", com=0.25, mass=1.0, I=0.02),
             LINK.format(name="l2", com=com2, mass=mass2, I=inertia2),
             JOINT.format(name="j1", type=joint_type, parent="base", child="l1", z=0.0),
-            JOINT.format(name="j2", type="revolute", parent="l1", child="l2", z=0.5),
+            j2,
             "</robot>",
         ]
     )
@@ -59,6 +63,7 @@ CASES = {
     "malformed xml": (lambda w: w(_pendulum().replace("</robot>", "")), {"actuated": ["j1"]}, ["malformed URDF XML", "line"]),
     "floating base": (lambda w: w(_pendulum(joint_type="floating")), {"actuated": ["j1"]}, ["floating", "1-DoF"]),
     "planar joint": (lambda w: w(_pendulum(joint_type="planar")), {"actuated": ["j1"]}, ["planar", "Fix"]),
+    "mimic joint": (lambda w: w(_pendulum(mimic=True)), {"actuated": ["j1"]}, ["joint 'j2'", "mimics joint 'j1'", "remove the <mimic> tag"]),
     "massless link": (lambda w: w(_pendulum(mass2=0.0, inertia2=0.0)), {"actuated": ["j1"]}, ["singular", "j2", "inertial"]),
     "negative mass": (lambda w: w(_pendulum(mass2=-1.0)), {"actuated": ["j1"]}, ["link 'l2' has mass -1 kg", "<inertial> of link 'l2'"]),
     "non-finite mass": (lambda w: w(_pendulum(mass2=float("nan"))), {"actuated": ["j1"]}, ["link 'l2' has mass nan kg"]),
@@ -109,7 +114,8 @@ def test_hanging_target_is_an_equilibrium(write):
         ip.load_system(write(_pendulum()), actuated=["j2"], target={"j1": 1.0})
 
 
-@pytest.mark.parametrize("case", ["missing file", "malformed xml", "floating base", "massless link", "negative mass", "unknown actuated joint", "not an equilibrium"])
+@pytest.mark.parametrize("case", ["missing file", "malformed xml", "floating base", "mimic joint", "massless link", "negative mass",
+                                  "unknown actuated joint", "not an equilibrium"])
 def test_cli_exits_2_with_one_line_and_no_traceback(case, write):
     source, kwargs, fragments = CASES[case]
     args = ["inspect", source(write)]
@@ -149,3 +155,41 @@ def test_a_negative_worker_count_is_refused_before_training():
     assert result.stderr.startswith("error: --workers must be ≥ 0") and result.stderr.count("\n") == 1
     with pytest.raises(ip.IdapbcError, match="workers must be an integer ≥ 0"):
         ip.train(ip.load_system("pendubot"), ip.TrainConfig.fast(), workers=-2)
+
+
+def test_a_mimic_joint_is_refused_not_modelled_as_a_free_joint(write):
+    """The shipped double pendulum with its elbow mimicking the shoulder: refused, naming both joints."""
+    text = (Path(__file__).parent.parent / "urdf" / "double_pendulum.urdf").read_text()
+    elbow_end = text.index("</joint>", text.index('<joint name="elbow"'))
+    path = write(text[:elbow_end] + '<mimic joint="shoulder" multiplier="1" offset="0"/>\n  ' + text[elbow_end:], "mimic.urdf")
+    with pytest.raises(ip.IdapbcError, match="joint 'elbow' in .* mimics joint 'shoulder'") as info:
+        ip.load_system(path, actuated=["shoulder"])
+    assert "\n" not in str(info.value) and "Fix: remove the <mimic> tag" in str(info.value)
+
+
+def test_train_refuses_a_mimic_joint_in_one_line_before_training(write, tmp_path):
+    result = _cli("train", write(_pendulum(mimic=True)), "--actuated", "j1", "--fast", "--out", str(tmp_path / "runs"))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.startswith("error: joint 'j2' in ") and result.stderr.count("\n") == 1
+    assert "mimics joint 'j1'" in result.stderr and "Fix: remove the <mimic> tag" in result.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("seed", [-3, 1.5, True])
+def test_train_config_refuses_a_seed_that_is_not_an_integer_at_least_0(seed):
+    with pytest.raises(ip.IdapbcError, match="bad training config: seed must be an integer ≥ 0") as info:
+        ip.TrainConfig(seed=seed)
+    assert "\n" not in str(info.value) and "Fix" in str(info.value)
+    assert ip.TrainConfig(seed=0).seed == 0 and ip.TrainConfig.fast(seed=np.int64(7)).seed == 7
+
+
+@pytest.mark.parametrize("command", ["train pendubot --fast", "simulate RUN", "certify RUN", "report RUN", "robustness RUN", "view cartpole --html OUT"])
+def test_a_negative_seed_is_refused_in_one_line_before_anything_runs(command, tmp_path):
+    """numpy's generators refuse a negative seed with a traceback: every --seed is checked first (RUN
+    need not exist, nothing is written)."""
+    args = command.replace("RUN", str(tmp_path / "no_run")).replace("OUT", str(tmp_path / "replay.html")).split()
+    result = _cli(*args, "--seed", "-3", *(["--out", str(tmp_path / "runs")] if args[0] == "train" else []))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.startswith("error: ") and result.stderr.count("\n") == 1
+    assert "seed must be" in result.stderr and "≥ 0" in result.stderr and "-3" in result.stderr and "Fix" in result.stderr
+    assert list(tmp_path.iterdir()) == []

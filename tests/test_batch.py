@@ -135,6 +135,8 @@ BAD_JOBS = [
     ('name = "target"\nsource = "acrobot"\ntarget = { elbow = 0.5 }\n', "not an assignable equilibrium"),
     ('name = "roa"\nsource = "acrobot"\nevaluate = { n = 0 }\n', "evaluate.n"),
     ('name = "lift"\nsource = "acrobot"\nevaluate = { limits = "no" }\n', "evaluate.limits must be true or false"),
+    ('name = "draw"\nsource = "acrobot"\nevaluate = { seed = -3 }\n', "evaluate.seed must be ≥ 0, got -3"),
+    ('name = "weights"\nsource = "acrobot"\ntrain = { seed = -3 }\n', "seed must be an integer ≥ 0, got -3"),
     ('name = "weak"\nsource = "pendubot"\neffort = { elbow = 8.0 }\n', "elbow"),
     ('name = "zero"\nsource = "pendubot"\neffort = { shoulder = 0.0 }\n', "must be > 0"),
     ('name = "text"\nsource = "pendubot"\neffort = { shoulder = "8" }\n', "effort.shoulder must be a number"),

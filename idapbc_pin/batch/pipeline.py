@@ -271,6 +271,8 @@ def _stage_tables(raw: dict) -> dict:
         least = 16 if key == "certify" else 1
         if table["n"] < least or table["T"] <= 0 or table.get("settle", 0) < 0:
             raise IdapbcError(f"{key}.n must be ≥ {least} and {key}.T > 0, got n = {table['n']}, T = {table['T']}")
+        if table.get("seed", 0) < 0:  # numpy's generators refuse it, after the training
+            raise IdapbcError(f"{key}.seed must be ≥ 0, got {table['seed']}")
         tables[key] = table
     return tables
 

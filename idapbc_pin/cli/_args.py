@@ -16,7 +16,7 @@ from ..run import CHECKPOINTS, DEFAULT_CHECKPOINT
 __all__ = ["add_box_argument", "add_command", "add_checkpoint_argument", "add_effort_argument", "add_horizon_argument", "add_limits_argument",
            "add_radius_argument", "add_ray_argument", "add_rho_argument", "add_run_argument", "add_seed_argument", "add_states_argument",
            "add_system_arguments", "add_workers_argument", "add_x0_argument", "config_keys", "key_range", "key_value",
-           "library_default", "positive_int", "ray_of", "system_kwargs", "workers_of", "x0_of"]
+           "library_default", "positive_int", "ray_of", "seed_of", "system_kwargs", "workers_of", "x0_of"]
 
 SOURCE_HELP = "URDF path, zoo name, built-in name (paper_*) or erd:<example-robot-data URDF stem>"
 
@@ -171,6 +171,14 @@ def add_seed_argument(parser: argparse.ArgumentParser, function=None, what: str 
     """--seed S: `function`'s default, or None (the config's) without a function."""
     default = None if function is None else library_default(function, "seed")
     parser.add_argument("--seed", type=int, default=default, metavar="S", help=what if function is None else f"{what} (default {default})")
+
+
+def seed_of(args: argparse.Namespace) -> int | None:
+    """``args.seed``; a negative seed (which numpy's generators refuse with a traceback) is refused
+    in one line before anything runs."""
+    if args.seed is not None and args.seed < 0:
+        raise IdapbcError(f"--seed must be ≥ 0, got {args.seed}. Fix: a seed such as 0 or 1.")
+    return args.seed
 
 
 def add_box_argument(parser: argparse.ArgumentParser, function) -> None:

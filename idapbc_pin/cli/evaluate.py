@@ -14,7 +14,7 @@ from ..reporting.simulation_figure import simulation_figure
 from ..run import load_run
 from ._args import (add_box_argument, add_checkpoint_argument, add_horizon_argument, add_limits_argument, add_radius_argument, add_rho_argument,
                     add_run_argument, add_seed_argument, add_states_argument, add_workers_argument, add_x0_argument, key_range, library_default,
-                    workers_of, x0_of)
+                    seed_of, workers_of, x0_of)
 
 __all__ = ["add_eval_commands"]
 
@@ -25,11 +25,11 @@ def _run(args: argparse.Namespace):
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    x0 = x0_of(args)
+    x0, seed = x0_of(args), seed_of(args)
     run = _run(args)
     result = simulate_run(
         run, n=args.n, T=args.T, dt=args.dt, x0=x0, rho=args.rho, mismatch=args.mismatch,
-        saturation=args.saturation, noise=args.noise, seed=args.seed, box=args.box, limits=not args.no_limits, radius=not args.no_radius,
+        saturation=args.saturation, noise=args.noise, seed=seed, box=args.box, limits=not args.no_limits, radius=not args.no_radius,
         judge=args.judge, workers=workers_of(args),
     )
     print(result.table())
@@ -40,7 +40,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_certify(args: argparse.Namespace) -> int:
-    cert = certify(_run(args), n=args.n, seed=args.seed, epsilon=args.epsilon, settle=args.settle, limits=not args.no_limits,
+    seed = seed_of(args)
+    cert = certify(_run(args), n=args.n, seed=seed, epsilon=args.epsilon, settle=args.settle, limits=not args.no_limits,
                    scale=args.scale, box=dict(args.verification_box) if args.verification_box else None, invariant=args.invariant,
                    workers=workers_of(args), verify=args.verify)
     print(cert.table())
@@ -49,14 +50,16 @@ def _cmd_certify(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    print(report(_run(args), n_roa=args.n, T=args.T, rho_extra=args.rho, seed=args.seed, limits=not args.no_limits, radius=not args.no_radius,
+    seed = seed_of(args)
+    print(report(_run(args), n_roa=args.n, T=args.T, rho_extra=args.rho, seed=seed, limits=not args.no_limits, radius=not args.no_radius,
                  workers=workers_of(args)))
     return 0
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
     conds = default_conditions(**{k: getattr(args, k) for k in ("saturation", "noise") if hasattr(args, k)})  # unset: the library's
-    result = robustness_table(_run(args), n=args.n, T=args.T, seed=args.seed, box=args.box, conditions=conds, rho=args.rho, limits=not args.no_limits,
+    seed = seed_of(args)
+    result = robustness_table(_run(args), n=args.n, T=args.T, seed=seed, box=args.box, conditions=conds, rho=args.rho, limits=not args.no_limits,
                               workers=workers_of(args))
     print(result.table())
     print(f"wrote {Path(args.run) / 'robustness.json'}")

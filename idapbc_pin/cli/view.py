@@ -11,7 +11,7 @@ from ..model import load_system
 from ..run import resolve_run
 from ..viewer import PICK_CANDIDATES, view
 from ._args import (add_command, add_checkpoint_argument, add_horizon_argument, add_limits_argument, add_seed_argument, add_states_argument, add_system_arguments,
-                    add_x0_argument, library_default, system_kwargs, x0_of)
+                    add_x0_argument, library_default, seed_of, system_kwargs, x0_of)
 
 __all__ = ["add_view_command"]
 
@@ -61,7 +61,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
     SOURCE). Serves http://127.0.0.1:PORT/static/ until Ctrl-C; with --html FILE it writes the
     standalone replay and exits (add --serve or --port to serve as well). The layout and the
     traced link are `idapbc_pin.view` arguments."""
-    source = Path(args.source)
+    seed, source = seed_of(args), Path(args.source)
     if source.is_dir() and (source / "config.json").is_file():
         target = resolve_run(source, checkpoint=args.checkpoint)
     elif args.checkpoint is not None:
@@ -74,7 +74,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
                 resolve_run(source)
             raise
     serve = args.html is None or args.serve or args.port is not None
-    viewer = view(target, x0=x0_of(args), n=args.n, pick=args.pick, T=args.T, seed=args.seed, html=args.html, open_server=False,
+    viewer = view(target, x0=x0_of(args), n=args.n, pick=args.pick, T=args.T, seed=seed, html=args.html, open_server=False,
                   limits=not args.no_limits)
     if args.html:
         print(f"wrote {args.html} ({len(viewer.segments)} rollouts, {viewer.duration:.1f} s; {viewer.note})")

@@ -67,6 +67,13 @@ def _check_xml(path: Path) -> None:
                 f"joint '{joint.get('name')}' in '{path}' is {jtype} (a free base): idapbc-pin models fixed-base "
                 "chains of 1-DoF joints. Fix: fix the base to the world, or replace it by prismatic/revolute joints."
             )
+        mimic = joint.find("mimic")
+        if mimic is not None:  # Pinocchio would build it as an independent joint, without a word
+            raise IdapbcError(
+                f"joint '{joint.get('name')}' in '{path}' mimics joint '{mimic.get('joint', '?')}' (<mimic>): mimic joints are not "
+                "supported, and the joint would be modelled as an independent one. Fix: remove the <mimic> tag and model the "
+                "coupling as one joint, or actuate/free the joint explicitly."
+            )
 
 
 #: Relative slack of the inertia checks (rounding in hand-written URDFs).
