@@ -26,7 +26,7 @@ import pytest
 
 import idapbc_pin as ip
 from idapbc_pin.cli.main import main
-from idapbc_pin.control.controller import RUNTIME_MAX_BATCH, Controller
+from idapbc_pin.control.controller import Controller
 from idapbc_pin.control.desired_flow import load_flow
 from idapbc_pin.deploy.export import EXPORTED_FILES
 from idapbc_pin.model.zoo import zoo_urdf_path
@@ -277,11 +277,10 @@ def test_standalone_torque_float32_networks(runs, tmp_path):
     system = run.system
     folder = ip.export(run, tmp_path / "export", onnx=False)
     assert not (folder / "desired_flow.onnx").exists()
-    q, v = _states(system, n=RUNTIME_MAX_BATCH + 100)
+    q, v = _states(system)
     x = system.state_from(q, v)
     controller = run.controller
     one_by_one = np.array([system.saturate(controller(xk)) @ system.B.T for xk in x])
-    assert len(x) > RUNTIME_MAX_BATCH  # the batched reference takes the torch path
     out = _run_standalone(folder, q, v, tmp_path)
     _close(out["single"], one_by_one, 1e-9)
     _close(out["batched"], _expected_torque(system, controller, q, v), 2e-5)

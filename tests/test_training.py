@@ -199,8 +199,8 @@ def Controller_(system):
 @pytest.mark.parametrize("scaling", ["none", "box"])
 @pytest.mark.parametrize("form, energy_input", [("anchored", "anchor"), ("anchored", "box"), ("free", "box")])
 def test_run_time_path_equals_the_training_path(form, energy_input, scaling, dtype):
-    """Both run-time paths of f̃_d (numpy for a few states, torch for batches; explicit ∇H_d, no autograd)
-    give the autograd path's f̃_d, and u from one state equals u from a batch."""
+    """Both run-time paths of f̃_d (numpy on the CPU, torch for batches from a GPU; explicit ∇H_d, no
+    autograd) give the autograd path's f̃_d, and u from one state equals u from a batch."""
     system = ip.load_system("cartpole")
     torch.manual_seed(1)
     config = TrainConfig(width=16, depth=3, form=form, rho=0.2, kappa=0.1, scaling=scaling, anchor_q=10.0, dtype=dtype, energy_input=energy_input)
@@ -215,8 +215,8 @@ def test_run_time_path_equals_the_training_path(form, energy_input, scaling, dty
     fd_torch = ctrl.nets.desired_fast(torch.as_tensor(x, dtype=getattr(torch, dtype))).double().numpy()
     np.testing.assert_allclose(fd_torch, fd_autograd, rtol=tol, atol=tol * np.abs(fd_autograd).max())
     u_ref = (fd_autograd - system.f(x)) @ system.g(system.x_star)
-    np.testing.assert_allclose(ctrl(x), u_ref, rtol=tol, atol=tol * np.abs(u_ref).max())  # 30 states: torch
-    np.testing.assert_allclose(ctrl(x[3]), u_ref[3], rtol=tol, atol=tol * np.abs(u_ref).max())  # one state: numpy
+    np.testing.assert_allclose(ctrl(x), u_ref, rtol=tol, atol=tol * np.abs(u_ref).max())  # 30 states
+    np.testing.assert_allclose(ctrl(x[3]), u_ref[3], rtol=tol, atol=tol * np.abs(u_ref).max())  # one state
     np.testing.assert_allclose(ctrl.with_damping(1.5).flow()(x), ctrl.with_damping(1.5).f_d(x), rtol=tol, atol=tol * np.abs(fd_autograd).max())
     H = ctrl.H_d(x)  # the numpy H_d (a recovery law's level switch) is the networks' H_d
     np.testing.assert_allclose(ctrl.flow().energy(x), H, rtol=tol, atol=tol * np.abs(H).max())

@@ -42,13 +42,10 @@ class OuterLaw(Protocol):
     def apply(self, x: np.ndarray, u: np.ndarray, energy: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray: ...
 
 
-#: `Controller.__call__` evaluates f̃_d in numpy (`flow`) for at most this many states on the CPU and in
-#: torch (`IdaPbcNets.desired_fast`) above, or whenever the networks sit on a GPU: with one thread numpy
-#: is the faster of the two up to a few hundred states (`benchmarks/bench_controller.py`), which covers
-#: the simulations' batches.
-RUNTIME_MAX_BATCH = 512
-#: The same bound for networks on a GPU, where a batch pays the device round trip but large products are
-#: cheap, so only small batches are copied to the CPU for numpy.
+#: `Controller.__call__` evaluates f̃_d in numpy (`flow`) for every batch when the networks sit on the CPU
+#: (with one thread numpy is the faster of the two at every batch size, `benchmarks/bench_controller.py`),
+#: and for at most this many states when they sit on a GPU, where a batch pays the device round trip but
+#: large products are cheap: larger batches run in torch there (`IdaPbcNets.desired_fast`).
 RUNTIME_GPU_MAX_BATCH = 16
 
 
@@ -71,6 +68,7 @@ class Controller:
         self._dtype = nets.x_star.dtype
         self._device = nets.x_star.device
         self._g_pinv = self._np(nets.g_pinv)  # (gᵀg)⁻¹gᵀ, (m, n)
+        self._rows = np.flatnonzero(np.any(self._g_pinv != 0, axis=0))  # the rows of f̃_d − f that u reads
         self._flow = None
         self._params = list(nets.parameters())
 
@@ -97,9 +95,10 @@ class Controller:
         """
         xb, single = self._batch(x)
         xb = self.nets.wrap(xb)
-        numpy = len(xb) <= (RUNTIME_MAX_BATCH if self._device.type == "cpu" else RUNTIME_GPU_MAX_BATCH)
+        numpy = self._device.type == "cpu" or len(xb) <= RUNTIME_GPU_MAX_BATCH
         f_d = self.flow()(xb) if numpy else self._np(self.nets.desired_fast(self._t(xb)))
-        u = (f_d - self.system.f(xb)) @ self._g_pinv.T  # float64 whatever the networks' dtype
+        rows = self._rows  # only the input rows of f (`System.f_rows`); float64 whatever the networks' dtype
+        u = (f_d[:, rows] - self.system.f_rows(xb, rows)) @ self._g_pinv[:, rows].T
         if self.fallback is not None:  # a recovery law with a level reads H_d on the rows it may take
             u = self.fallback.apply(xb, u, energy=lambda x: self.flow().energy(x))
         return u[0] if single else u
@@ -107,8 +106,9 @@ class Controller:
     def flow(self) -> DesiredFlow:
         """f̃_d as a numpy `DesiredFlow` of the current weights (retaken when a parameter changes).
 
-        The run-time path of `__call__` and `torque` for up to `RUNTIME_MAX_BATCH` states: numpy on
-        the CPU, several times faster than torch for one state (`_runtime`), equal to `f_d` to rounding.
+        The run-time path of `__call__` and `torque` (every batch on the CPU, up to
+        `RUNTIME_GPU_MAX_BATCH` states from a GPU): several times faster than torch for one state
+        (`_runtime`), equal to `f_d` to rounding.
         """
         key = tuple((p._version, p.data_ptr()) for p in self._params)
         if self._flow is None or self._flow[0] != key:

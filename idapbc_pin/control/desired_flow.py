@@ -38,13 +38,23 @@ def softplus(a: np.ndarray) -> np.ndarray:
 
 
 def softplus_and_expit(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """softplus(a) and its derivative, the logistic sigmoid σ(a) = 1/(1 + e^−a) = exp(a − softplus(a)).
+    """softplus(a) and its derivative, the logistic sigmoid σ(a) = 1/(1 + e^−a) = exp(a − softplus(a)),
+    of an array a (two new arrays; `softplus`'s steps written into one buffer, so the same rounding).
 
     The ICNN needs both at every layer; this form of σ costs two operations, never overflows, and
     is accurate to about ε·|a| (ε the dtype's rounding unit), with no cancellation on either side.
     """
-    sp = softplus(a)
-    return sp, np.exp(a - sp)
+    sp = np.abs(a)
+    for step in (np.negative, np.exp, np.log1p):
+        step(sp, out=sp)
+    sp = np.add(np.maximum(a, 0), sp, out=sp)
+    slope = np.subtract(a, sp)
+    return sp, np.exp(slope, out=slope)
+
+
+def _tanh(a: np.ndarray) -> np.ndarray:
+    """tanh(a), in place (`Mlp` applies it to its own products only)."""
+    return np.tanh(a, out=a)
 
 
 def _skew_basis(n: int, metric: np.ndarray | None, dtype) -> np.ndarray:
@@ -64,7 +74,7 @@ def _lower_basis(n: int, dtype) -> np.ndarray:
     return E.reshape(len(i), n * n)
 
 
-_ACTIVATIONS = {"tanh": np.tanh, "softplus": softplus}
+_ACTIVATIONS = {"tanh": _tanh, "softplus": softplus}  # each may overwrite its argument
 
 
 @dataclass(frozen=True)
@@ -84,7 +94,9 @@ class Mlp:
         act = _ACTIVATIONS[self.activation]
         last = len(self.weights) - 1
         for k, (Wt, b) in enumerate(zip(self.transposed, self.biases)):
-            u = u @ Wt if b is None else u @ Wt + b
+            u = u @ Wt
+            if b is not None:
+                u += b
             if k < last:
                 u = act(u)
         return u
@@ -210,11 +222,14 @@ class DesiredFlow:
         slopes σ(a_k) of every layer for the backward pass)."""
         u = u_box if self.icnn_map is None else d @ self.icnn_map.T
         width = self.icnn_out.shape[0]
-        inputs = u @ self.icnn_in[0] + self.icnn_in[1]  # W_x^k u + b^k of every layer k, (N, depth·width)
+        inputs = u @ self.icnn_in[0]  # W_x^k u + b^k of every layer k, (N, depth·width)
+        inputs += self.icnn_in[1]
         z, slopes = None, []  # z_k = softplus(a_k), slopes σ(a_k) for the backward pass
         for k in range(len(self.icnn_x)):
             a = inputs[:, k * width : (k + 1) * width]
-            z, slope = softplus_and_expit(a if k == 0 else z @ self.icnn_z_t[k - 1] + a)
+            if k > 0:
+                a = np.add(z @ self.icnn_z_t[k - 1], a, out=z)  # z is not needed past this product
+            z, slope = softplus_and_expit(a)
             slopes.append(slope)
         return u, z, slopes
 
@@ -227,7 +242,7 @@ class DesiredFlow:
         u, z, slopes = self._icnn(d, u_box)
         delta, dh_da = self.icnn_out, [None] * len(slopes)  # ∂Ĥ/∂z_k, then ∂Ĥ/∂a_k (N, width)
         for k in range(len(slopes) - 1, -1, -1):
-            dh_da[k] = delta * slopes[k]
+            dh_da[k] = np.multiply(slopes[k], delta, out=slopes[k])
             if k > 0:
                 delta = dh_da[k] @ self.icnn_z[k - 1]
         g = np.concatenate(dh_da, axis=1) @ self.icnn_in[0].T  # ∇_uĤ = Σ_k (∂Ĥ/∂a_k) W_x^k

@@ -193,6 +193,10 @@ class PinocchioPlant:
         self._direct = (np.array(direct_q, dtype=int), np.array(direct_v, dtype=int))
         self._circ = (np.array(circ_q, dtype=int), np.array(circ_v, dtype=int))
         self._permuted = direct_q != direct_v
+        # (nv,) bool: the joint of each coordinate hangs from the fixed base (`f_rows`).
+        self._at_base = np.zeros(self.nv, bool)
+        for jid in range(1, model.njoints):
+            self._at_base[model.joints[jid].idx_v] = model.parents[jid] == 0
         # Batched v = M⁻¹p (ABA of a gravity-free copy at zero velocity) and ∇U (RNEA at rest):
         # Pinocchio's pooled algorithms, one thread, no Python loop (see `f`).
         self._free = model.copy()
@@ -284,6 +288,22 @@ class PinocchioPlant:
         C = np.array([coriolis(m, d, qk, vk) for qk, vk in zip(qc, v)]).reshape(len(v), nv, nv)
         p_dot = np.einsum("nji,nj->ni", C, v) - grad_U - self.damping * v
         return np.concatenate([v, p_dot], axis=1)
+
+    def f_rows(self, q: np.ndarray, p: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Rows `rows` (k,) of f(x), indices into (q̇, ṗ): (N, nv) ×2 -> (N, k); `f`'s own values
+        where a row needs the Coriolis term, else equal to them to rounding.
+
+        The Coriolis term (Cᵀv)_j = ∂T/∂q_j (kinetic energy T at fixed v) is zero for a joint that
+        hangs from the fixed base: moving it carries every body after it rigidly, which leaves T
+        unchanged. So when every momentum row asked for belongs to such a joint (the input rows of
+        a pendubot or a cart-pole), ṗ_j = −∇U_j − D_j v_j needs no per-state Coriolis matrix.
+        """
+        rows = np.asarray(rows, dtype=int)
+        joints = rows[rows >= self.nv] - self.nv
+        if not self._at_base[joints].all():
+            return self.f(q, p)[:, rows]
+        v, grad_U = self._velocity_and_gravity(self.config(q), np.asarray(p, float))
+        return np.concatenate([v, -grad_U - self.damping * v], axis=1)[:, rows]
 
     def f_and_jacobian(self, q: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """f(x) (N, 2nv) and ∂f/∂x (N, 2nv, 2nv) in one pass.

@@ -86,6 +86,9 @@ class CosCoupledPlant:
         v = self.velocity(q, p)
         return mechanical_f(v, self._W(q, v), self.gravity(q), self.damping)
 
+    def f_rows(self, q, p, rows):
+        return self.f(q, p)[:, rows]
+
     def f_and_jacobian(self, q, p):
         M = self.mass_matrix(q)
         M_inv = np.linalg.inv(M)
@@ -153,6 +156,9 @@ class MassSpringDamperPlant:
 
     def f(self, q, p):
         return np.concatenate([p, self._accel(q, p)], axis=1)
+
+    def f_rows(self, q, p, rows):
+        return self.f(q, p)[:, rows]
 
     def f_and_jacobian(self, q, p):
         J = np.zeros((q.shape[0], 2, 2))

@@ -50,6 +50,10 @@ class Plant(Protocol):
     def f(self, q: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Open-loop drift f(x) for x = (q, p): (N, nv) ×2 -> (N, 2 nv)."""
 
+    def f_rows(self, q: np.ndarray, p: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Rows `rows` (k,) of f(x), indices into (q̇, ṗ): (N, nv) ×2 -> (N, k), f(x)[:, rows] to
+        rounding (a back-end may skip terms that vanish on those rows)."""
+
     def f_and_jacobian(self, q: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """f(x) (N, 2 nv) and ∂f/∂x (N, 2 nv, 2 nv)."""
 

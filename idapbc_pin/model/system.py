@@ -164,6 +164,12 @@ class System:
         xb, single = _batch(x, self.n, "x")
         return _unbatch(self.plant.f(xb[:, : self.nq], xb[:, self.nq :]), single)
 
+    def f_rows(self, x, rows) -> np.ndarray:
+        """Rows `rows` (k,) of the drift, indices into x = (q, p): (N, n) -> (N, k); f(x)[:, rows] to
+        rounding, cheaper where the plant skips terms that vanish on those rows (`Plant.f_rows`)."""
+        xb, single = _batch(x, self.n, "x")
+        return _unbatch(self.plant.f_rows(xb[:, : self.nq], xb[:, self.nq :], np.asarray(rows, dtype=int)), single)
+
     def f_and_df_dx(self, x) -> tuple[np.ndarray, np.ndarray]:
         """f(x) (N, n) and its Jacobian ∂f/∂x (N, n, n) in one pass (cheaper than both apart)."""
         xb, single = _batch(x, self.n, "x")

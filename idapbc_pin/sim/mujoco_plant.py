@@ -137,6 +137,10 @@ class MujocoPlant:
         """Open-loop f(x) (N, 2 nv): the Pinocchio plant's (not used by the judge)."""
         return self.base.f(q, p)
 
+    def f_rows(self, q: np.ndarray, p: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Rows `rows` of f(x) (N, k): the Pinocchio plant's (not used by the judge)."""
+        return self.base.f_rows(q, p, rows)
+
     def f_and_jacobian(self, q: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """f(x) (N, 2 nv) and ∂f/∂x (N, 2 nv, 2 nv): the Pinocchio plant's (not used by the judge)."""
         return self.base.f_and_jacobian(q, p)
