@@ -6,14 +6,16 @@ Python API, and prints the wall time and share of each stage:
 
     training       the epochs (`training.train._run_epochs`)
     gate           the gate of the linear law outside the box (`recovery.box_gate.fallback_gate`)
-    recovery: test whether saturated LQR leaves room (`recovery.trigger.limits_bind`)
+    recovery: test whether saturated LQR leaves room (`recovery.trigger.limits_bind`; read from
+                   the evaluation when it ran)
     recovery: plans + labels, DAgger rounds, fits + gate (`recovery.stage`)
     evaluation + radius   both boxes and both ROA radius searches, NIDA-PBC and LQR, which share
-                   one pool of workers (`evaluation.evaluate._simulate`)
+                   one pool of workers (`evaluation.evaluate._simulate`), again after a kept
+                   recovery law
 
 A stage's time is its wall time in this process, minus the stages nested in it; work a stage hands
 to worker processes counts in the stage that waits for it. "other" is the rest (loading, set-up).
-Run: python benchmarks/bench_default_path.py ROBOT [--epochs N] [--recover auto|always|never]
+Run: python benchmarks/bench_default_path.py ROBOT [--effort JOINT=LIMIT] [--epochs N] [--recover auto|always|never]
      [--evaluate N] [--workers W] [--seed S]
 """
 
@@ -74,26 +76,36 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("robot", help="zoo name, built-in name, erd:<stem> or URDF path (zoo actuation)")
     parser.add_argument("--epochs", type=int, default=None, help="training epochs (default: the fast preset's)")
-    parser.add_argument("--recover", choices=("auto", "always", "never"), default="never", help="as `train --recover`")
+    parser.add_argument("--recover", choices=("auto", "always", "never"), default="auto", help="as `train --recover` (default auto, as train's)")
     parser.add_argument("--evaluate", type=int, default=100, help="evaluation states per box, as `train --evaluate`")
     parser.add_argument("--workers", type=int, default=0, help="processes (0: one per core), as `train --workers`")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--effort", action="append", default=[], metavar="JOINT=LIMIT", help="an actuated joint's effort limit (N·m or N), as `train --effort`")
     args = parser.parse_args()
+    effort = {k: float(v) for k, v in (e.split("=", 1) for e in args.effort)}
 
     watch = Stopwatch()
     watch.install()
     start = time.perf_counter()
-    system = ip.load_system(args.robot)
+    system = ip.load_system(args.robot, effort=effort or None)
     config = ip.TrainConfig.fast(seed=args.seed, **({} if args.epochs is None else {"epochs": args.epochs}))
+    first = None
     with tempfile.TemporaryDirectory() as out:
         run = ip.train(system, config, out=out, workers=args.workers)
-        if args.recover != "never":
-            auto_recover(run, args.recover, RecoveryConfig(workers=args.workers))
-        if args.evaluate > 0:
-            print(format_evaluation(evaluate_run(run, n=args.evaluate, workers=args.workers)))
+        lqr = None
+        if args.evaluate > 0:  # train's order: the law against LQR first, then the stage where it has room
+            evaluation = evaluate_run(run, n=args.evaluate, workers=args.workers)
+            print(format_evaluation(evaluation), flush=True)
+            lqr = {box: evaluation.results[box]["LQR"].success_rate for box in ("half", "domain")}
+        first = time.perf_counter() - start
+        if args.recover != "never" and auto_recover(run, args.recover, RecoveryConfig(workers=args.workers), lqr_success=lqr) and args.evaluate > 0:
+            run = ip.load_run(run.path)
+            if run.uses_recovery:
+                print("with the recovery law:\n" + format_evaluation(evaluate_run(run, n=args.evaluate, workers=args.workers)), flush=True)
     total = time.perf_counter() - start
     other = total - sum(watch.seconds.values())
-    print(f"\ndefault path of {args.robot} (fast preset, {config.epochs} epochs, --recover {args.recover}): {total:.1f} s wall")
+    print(f"\ndefault path of {args.robot} (fast preset, {config.epochs} epochs, --recover {args.recover}): {total:.1f} s wall, "
+          f"the first result (the law against LQR) after {first:.1f} s")
     print(f"{'stage':<28}{'s':>9}{'share':>9}")
     for name, seconds in [*watch.seconds.items(), ("other", other)]:
         print(f"{name:<28}{seconds:>9.1f}{100 * seconds / total:>8.1f}%")

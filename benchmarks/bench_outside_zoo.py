@@ -3,9 +3,9 @@
 Writes variants of the zoo URDFs (heavier or lighter links, continuous joints, more joint damping)
 into a temporary folder, loads each from its path as a user would (`load_system(path, actuated=…)`,
 so the default training box follows the variant's own masses), trains it with every default of the fast preset
-(`TrainConfig.fast(seed=…)`), without a recovery law as `train` by default (`--recover never`;
-`--recover auto` fits one where saturated LQR fails from ≥ 10 of 100 half-box states, 15-60 min per
-robot) and judges NIDA-PBC and LQR (Q = I, R = I) with MuJoCo from the same
+(`TrainConfig.fast(seed=…)`) and of `train`'s recovery stage (`--recover auto`: a recovery law where
+saturated LQR fails from ≥ 10 of 100 half-box states, a few minutes per robot; `--recover never`:
+the law alone) and judges NIDA-PBC and LQR (Q = I, R = I) with MuJoCo from the same
 uniform states (their own seed, not the evaluation's seed 0), with the URDF's effort limits on both,
 and prints NIDA-PBC's lead with its 95 % interval (`idapbc_pin.evaluation.paired`).
 Run: python benchmarks/bench_outside_zoo.py [--n 200] [--seed 0] [--judge-seed 1] [--recover auto|always|never] [--only NAME ...]
@@ -14,6 +14,7 @@ Run: python benchmarks/bench_outside_zoo.py [--n 200] [--seed 0] [--judge-seed 1
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import tempfile
 import time
@@ -41,6 +42,8 @@ class Variant:
     mass_scale: dict[str, float] = field(default_factory=dict)  #: link -> factor on mass and inertia
     continuous: tuple[str, ...] = ()  #: joints turned into continuous joints
     damping: dict[str, float] = field(default_factory=dict)  #: joint -> viscous damping (N·m·s/rad)
+    effort: dict[str, float] = field(default_factory=dict)  #: joint -> effort limit written into the URDF (N·m or N)
+    target: dict[str, float] = field(default_factory=dict)  #: joint -> target angle, as `train --target`
 
 
 VARIANTS = (
@@ -49,6 +52,10 @@ VARIANTS = (
     Variant("acrobot_continuous_damped", "double_pendulum.urdf", ("elbow",), continuous=("shoulder", "elbow"), damping={"elbow": 0.1}),
     Variant("furuta_other_masses", "furuta.urdf", ("arm",), {"arm": 0.7, "pendulum": 1.5}),
     Variant("cartpole_heavy_pole", "cartpole.urdf", ("slider",), {"pole": 2.0}),
+    Variant("pendubot_8nm", "double_pendulum.urdf", ("shoulder",), effort={"shoulder": 8.0}),
+    Variant("pendubot_heavy_30nm", "double_pendulum.urdf", ("shoulder",), {"link1": 1.5, "link2": 1.5}, effort={"shoulder": 30.0}),
+    Variant("realaigym_pendubot", "realaigym_double_pendulum.urdf", ("shoulder",), target={"shoulder": math.pi}),
+    Variant("realaigym_acrobot", "realaigym_double_pendulum.urdf", ("elbow",), target={"shoulder": math.pi}),
 )
 
 
@@ -57,7 +64,7 @@ def write_variant(v: Variant, folder: Path) -> Path:
     tree = ET.parse(URDF_DIR / v.urdf)
     links = {e.get("name"): e for e in tree.getroot().iter("link")}
     joints = {e.get("name"): e for e in tree.getroot().iter("joint")}
-    for name in (*v.mass_scale, *v.continuous, *v.damping):
+    for name in (*v.mass_scale, *v.continuous, *v.damping, *v.effort):
         if name not in links and name not in joints:
             raise ValueError(f"{v.name}: no link or joint '{name}' in {v.urdf}")
     for name, k in v.mass_scale.items():
@@ -73,6 +80,8 @@ def write_variant(v: Variant, folder: Path) -> Path:
         if dyn is None:
             dyn = ET.SubElement(joints[name], "dynamics")
         dyn.set("damping", repr(d))
+    for name, e in v.effort.items():
+        joints[name].find("limit").set("effort", repr(e))
     path = folder / f"{v.name}.urdf"
     tree.write(path)
     return path
@@ -91,7 +100,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="training seed")
     parser.add_argument("--judge-seed", type=int, default=1, help="seed of the judged states")
     parser.add_argument("--only", nargs="+", default=None, help=f"variants to run (default all: {', '.join(v.name for v in VARIANTS)})")
-    parser.add_argument("--recover", choices=RECOVER_MODES, default="never", help="a recovery law after training, as `train --recover` (default never, as train's)")
+    parser.add_argument("--recover", choices=RECOVER_MODES, default="auto", help="a recovery law after training, as `train --recover` (default auto, as train's)")
     parser.add_argument("--out", default=None, help="where to write URDFs and runs (default: a temporary folder)")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -102,7 +111,7 @@ def main() -> None:
     print("| variant | actuated (limit) | half box: NIDA-PBC / LQR (lead, 95 % CI) | domain: NIDA-PBC / LQR (lead, 95 % CI) | median settling, half: NIDA-PBC / LQR | recovery law | training + recover |")
     print("|---|---|---|---|---|---|---|")
     for v in chosen:
-        system = ip.load_system(write_variant(v, out), actuated=list(v.actuated))
+        system = ip.load_system(write_variant(v, out), actuated=list(v.actuated), target=v.target or None)
         t0 = time.perf_counter()
         run = ip.train(system, ip.TrainConfig.fast(seed=args.seed), out=out / v.name, progress=False)
         ip.recovery.auto_recover(run, args.recover, progress=False)

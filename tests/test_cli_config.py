@@ -110,11 +110,11 @@ def trained(monkeypatch):
 
     def fake_train(system, config, out=None, resume=None, workers=0):
         seen["config"], seen["workers"] = config, workers
-        return SimpleNamespace(summary={"status": "finished"}, path=out, uses_recovery=False, system=SimpleNamespace(m=1))
+        return SimpleNamespace(summary={"status": "finished"}, path=out, uses_recovery=False, system=SimpleNamespace(m=1), config=config)
 
     monkeypatch.setattr("idapbc_pin.training.train.train", fake_train)
     monkeypatch.setattr("idapbc_pin.training.summary.format_train_summary", lambda run: "trained")
-    monkeypatch.setattr("idapbc_pin.recovery.trigger.auto_recover", lambda run, mode, config: seen.update(mode=mode, recovery=config))
+    monkeypatch.setattr("idapbc_pin.recovery.trigger.auto_recover", lambda run, mode, config, lqr_success=None: seen.update(mode=mode, recovery=config))
     return seen
 
 
@@ -135,7 +135,14 @@ def test_train_passes_the_recover_config_file_to_its_recovery_stage(tmp_path, tr
     assert main([*argv, "--workers", "2"]) == 0
     assert trained["recovery"].workers == 2 and trained["workers"] == 2
     trained.clear()
-    assert main([*argv[:-6], "--out", str(tmp_path)]) == 0  # train's default: no recovery stage, the command printed instead
+    assert main([*argv[:-6], "--out", str(tmp_path)]) == 0  # train's default: the stage where saturated LQR leaves room
+    assert trained["mode"] == "auto" and trained["recovery"] == RecoveryConfig()
+    trained.clear()
+    capsys.readouterr()
+    assert main([*argv[:-6], "--epochs", "5", "--out", str(tmp_path)]) == 0  # a smoke run: skipped, with one line
+    assert "mode" not in trained
+    assert f"recovery stage skipped: 5 epochs is a smoke run" in capsys.readouterr().out
+    assert main([*argv[:-6], "--recover", "never", "--out", str(tmp_path)]) == 0  # opted out: the command is printed instead
     assert "mode" not in trained
     assert f"idapbc-pin recover {tmp_path} --workers 0" in capsys.readouterr().out
     assert main([*argv[:-6], "--recover", "--out", str(tmp_path)]) == 0  # no file, no --workers: recover's defaults

@@ -61,3 +61,12 @@ def test_continuous_joints_keep_the_dynamics_and_the_damping_is_set(tmp_path):
 def test_a_variant_naming_a_missing_link_is_refused(tmp_path):
     with pytest.raises(ValueError, match="no link or joint 'forearm'"):
         bench.write_variant(bench.Variant("bad", "double_pendulum.urdf", ("elbow",), {"forearm": 2.0}), tmp_path)
+
+
+def test_an_effort_variant_writes_its_limit_and_keeps_the_dynamics(tmp_path):
+    variant = next(v for v in bench.VARIANTS if v.name == "pendubot_8nm")
+    weak = ip.load_system(bench.write_variant(variant, tmp_path), actuated=["shoulder"])
+    nominal = ip.load_system(bench.URDF_DIR / "double_pendulum.urdf", actuated=["shoulder"])
+    assert weak.effort.tolist() == [8.0] and nominal.effort.tolist() == [20.0]
+    q = _states(nominal)
+    np.testing.assert_array_equal(weak.mass_matrix(q), nominal.mass_matrix(q))

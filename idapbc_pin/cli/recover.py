@@ -25,7 +25,8 @@ def _cmd_recover(args: argparse.Namespace) -> int:
     (or, where no box helps, only where H_d is above a level) if simulation on states of its own
     shows it brings more states to x*. Writes RUN/recovery.npz (kept) or
     RUN/recovery-refused.npz (not kept; --regate judges it again) and summary.json → recovery.
-    It takes tens of minutes on 2 cores for a 2-DoF robot."""
+    `train` runs it by default where saturated LQR leaves room; a killed stage continues from its
+    finished chunks of plans (`train --resume RUN`, or this command again)."""
     config = _config(args)
     if args.regate:
         entry = regate(args.run, config, keep=args.keep)

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+from pathlib import Path
 
 from ..config import FIELD_HELP, TrainConfig
 from ..errors import IdapbcError
 from ..recovery.config import RecoveryConfig
-from ..recovery.trigger import RECOVER_TIME
+from ..recovery.trigger import RECOVER_TIME, SMOKE_EPOCHS
 from ._args import (add_limits_argument, add_ray_argument, add_seed_argument, add_system_arguments, add_workers_argument, config_keys, ray_of,
                     system_kwargs, workers_of)
 
@@ -49,14 +50,14 @@ def _recovery_config(args: argparse.Namespace) -> RecoveryConfig:
     --ray when given (--ray only with --recover auto|always)."""
     config = RecoveryConfig.from_file(args.recover_config) if args.recover_config else RecoveryConfig()
     config = config if args.workers is None else config.replace(workers=workers_of(args))
-    if args.ray is not None and args.recover == "never":
-        raise IdapbcError("--ray runs the recovery stage as Ray tasks, which train runs only with --recover. Fix: add --recover auto (or always), or drop --ray.")
+    if args.ray is not None and args.recover in (None, "never"):
+        raise IdapbcError("--ray runs the recovery stage as Ray tasks, which train runs only with an explicit --recover. Fix: add --recover auto (or always), or drop --ray.")
     return config if args.ray is None else config.replace(ray=ray_of(args))
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
     from ..model import load_system
-    from ..run import load_run_system, read_config
+    from ..run import load_run, load_run_system, read_config
     from ..training.train import train
 
     workers = workers_of(args)
@@ -65,6 +66,12 @@ def _cmd_train(args: argparse.Namespace) -> int:
         saved = read_config(args.resume)
         config = saved.replace(**{k: getattr(args, k) for k in FLAGS if getattr(args, k) is not None})
         system = load_run_system(args.resume)
+        if _trained(args.resume, config):  # only the stages after training are left
+            run = load_run(args.resume)
+            print(f"run directory: {run.path} (trained: {config.epochs} epochs; continuing after training)", flush=True)
+            with contextlib.ExitStack() as stack:
+                _after_training(args, run, recovery, workers, _baseline_beside_training(stack, args, system, workers))
+            return 0
     else:
         if args.source is None:
             raise IdapbcError("train needs SOURCE (or --resume RUN). Fix: see `idapbc-pin train --help`.")
@@ -82,6 +89,20 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 130 if run.summary.get("status") == "interrupted" else 0
 
 
+def _trained(run_dir, config: TrainConfig) -> bool:
+    """Whether the run at `run_dir` finished its training (with its check of the law outside the
+    box) at `config.epochs` or more: `train --resume` then goes on with the recovery stage and the
+    evaluation without training again."""
+    from .._io import read_json
+
+    summary_path = Path(run_dir) / "summary.json"
+    if not summary_path.is_file():
+        return False
+    summary = read_json(summary_path, fix="delete summary.json and run `idapbc-pin train --resume` again")
+    done = summary.get("status") == "finished" and not (summary.get("fallback") or {}).get("interrupted")
+    return bool(done and int(summary.get("epochs_done", -1)) >= config.epochs)
+
+
 def _baseline_beside_training(stack: contextlib.ExitStack, args: argparse.Namespace, system, workers: int):
     """A future of LQR's part of the evaluation (`evaluation.evaluate.run_baseline_job`), simulated in a
     worker process while the training takes one core, or None (no evaluation, or one process asked for)."""
@@ -95,34 +116,65 @@ def _baseline_beside_training(stack: contextlib.ExitStack, args: argparse.Namesp
 
 
 def _after_training(args: argparse.Namespace, run, recovery: RecoveryConfig, workers: int, baseline) -> None:
-    """The summary, then (unless interrupted) the recovery stage, the evaluation and the next commands."""
+    """The summary, then (unless interrupted) the evaluation, the recovery stage where it has room
+    (then the evaluation again, with the law it kept), and the next commands."""
     from ..training.summary import format_train_summary
 
     print(format_train_summary(run))
     if run.summary.get("status") == "interrupted":
         print(f"interrupted: resume with  idapbc-pin train --resume {run.path}")
         return
-    if args.recover != "never":
+    mode = _recover_mode(args, run)
+    evaluation = _evaluate(args, run, workers, baseline) if args.evaluate > 0 else None
+    lqr = None if evaluation is None or args.no_limits else {box: evaluation.results[box]["LQR"].success_rate for box in ("half", "domain")}
+    if mode != "never" and not run.uses_recovery:
         from ..recovery.trigger import auto_recover
 
-        auto_recover(run, args.recover, recovery)
-    lqr_half = None
-    if args.evaluate > 0:
-        from ..evaluation.evaluate import evaluate_run, format_evaluation
+        try:
+            entry = auto_recover(run, mode, recovery, lqr_success=lqr)
+        except KeyboardInterrupt:
+            print(f"recovery stage interrupted: the run keeps its law as it is; `idapbc-pin train --resume {run.path}` continues "
+                  "the stage from its last finished chunk of plans", flush=True)
+            return
+        if entry is not None and entry.get("used") and args.evaluate > 0:
+            from ..run import load_run
 
-        evaluation = evaluate_run(run, n=args.evaluate, limits=not args.no_limits, workers=workers, progress=True, baseline=baseline)
-        print(format_evaluation(evaluation))
-        lqr_half = evaluation.results["half"]["LQR"].success_rate
-    if args.recover == "never" and not run.uses_recovery and not args.no_limits:
+            run = load_run(run.path)  # with the recovery law it keeps
+            print("with the recovery law:", flush=True)
+            _evaluate(args, run, workers, baseline)
+    elif mode == "never" and not run.uses_recovery and not args.no_limits:
         from ..recovery.trigger import recovery_hint
 
-        hint = recovery_hint(run, lqr_half)
+        hint = recovery_hint(run, None if lqr is None else lqr["half"])
         if hint:
             print(hint)
     print(
         f"next: idapbc-pin report {run.path}   (ROA vs LQR, certificate.json, figure.png, replay.html)\n"
         f"      idapbc-pin view {run.path}     (3-D replay in the browser)"
     )
+
+
+def _recover_mode(args: argparse.Namespace, run) -> str:
+    """--recover as given; by default "auto", except after a smoke run (fewer than SMOKE_EPOCHS epochs),
+    where the stage is skipped with one line."""
+    from ..recovery.trigger import SMOKE_EPOCHS
+
+    if args.recover is not None:
+        return args.recover
+    if run.config.epochs < SMOKE_EPOCHS:
+        print(f"recovery stage skipped: {run.config.epochs} epochs is a smoke run (< {SMOKE_EPOCHS}); "
+              f"`idapbc-pin recover {run.path}` runs it", flush=True)
+        return "never"
+    return "auto"
+
+
+def _evaluate(args: argparse.Namespace, run, workers: int, baseline):
+    """`evaluate_run` as `train --evaluate N` runs it, printed; returns the `Evaluation`."""
+    from ..evaluation.evaluate import evaluate_run, format_evaluation
+
+    evaluation = evaluate_run(run, n=args.evaluate, limits=not args.no_limits, workers=workers, progress=True, baseline=baseline)
+    print(format_evaluation(evaluation), flush=True)
+    return evaluation
 
 
 def add_model_commands(sub) -> None:
@@ -154,17 +206,17 @@ def add_train_command(sub) -> None:
         p.add_argument(f"--{name}", type=kind, metavar=name.upper() if kind is not str else None, help=FIELD_HELP[name])
     add_seed_argument(p, what=FIELD_HELP["seed"])
     p.add_argument("--out", metavar="DIR", help="parent of the run directory (default runs/<system>)")
-    p.add_argument("--resume", metavar="RUN", help="continue RUN from its last checkpoint (same result as uninterrupted; --epochs, --lr, --device apply)")
+    p.add_argument("--resume", metavar="RUN", help="continue RUN from its last checkpoint (same result as uninterrupted; --epochs, --lr, --device apply); "
+                                                  "a run whose training finished goes on with the recovery stage and the evaluation")
     p.add_argument("--evaluate", type=int, default=100, metavar="N", help="closed-loop check vs LQR from N random states after training (0: skip)")
     add_limits_argument(p, "evaluate without the actuators' effort limits")
     add_workers_argument(p, "the simulations (the two controllers side by side, train's gate and the recovery stage)")
-    p.add_argument("--recover", nargs="?", const="always", default="never", choices=["auto", "always", "never"],
-                   help="weak actuators: after training, fit a recovery law to torque plans within the limits and keep it "
-                        f"if simulation shows it helps (`idapbc-pin recover`; {RECOVER_TIME}). never (default): not on the "
-                        "default path; where saturated LQR fails from at least 10 %% of the evaluation's half-box states, train "
-                        "prints the `idapbc-pin recover RUN` command. auto: only where saturated LQR fails from at least 10 of 100 "
-                        "half-box states, or else of 100 training-box states (then the plans start from the training box); "
-                        "--recover alone: always")
+    p.add_argument("--recover", nargs="?", const="always", default=None, choices=["auto", "always", "never"],
+                   help="weak actuators: after the evaluation, fit a recovery law to torque plans within the limits and keep it "
+                        f"if simulation shows it helps (`idapbc-pin recover`; {RECOVER_TIME}). auto (default): only where "
+                        "saturated LQR fails from at least 10 %% of the evaluation's half-box states, or else of its training-box "
+                        "states (then the plans start from the training box); skipped with one line after fewer than "
+                        f"{SMOKE_EPOCHS} epochs unless given. never: skip it. --recover alone: always")
     p.add_argument("--recover-config", metavar="FILE", dest="recover_config",
                    help="the recovery stage's settings: a TOML file with a [recovery] table, as `idapbc-pin recover --config` reads")
     add_ray_argument(p, "the recovery stage (with --recover)")

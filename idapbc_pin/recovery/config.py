@@ -28,9 +28,9 @@ class RecoveryConfig(Settings):
     Attributes
     ----------
     starts : start states labelled by the teacher or plans, uniform in `start_box`.
-    start_box : where the starts and the DAgger starts are drawn: ``"half"`` (the half box) or
-        ``"domain"`` (the training box; `auto_recover` picks it where saturated LQR leaves room only
-        on the training box).
+    start_box : where the starts and the DAgger starts are drawn: ``"domain"`` (the training box,
+        which holds the half box too) or ``"half"`` (the half box alone; `auto_recover` then moves
+        to the training box where saturated LQR leaves room only there).
     teacher : the feedback law that runs from each start first, labels the starts it brings to x*,
         and takes over from every plan after its horizon: ``"run"`` (the run's own law as the gate
         judges it, without an earlier recovery law) or ``"lqr"`` (saturated LQR, Q = I, R = I). With
@@ -41,6 +41,7 @@ class RecoveryConfig(Settings):
     dagger_starts : starts of the fitted law per DAgger round, uniform in `start_box`.
     width : width of the MLP's two tanh layers.
     steps : Adam steps of each fit.
+    batch : labels per minibatch of each fit.
     fit_seed : seed of each fit's initial weights and minibatches.
     fits : laws fitted to the final labels (seeds fit_seed, fit_seed + 1, …), each judged by the gate
         on the same states; the one it keeps with the most successes is the run's (`choose_fit`): a
@@ -62,9 +63,10 @@ class RecoveryConfig(Settings):
         or verdict.
     ray : None (`workers` processes), or run that work as Ray tasks: ``"auto"`` (a local instance,
         or $RAY_ADDRESS's cluster) or a cluster's address; the back-end changes the time only.
-    plan : the cross-entropy search of each plan (`plans.PlanSettings`).
+    plan : the search of the plans (`plans.PlanSettings`: iLQR by default).
     judge_T : horizon of the rollouts that judge a start (the teacher's, each plan's, each DAgger
-        round's), s: at least 8 (6 s of labels, then the 2 s success window).
+        round's), s: at least 8 (6 s of labels, then the 2 s success window). A start not brought
+        to x* by then gets a plan, or none; the gate and every evaluation still judge over 20 s.
     stop_when_lost : end the DAgger rounds, before labelling, when the first fit brings none of the
         first round's starts to x* and fewer than half of them end in the near box (`ends_near`; the
         gate then judges that law).
@@ -77,26 +79,27 @@ class RecoveryConfig(Settings):
 
     _what, _table, _fix = "recovery config", "recovery", "see RecoveryConfig's fields"
 
-    starts: int = 240
-    start_box: str = "half"
+    starts: int = 200
+    start_box: str = "domain"
     teacher: str = "run"
     plan_seed: int = 101
-    dagger: int = 2
+    dagger: int = 1
     dagger_starts: int = 30
     width: int = 128
     steps: int = 4500
+    batch: int = 1024
     fit_seed: int = 0
-    fits: int = 3
+    fits: int = 2
     gate_states: int = 100
     near_states: int = 100
-    inner_scales: tuple = (0.1, 0.25, 0.5)
+    inner_scales: tuple = (0.25, 0.5)
     margin: int = 3
     half_loss: int = 2
     confirm_states: int = 200
     workers: int = 0
     ray: str | None = None
     plan: PlanSettings = field(default_factory=PlanSettings)
-    judge_T: float = 20.0
+    judge_T: float = 10.0
     stop_when_lost: bool = True
     levels: tuple = (0.1, 0.25, 0.5)
     form: str = "direct"
@@ -105,7 +108,7 @@ class RecoveryConfig(Settings):
         checks = [
             (self.starts >= 1 and self.dagger_starts >= 1 and self.gate_states >= 2 and min(self.near_states, self.confirm_states) >= 0,
              "starts, dagger_starts must be ≥ 1, gate_states ≥ 2, near_states and confirm_states ≥ 0"),
-            (self.dagger >= 0 and self.workers >= 0 and min(self.width, self.steps, self.fits) >= 1, "dagger, workers ≥ 0, width, steps and fits ≥ 1"),
+            (self.dagger >= 0 and self.workers >= 0 and min(self.width, self.steps, self.fits, self.batch) >= 1, "dagger, workers ≥ 0, width, steps, batch and fits ≥ 1"),
             (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
             (self.half_loss >= 0 and all(0 < q < 1 for q in self.levels), "half_loss must be ≥ 0 and levels quantiles in (0, 1)"),
             (self.start_box in START_BOXES, f"start_box must be one of {', '.join(START_BOXES)}"),

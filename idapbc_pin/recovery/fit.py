@@ -2,7 +2,8 @@
 
 Labels are states X (K, n) and the inputs U (K, m) the teacher or a plan applied there (within the
 limits ū). The fit is in units of ū, on δ/s (δ = wrap(x − x*), s the training box's half-widths),
-by Adam on minibatches of 4096 for `steps` steps, the rate divided by 10 for the last third.
+by Adam on minibatches (`RecoveryConfig.batch`) for `steps` steps, the rate divided by 10 for the
+last third, in float32: the fit's cost is the MLP's products on the minibatch, and float32 halves it.
 
 * **Direct form**: ū ⊙ tanh(MLP(δ/s)) ≈ U, squared error.
 * **Residual form** (`base` given): clip(b + MLP(δ/s), ±1) ≈ U/ū with b = clip(u_IDA-PBC(X)/ū, ±1)
@@ -14,8 +15,11 @@ by Adam on minibatches of 4096 for `steps` steps, the rate divided by 10 for the
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from ..model.angles import wrap_angles
 from .law import RecoveryLaw
@@ -34,11 +38,13 @@ def base_inputs(networks, X: np.ndarray, effort: np.ndarray) -> np.ndarray:
     return np.clip(np.concatenate(u).reshape(len(X), -1), -effort, effort)
 
 
-def fit_recovery_law(system, X: np.ndarray, U: np.ndarray, width: int, steps: int, seed: int = 0, base: np.ndarray | None = None) -> tuple[RecoveryLaw, float]:
+def fit_recovery_law(system, X: np.ndarray, U: np.ndarray, width: int, steps: int, seed: int = 0, base: np.ndarray | None = None,
+                     progress: str | None = None, batch: int = 1024) -> tuple[RecoveryLaw, float]:
     """Least-squares fit of the recovery law to labels X (K, n), U (K, m) in units of ū; with `base`
     (K, m), the IDA-PBC law's clipped inputs at X (`base_inputs`), the residual form. Returns the law
     (inner box empty) and the last minibatch's loss (the mean squared error, the hinge on labels at
-    the limit in the residual form)."""
+    the limit in the residual form). `progress`: the label of a bar over the steps (None: no bar);
+    `batch`: labels per minibatch. The fit runs in float32 (the law's arrays are float64)."""
     lo, hi = (np.asarray(b, dtype=np.float64) for b in system.domain)
     effort = np.asarray(system.effort, dtype=np.float64)
     scale = (hi - lo) / 2
@@ -47,17 +53,19 @@ def fit_recovery_law(system, X: np.ndarray, U: np.ndarray, width: int, steps: in
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         layers = [torch.nn.Linear(system.n, width), torch.nn.Linear(width, width), torch.nn.Linear(width, system.m)]
-    net = torch.nn.Sequential(layers[0], torch.nn.Tanh(), layers[1], torch.nn.Tanh(), layers[2]).double()
-    F = torch.as_tensor(wrap_angles(X - x_star, mask) / scale)
-    Y = torch.as_tensor(U / effort)
-    B = None if base is None else torch.as_tensor(np.asarray(base, dtype=np.float64) / effort)
+    net = torch.nn.Sequential(layers[0], torch.nn.Tanh(), layers[1], torch.nn.Tanh(), layers[2]).float()
+    F = torch.as_tensor(wrap_angles(X - x_star, mask) / scale, dtype=torch.float32)
+    Y = torch.as_tensor(U / effort, dtype=torch.float32)
+    B = None if base is None else torch.as_tensor(np.asarray(base, dtype=np.float64) / effort, dtype=torch.float32)
     at_limit = Y.abs() >= 1.0 - 1e-9
     opt = torch.optim.Adam(net.parameters(), 3e-3)
     loss = torch.zeros(())
+    bar = tqdm(total=steps, desc=progress, unit="step", disable=progress is None, dynamic_ncols=True, file=sys.stderr, miniters=100)
     for k in range(steps):
+        bar.update(1)
         if k == 2 * steps // 3:
             opt.param_groups[0]["lr"] = 3e-4
-        idx = torch.randint(0, len(F), (min(4096, len(F)),), generator=gen)
+        idx = torch.randint(0, len(F), (min(batch, len(F)),), generator=gen)
         if B is None:
             loss = (torch.tanh(net(F[idx])) - Y[idx]).pow(2).mean()
         else:
@@ -66,12 +74,13 @@ def fit_recovery_law(system, X: np.ndarray, U: np.ndarray, width: int, steps: in
         opt.zero_grad()
         loss.backward()
         opt.step()
-    weights = tuple(m.weight.detach().numpy().copy() for m in layers)
-    biases = tuple(m.bias.detach().numpy().copy() for m in layers)
+    bar.close()
+    weights = tuple(m.weight.detach().double().numpy().copy() for m in layers)
+    biases = tuple(m.bias.detach().double().numpy().copy() for m in layers)
     return RecoveryLaw(weights, biases, x_star, scale, effort, mask, np.zeros(system.n), residual=base is not None), float(loss.detach())
 
 
 def fit_job(job) -> tuple[RecoveryLaw, float]:
-    """Worker: `fit_recovery_law` (system, X, U, width, steps, seed, base) with one torch thread."""
+    """Worker: `fit_recovery_law` (system, X, U, width, steps, seed, base, progress, batch) with one torch thread."""
     torch.set_num_threads(1)
     return fit_recovery_law(*job)

@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import io
 import math
-import time
+import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from .._io import DamagedFileError, atomic_write_bytes, read_npz, write_json
 from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
@@ -156,11 +157,11 @@ class _Confirmation:
 
 def _counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, config, progress: bool) -> list[tuple[int, int, int]]:
     """(half box, training box, near box) successes of each law of `ctrls` from the gate's states x0."""
-    counts, start = [], time.perf_counter()
-    for ok, _ in compare_laws(system, [(c, x0) for c in ctrls], T=GATE_HORIZON, dt=PLAN_STEP, workers=config.workers, ray=config.ray):
-        counts.append((int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())))
-        if progress:
-            print(f"  gate: {len(counts)}/{len(ctrls)} laws simulated from its {len(x0)} states  [{time.perf_counter() - start:.0f} s]", flush=True)
+    counts = []
+    with tqdm(total=len(ctrls), desc=f"recovery: gate ({len(x0)} states)", unit="law", disable=not progress, dynamic_ncols=True, file=sys.stderr) as bar:
+        for ok, _ in compare_laws(system, [(c, x0) for c in ctrls], T=GATE_HORIZON, dt=PLAN_STEP, workers=config.workers, ray=config.ray):
+            counts.append((int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())))
+            bar.update(1)
     return counts
 
 

@@ -1,15 +1,24 @@
-"""Open-loop torque plans within the effort limits: `PlanSettings`, `PlanThenLaw`, `search_plan`,
-`plan_bound`.
+"""Torque plans within the effort limits: `PlanSettings`, `PlanThenLaw`, `TrackThenLaw`,
+`plan_candidates`, `search_plans`, `plan_bound`.
 
-Where a saturated law loses a state, a short plan may still bring it to x*: piecewise-constant
-inputs over `knots` intervals of the first `horizon` seconds, then a feedback law (saturated LQR)
-takes over. The plan is found by a cross-entropy search (Rubinstein 1999): `population` plans per
-iteration drawn around a mean, the best eighth refits the mean and spread, `iterations` times. A
-plan is scored by the distance to x* after `score_T` seconds (wrapped angle errors plus 0.3 × the
-speeds; a diverged rollout scores 1e3). Plans are per state and open loop: they are the labels a
-recovery law is fitted to (`recovery.stage`), and a lower bound on what the limited actuator can
-do (`benchmarks/bench_recoverable.py`). An input without an effort limit is planned within
-LQR's largest demand on the training box instead (`plan_bound`).
+Where a saturated law loses a state, a short plan may still bring it to x*: inputs over the first
+`horizon` seconds, then a feedback law takes over. Two searches find them (`PlanSettings.method`):
+
+* ``"ilqr"`` (the default): iterative LQR on the model's exact derivatives (`recovery.ilqr`), with
+  knots of `knot_step` seconds, from ten warm starts per state (the feedback law's own failed
+  inputs, no input, and swings at ±ū of four periods), all states and warm starts solved together.
+  Each candidate runs as a time-varying LQR along its planned trajectory (`TrackThenLaw`), which
+  absorbs the model's coarser integration; the judge keeps the best candidate that reaches x*.
+* ``"cem"``: a cross-entropy search (Rubinstein 1999) of piecewise-constant open-loop inputs over
+  `knots` intervals: `population` plans per iteration drawn around a mean, the best eighth refits
+  the mean and spread, `iterations` times, each plan scored by the distance to x* after `score_T`
+  seconds (wrapped angle errors plus 0.3 × the speeds; a diverged rollout scores 1e3). It needs
+  hundreds of rollouts per plan; kept for comparison (`benchmarks/bench_plans.py`) and for
+  `benchmarks/bench_recoverable.py`.
+
+Plans are per state: they are the labels a recovery law is fitted to (`recovery.stage`), and a lower
+bound on what the limited actuator can do. An input without an effort limit is planned within LQR's
+largest demand on the training box instead (`plan_bound`).
 """
 
 from __future__ import annotations
@@ -19,10 +28,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..control.baseline import LQRController
+from ..errors import IdapbcError
 from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
+from .ilqr import ILQRSettings, ilqr_plans
 
-__all__ = ["PLAN_STEP", "PlanSettings", "PlanThenLaw", "plan_bound", "planning_system", "search_plan", "search_plans"]
+__all__ = ["METHODS", "PLAN_STEP", "PlanSettings", "PlanThenLaw", "TrackThenLaw", "plan_bound", "plan_candidates", "planning_system", "search_plan", "search_plans"]
+
+#: Periods (s) of the swings ±ū sin(2π t / period) that warm-start the iLQR solves (`_warm_starts`).
+PERIODS = (3.0, 2.0, 1.5, 1.0)
+#: Searches of a plan (`PlanSettings.method`).
+METHODS = ("ilqr", "cem")
 
 #: The control period of a plan and of the law after it, s: the judge's (the law held at 500 Hz).
 PLAN_STEP = 0.002
@@ -30,22 +46,41 @@ PLAN_STEP = 0.002
 
 @dataclass(frozen=True)
 class PlanSettings:
-    """The cross-entropy search of one plan.
+    """The search of the plans.
 
     Attributes
     ----------
+    method : ``"ilqr"`` (iterative LQR from warm starts, tracked) or ``"cem"`` (cross-entropy search).
     horizon : length of the plan, s; the feedback law acts after it.
-    knots : pieces of the piecewise-constant plan.
-    population : plans simulated per iteration.
-    iterations : cross-entropy iterations.
-    score_T : simulated time of a plan's score, s.
+    knot_step : ilqr: length of a knot, s (a multiple of PLAN_STEP).
+    ilqr_iterations : ilqr: iterations of each solve.
+    substeps : ilqr: RK4 steps of the model per knot.
+    knots : cem: pieces of the piecewise-constant plan.
+    population : cem: plans simulated per iteration.
+    iterations : cem: cross-entropy iterations.
+    score_T : cem: simulated time of a plan's score, s.
     """
 
+    method: str = "ilqr"
     horizon: float = 2.0
+    knot_step: float = 0.02
+    ilqr_iterations: int = 12
+    substeps: int = 1
     knots: int = 20
     population: int = 48
     iterations: int = 8
     score_T: float = 6.0
+
+    def __post_init__(self):
+        ticks = self.knot_step / PLAN_STEP
+        if self.method not in METHODS or not (self.horizon > 0 and ticks >= 1 and abs(ticks - round(ticks)) < 1e-9) or min(self.knots, self.population, self.iterations, self.ilqr_iterations, self.substeps) < 1:
+            raise IdapbcError(f"bad plan setting: method must be one of {', '.join(METHODS)}, horizon > 0, knot_step a multiple of "
+                              f"{PLAN_STEP} s, knots, population, iterations, ilqr_iterations and substeps ≥ 1. Fix: pass valid values.")
+
+    @property
+    def ilqr_knots(self) -> int:
+        """Knots of an iLQR plan: horizon / knot_step, rounded up."""
+        return max(1, int(np.ceil(self.horizon / self.knot_step - 1e-9)))
 
 
 class PlanThenLaw:
@@ -128,3 +163,62 @@ def search_plans(system, law, x0: np.ndarray, bound: np.ndarray, settings: PlanS
                 best[s], best_cost[s] = plans[s][np.argmin(cost[s])], float(cost[s].min())
             mean[s], std[s] = elite.mean(0), elite.std(0) + 0.04 * bound[:, None]
     return best
+
+
+
+class TrackThenLaw:
+    """u = U[:, k] + gains[:, k] wrap(z − Z[:, k]), z = (q, v), during knot k (of `knot_step` s) of
+    a plan: a time-varying LQR along the planned trajectory (`ilqr.ilqr_plans`); then `law`. The
+    judge's effort limits saturate both. Called once per tick by `simulate` with the law held (its
+    default), which advances the tick: use a fresh instance per simulation.
+
+    U (N, K, m) inputs, Z (N, K + 1, n) planned states in (q, v), gains (N, K, m, n); `system`
+    splits the states (q, p) the judge passes into (q, v).
+    """
+
+    def __init__(self, U, Z, gains, knot_step: float, law, system):
+        self.U, self.Z, self.gains, self.law, self.system, self.tick = U, Z, gains, law, system, 0
+        self.per_knot = int(round(knot_step / PLAN_STEP))
+        self.mask = np.asarray(system.angle_mask, bool)
+
+    @property
+    def horizon(self) -> float:
+        """Length of the plan, s."""
+        return self.U.shape[1] * self.per_knot * PLAN_STEP
+
+    def __call__(self, x):
+        k = self.tick // self.per_knot
+        self.tick += 1
+        if k < self.U.shape[1]:
+            z = np.concatenate(self.system.split(x), axis=1)
+            return self.U[:, k] + np.einsum("nij,nj->ni", self.gains[:, k], wrap_angles(z - self.Z[:, k], self.mask))
+        return self.law(x)
+
+
+def _warm_starts(failed_u: np.ndarray, bound: np.ndarray, K: int, knot_step: float) -> list[np.ndarray]:
+    """Warm starts (S, K, m) of the iLQR solves from the feedback law's inputs (S, T, m) of its
+    failed rollouts (held every PLAN_STEP): those inputs at the knots, no input, and swings
+    ±ū sin(2π t / period) of each period in PERIODS. Each solve ends in the local minimum its warm
+    start leads to, and which one brings a start to x* varies from start to start: diversity is
+    what the candidates buy."""
+    S, m = failed_u.shape[0], bound.size
+    ticks = np.minimum(np.arange(K) * int(round(knot_step / PLAN_STEP)), failed_u.shape[1] - 1)
+    t = np.arange(K) * knot_step
+    starts = [np.clip(failed_u[:, ticks], -bound, bound), np.zeros((S, K, m))]
+    for period in PERIODS:
+        swing = np.broadcast_to(bound * np.sin(2 * np.pi * t / period)[:, None], (S, K, m))
+        starts += [swing.copy(), -swing]
+    return starts
+
+
+def plan_candidates(system, x0: np.ndarray, failed_u: np.ndarray, bound: np.ndarray, settings: PlanSettings):
+    """iLQR candidates for the starts x0 (S, n) that a feedback law lost, from its inputs failed_u
+    (S, T, m) there: (starts (S·C, n), U (S·C, K, m), Z (S·C, K + 1, n) in (q, v), gains (S·C, K, m, n)), the
+    C warm starts of `_warm_starts` for start s at rows s, S + s, 2S + s, … . S: LQR's Riccati matrix
+    weighs the end state."""
+    K = settings.ilqr_knots
+    W = _warm_starts(failed_u, bound, K, settings.knot_step)
+    starts = np.concatenate([x0] * len(W))
+    S = LQRController(system).S
+    U, Z, gains, _ = ilqr_plans(system, starts, np.concatenate(W), bound, K * settings.knot_step, S, ILQRSettings(iterations=settings.ilqr_iterations, substeps=settings.substeps))
+    return starts, U, Z, gains

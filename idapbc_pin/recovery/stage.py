@@ -4,15 +4,18 @@ The steps (`RecoveryConfig` holds every number):
 
 1. **Labels.** From `starts` uniform start states of the half box, or of the training box
    (`start_box`; seed `plan_seed`, never an evaluation seed), the `teacher` runs first: the run's
-   own law (`Run.own_controller`, the default) or saturated LQR. Where it fails, a torque plan
-   within the limits is searched (`plans.search_plans`, PLAN_BATCH starts at a time), then the
-   teacher takes over (an input without an effort limit plans within `plans.plan_bound`, LQR's
-   largest demand on the training box, and the fitted law stays within it). Every start that
+   own law (`Run.own_controller`, the default) or saturated LQR. Where it fails within `judge_T`,
+   torque plans within the limits are searched (`plans.plan_candidates`: iLQR from several warm
+   starts, every lost start of a chunk at once, each candidate tracked by a time-varying LQR and
+   then caught by the teacher; or `plans.search_plans`, the cross-entropy search, with
+   ``plan.method = "cem"``). An input without an effort limit plans within `plans.plan_bound`,
+   LQR's largest demand on the training box (and the fitted law stays within it). Every start that
    reaches x* gives labels (x(t), u(t)) every 10 ms over its first 6 s. With the run's law as the
    teacher the fitted law imitates the IDA-PBC law on the states that law already brings to x*,
    so a trajectory that leaves the inner box meets a law that continues what the IDA-PBC law was
    doing; with LQR it meets LQR's habits, and can lose states near x* that the run's law holds
-   (docs/method.md §6).
+   (docs/method.md §6). Each finished chunk of starts is kept in ``recovery-chunks/``
+   (`chunks.ChunkStore`) until the stage ends, so a stage started again after a kill reads it back.
 2. **Fit.** A `recovery.law.RecoveryLaw` MLP (two tanh layers of `width`) by least squares on
    u/ū (Adam, minibatches of 4096; `fit`). With `form` "residual" the MLP is a correction
    added to the IDA-PBC law's own input (`RecoveryLaw.residual`). After the DAgger rounds, `fits`
@@ -33,9 +36,9 @@ The steps (`RecoveryConfig` holds every number):
    is left as it was (`gate_choice`). Where the run's law brings all those half-box states to x*,
    a kept law is checked again on `confirm_states` half-box states of their own.
 
-What it buys is recorded in docs/results-history.md. The plans dominate its cost (tens of minutes
-per robot; `workers` processes), so `train` runs `recover` only where saturated LQR leaves room
-(`recovery.trigger`).
+What it buys is recorded in docs/results-history.md. `train` runs `recover` by default where
+saturated LQR leaves room (`recovery.trigger`); `workers` processes (or Ray tasks) share the plans,
+fits and gate, and change the time only.
 
 The result is written into the run directory: ``recovery.npz`` (the law, when the gate keeps it;
 `Run.controller` then applies it) or ``recovery-refused.npz`` (when it does not; never applied),
@@ -47,11 +50,13 @@ gate, or keeps it, and `refit` fits a law again to the saved labels (another `fi
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import asdict
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from .._parallel import process_map, resolve_workers
 from ..control.baseline import LQRController
@@ -61,11 +66,12 @@ from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, re
 from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import scaled_box, uniform_states
+from .chunks import ChunkStore, chunk_key
 from .config import FORMS, START_BOXES, TEACHERS, RecoveryConfig
 from .fit import base_inputs, fit_job, fit_recovery_law
 from .gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, read_labels, save_labels, save_recovery
 from .law import RecoveryLaw
-from .plans import PLAN_STEP, PlanThenLaw, planning_system, search_plans
+from .plans import PLAN_STEP, PlanThenLaw, TrackThenLaw, plan_candidates, planning_system, search_plans
 
 __all__ = ["FORMS", "LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "START_BOXES", "TEACHERS", "choose_inner", "collect_labels", "dagger_round", "ends_near", "fit_recovery_law", "gate_choice", "recover", "refit", "regate"]
 
@@ -93,11 +99,42 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
     ok = success(traj, system)
     X = [traj.x[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
     U = [system.saturate(traj.u[i, :LABEL_SPAN:LABEL_EVERY]) for i in np.flatnonzero(ok)]
-    recovered = 0
     lost, bound = np.flatnonzero(~ok), np.asarray(system.effort)
-    for k in range(0, lost.size, PLAN_BATCH):
-        group = lost[k : k + PLAN_BATCH]
-        rngs = [np.random.default_rng((plan_seed, first + int(i))) for i in group]
+    plan = _ilqr_labels if settings.method == "ilqr" else _cem_labels
+    Xp, Up = plan(system, law, x0[lost], traj.u[lost], lost + first, plan_seed, bound, settings, T) if lost.size else ([], [])
+    X, U = X + Xp, U + Up
+    empty = (np.empty((0, system.n)), np.empty((0, system.m)))
+    return (np.concatenate(X), np.concatenate(U), int(ok.sum()), len(Xp)) if X else (*empty, int(ok.sum()), len(Xp))
+
+
+def _labelled(system, t, i) -> tuple[np.ndarray, np.ndarray]:
+    """The labels (x, u) of row i of trajectory t: every LABEL_EVERY ticks over LABEL_SPAN."""
+    return t.x[i, :LABEL_SPAN:LABEL_EVERY], system.saturate(t.u[i, :LABEL_SPAN:LABEL_EVERY])
+
+
+def _ilqr_labels(system, law, x0, failed_u, ids, plan_seed, bound, settings, T):
+    """Labels of the lost starts x0 (S, n) from iLQR candidates (`plans.plan_candidates`), every
+    candidate tracked and then caught by `law` in one simulation; per start, the reaching candidate
+    of the lowest warm-start index labels it. Deterministic: no random stream is drawn."""
+    starts, Uc, Zc, gains = plan_candidates(system, x0, failed_u, bound, settings)
+    tracker = TrackThenLaw(Uc, Zc, gains, settings.knot_step, law, system)
+    t = simulate(system, tracker, starts, T=T, dt=PLAN_STEP, stop_converged=law if tracker.horizon <= LABEL_TIME else False,
+                 stop_from=LABEL_TIME)
+    ok = success(t, system).reshape(-1, len(x0))  # (C, S)
+    X, U = [], []
+    for s in np.flatnonzero(ok.any(0)):
+        x, u = _labelled(system, t, int(np.argmax(ok[:, s])) * len(x0) + s)
+        X.append(x), U.append(u)
+    return X, U
+
+
+def _cem_labels(system, law, x0, failed_u, ids, plan_seed, bound, settings, T):
+    """Labels of the lost starts x0 (S, n) from cross-entropy plans (`plans.search_plans`), PLAN_BATCH
+    starts searched together, start i drawing from the stream (plan_seed, ids[i]); each plan is judged alone."""
+    X, U = [], []
+    for k in range(0, len(x0), PLAN_BATCH):
+        group = np.arange(k, min(k + PLAN_BATCH, len(x0)))
+        rngs = [np.random.default_rng((plan_seed, int(ids[i]))) for i in group]
         plans = search_plans(system, law, x0[group], bound, settings, rngs)
         # Each plan is judged alone: numpy's matrix product (LQR's -Kδ) rounds a batch of one
         # differently, and judging it in a batch would move existing runs' labels by rounding.
@@ -105,36 +142,42 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
             t = simulate(system, PlanThenLaw(plan[None], settings.horizon, law), x0[i : i + 1], T=T, dt=PLAN_STEP,
                          stop_converged=law if settings.horizon <= LABEL_TIME else False, stop_from=LABEL_TIME)
             if success(t, system)[0]:
-                recovered += 1
-                X.append(t.x[0, :LABEL_SPAN:LABEL_EVERY])
-                U.append(system.saturate(t.u[0, :LABEL_SPAN:LABEL_EVERY]))
-    empty = (np.empty((0, system.n)), np.empty((0, system.m)))
-    return (np.concatenate(X), np.concatenate(U), int(ok.sum()), recovered) if X else (*empty, int(ok.sum()), recovered)
+                x, u = _labelled(system, t, 0)
+                X.append(x), U.append(u)
+    return X, U
 
 
-def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfig, progress: bool = True, start: float | None = None, teacher=None):
+def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfig, progress: bool = True, start: float | None = None, teacher=None,
+                   store: ChunkStore | None = None, step: str = "labels"):
     """Labels (X (K, n), U (K, m)) of `system` from the start states x0 (N, n), with the counts of
     starts the teacher and the plans brought to x*: (X, U, teacher_ok, recovered). The teacher is
     `teacher` (a law (N, n) -> (N, m), picklable), or saturated LQR when None; it also catches every
-    plan after its horizon. The plan of start i draws from the stream (plan_seed, i). The starts are
-    split into `LABEL_CHUNKS` chunks for `config.workers` processes (the system and the teacher are
-    pickled to them; Ray tasks with `config.ray`), so the labels depend on neither the count nor the back-end."""
-    start = time.perf_counter() if start is None else start
+    plan after its horizon. A cross-entropy plan of start i draws from the stream (plan_seed, i); an
+    iLQR plan draws none. The starts are split into `LABEL_CHUNKS` chunks for `config.workers`
+    processes (the system and the teacher are pickled to them; Ray tasks with `config.ray`), so the
+    labels depend on neither the count nor the back-end. With a `store`, each finished chunk is
+    saved under `step` as it arrives, and chunks already saved there are read instead of planned
+    (`chunks.ChunkStore`). `progress` shows a bar over the chunks with its ETA."""
     workers = config.workers if config.ray else resolve_workers(config.workers)  # Ray: 0 leaves the count to the cluster
+    store = store or ChunkStore(None)
     chunks = [c for c in np.array_split(np.arange(len(x0)), LABEL_CHUNKS) if c.size]
-    jobs = [(system, x0[c], int(c[0]), plan_seed, config.plan, teacher, config.judge_T) for c in chunks]
-    parts = []
-    for k, part in enumerate(process_map(_label_chunk, jobs, workers, config.ray)):
-        parts.append(part)
-        if progress:
-            print(f"  plans: chunk {k + 1}/{len(jobs)}  [{time.perf_counter() - start:.0f} s]", flush=True)
+    keys = [chunk_key(x0[c], int(c[0]), plan_seed, config.plan, config.judge_T, config.teacher) for c in chunks]
+    parts = [store.read(step, k, key) for k, key in enumerate(keys)]
+    todo = [k for k, p in enumerate(parts) if p is None]
+    jobs = [(system, x0[chunks[k]], int(chunks[k][0]), plan_seed, config.plan, teacher, config.judge_T) for k in todo]
+    with tqdm(total=len(chunks), initial=len(chunks) - len(todo), desc=f"recovery: {step}", unit="chunk", disable=not progress,
+              dynamic_ncols=True, file=sys.stderr) as bar:
+        for k, part in zip(todo, process_map(_label_chunk, jobs, workers, config.ray)):
+            store.write(step, k, keys[k], part)
+            parts[k] = part
+            bar.update(1)
     X, U = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
     return X, U, sum(p[2] for p in parts), sum(p[3] for p in parts)
 
 
 # ------------------------------------------------------------------------------------ recover
 def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int, config: RecoveryConfig, progress: bool = True, start: float | None = None,
-                 teacher=None, networks=None):
+                 teacher=None, networks=None, store: ChunkStore | None = None):
     """DAgger round r: run `law` alone from `config.dagger_starts` starts in `config.start_box` (seed
     plan_seed + 300 + r), label the states its failures visit at 0.5, 1.5 and 3 s (`collect_labels`
     with `teacher`, plan streams plan_seed + 1000 (r + 1)), and fit a fresh law on all labels.
@@ -156,11 +199,11 @@ def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int,
         print(f"DAgger round {r + 1}/{config.dagger}: the law fails from {failed.size} of {config.dagger_starts} starts; "
               f"labelling the {len(visited)} states they visit  [{time.perf_counter() - start:.0f} s]", flush=True)
     if visited.size:
-        Xr, Ur, taught, recovered = collect_labels(system, visited, config.plan_seed + 1000 * (r + 1), config, progress, start, teacher)
+        Xr, Ur, taught, recovered = collect_labels(system, visited, config.plan_seed + 1000 * (r + 1), config, progress, start, teacher, store, f"dagger{r + 1}")
         X, U = np.concatenate([X, Xr]), np.concatenate([U, Ur])
     else:
         taught = recovered = 0
-    law, mse = _fit(system, X, U, config, networks)
+    law, mse = _fit(system, X, U, config, networks, f"recovery: fit, DAgger {r + 1}" if progress else None)
     if progress:
         print(f"DAgger round {r + 1}/{config.dagger}: of those states {_teacher_name(config)} brings {taught} to x*, plans {recovered}; refitted on "
               f"{len(X)} labels, mean squared error {mse:.4f}  [{time.perf_counter() - start:.0f} s]", flush=True)
@@ -194,7 +237,8 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     x0 = uniform_states(system, config.starts, config.start_box, config.plan_seed)
     teacher = run.own_controller if config.teacher == "run" else None
     networks = run.own_controller.with_fallback(None)  # the input a recovery law's apply gets
-    X, U, taught, recovered = collect_labels(system, x0, config.plan_seed, config, progress, start, teacher)
+    store = ChunkStore(run.path)  # chunks a killed stage finished are read back, not planned again
+    X, U, taught, recovered = collect_labels(system, x0, config.plan_seed, config, progress, start, teacher, store, "labels")
     if not len(X):
         raise IdapbcError(f"no start state reached x*, with the teacher or with a plan: nothing to fit a recovery law to ({system.name}). Fix: check the limits.")
     save_labels(run.path, X, U)  # after every labelling step: an interrupted recover keeps its plans for --refit
@@ -202,12 +246,12 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
         print(f"labels: {_teacher_name(config)} brings {taught} of {config.starts} starts to x*, plans {recovered} of the other "
               f"{config.starts - taught}; {len(X)} labels  [{time.perf_counter() - start:.0f} s]", flush=True)
     try:
-        law, mse = _fit(system, X, U, config, networks)
+        law, mse = _fit(system, X, U, config, networks, "recovery: fit" if progress else None)
         if progress:
             print(f"fitted: mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
         rounds = []
         for r in range(config.dagger):
-            law, X, U, info = dagger_round(system, law, X, U, r, config, progress, start, teacher, networks)
+            law, X, U, info = dagger_round(system, law, X, U, r, config, progress, start, teacher, networks, store)
             rounds.append(info)
             if info.get("stopped"):
                 break
@@ -222,7 +266,9 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
         "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "teacher": config.teacher, "teacher_starts": int(taught), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
         "seconds": round(time.perf_counter() - start, 1),
     }
-    return _save_and_tell(run, law, entry, config, progress, start)
+    entry = _save_and_tell(run, law, entry, config, progress, start)
+    store.clear()
+    return entry
 
 
 def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
@@ -280,7 +326,7 @@ def _gate_fits(run, system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, conf
     the gate choose among all (`choose_fit`); returns (the chosen law, its gate). `networks`: as in `_fit`."""
     laws = [law]
     base = base_inputs(networks, X, system.effort) if config.form == "residual" else None
-    jobs = [(system, X, U, config.width, config.steps, config.fit_seed + k, base) for k in range(1, config.fits)]
+    jobs = [(system, X, U, config.width, config.steps, config.fit_seed + k, base, None, config.batch) for k in range(1, config.fits)]
     for k, (more, mse) in enumerate(process_map(fit_job, jobs, config.workers, config.ray), start=1):
         laws.append(more)
         if progress:
@@ -289,11 +335,11 @@ def _gate_fits(run, system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, conf
     return laws[k], gate
 
 
-def _fit(system, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, networks) -> tuple[RecoveryLaw, float]:
+def _fit(system, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, networks, progress: str | None = None) -> tuple[RecoveryLaw, float]:
     """`fit_recovery_law` with `config`'s width, steps, fit seed and form (residual: on the inputs of
-    `networks`, the run's controller without a fallback, at X)."""
+    `networks`, the run's controller without a fallback, at X); `progress`: the label of its bar."""
     base = base_inputs(networks, X, system.effort) if config.form == "residual" else None
-    return fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed, base)
+    return fit_recovery_law(system, X, U, config.width, config.steps, config.fit_seed, base, progress, config.batch)
 
 
 def _verdict(gate: dict, config: RecoveryConfig, keep: bool) -> dict:

@@ -1,25 +1,23 @@
 """When `train` fits a recovery law on its own: saturated LQR leaves room on the half box, or else on
 the training box.
 
-A recovery law (`recovery.stage`) is worth its cost (its plans take tens of minutes per robot)
-where a linear law under the robot's torque limits loses states that torque plans within the same
-limits bring to x* (docs/method.md §6). The test runs saturated LQR from
-`BIND_STATES` uniform half-box states (a seed no evaluation uses): it leaves **room** when at least
-`ROOM_POINTS` per cent of them fail. It also runs LQR without the limits from the same states, to say
-whether the limits **bind** (saturated LQR loses ≥ `BIND_POINTS` per cent more than unsaturated LQR):
-printed as context, not used in the decision (with equal thresholds, binding limits always leave room).
-Where the half box leaves no room, the same test runs on the training box, and where that leaves
-room the recovery law's plans and DAgger rounds start from the training box
-(`RecoveryConfig.start_box`).
-A robot given no effort limits (the paper's built-in systems, a URDF without `<limit effort>`) takes
-the same test with LQR itself, and its plans and recovery law stay within `plans.plan_bound`, the
-largest |u| LQR asks on the training box: a basin larger than LQR's is what the user comes for with
-or without limits.
+A recovery law (`recovery.stage`) is worth its cost (a few minutes for a 2-DoF robot) where a
+linear law under the robot's torque limits loses states that torque plans within the same limits
+bring to x* (docs/method.md §6). Saturated LQR leaves **room** when it fails from at least
+`ROOM_POINTS` per cent of the half box's states: `train` reads that from its own evaluation
+(`room_from`), after printing it; without one, `limits_bind` runs saturated LQR from `BIND_STATES`
+uniform half-box states (a seed no evaluation uses), and LQR without the limits from the same
+states, to say whether the limits **bind** (saturated LQR loses ≥ `BIND_POINTS` per cent more than
+unsaturated LQR): printed as context, not used in the decision. Where the half box leaves no room,
+the same test runs on the training box, and where that leaves room the recovery law's plans and
+DAgger rounds start from the training box (`RecoveryConfig.start_box`). A robot given no effort
+limits (the paper's built-in systems, a URDF without `<limit effort>`) takes the same test with LQR
+itself, and its plans and recovery law stay within `plans.plan_bound`, the largest |u| LQR asks on
+the training box: a basin larger than LQR's is what the user comes for with or without limits.
 
-Room, not binding, decides: a robot whose limits do not bind (saturated LQR fails about as often
-as unsaturated LQR) can still leave room that a recovery law fills. Where plans cannot help a
-feedback law the gate keeps none and only time is lost. What the test says for each zoo robot is in
-docs/method.md §6.
+Room, not binding, decides: a robot whose limits do not bind can still leave room that a recovery
+law fills. Where plans cannot help a feedback law the gate keeps none and only time is lost. What
+the test says for each zoo robot is in docs/method.md §6.
 """
 
 from __future__ import annotations
@@ -36,7 +34,7 @@ from ..sim.states import uniform_states
 from .plans import PLAN_STEP, plan_bound
 from .stage import RecoveryConfig, recover
 
-__all__ = ["BIND_POINTS", "BIND_STATES", "RECOVER_MODES", "RECOVER_TIME", "ROOM_POINTS", "auto_recover", "limits_bind", "recovery_hint"]
+__all__ = ["BIND_POINTS", "BIND_STATES", "RECOVER_MODES", "RECOVER_TIME", "ROOM_POINTS", "SMOKE_EPOCHS", "auto_recover", "limits_bind", "recovery_hint", "room_from"]
 
 #: Half-box states of the test, and the loss (percentage points) of saturated LQR against unsaturated
 #: LQR that makes the limits bind.
@@ -45,11 +43,13 @@ BIND_STATES, BIND_POINTS = 100, 10.0
 ROOM_POINTS = 10.0
 #: Seed of the test's states (neither the plans', the gates', nor an evaluation's).
 BIND_SEED = 5_190_421
-#: `train --recover`: fit a recovery law when the limits bind, always, or never (the default: the stage
-#: is off the default path, and `recovery_hint` prints the command that runs it).
+#: `train --recover`: fit a recovery law where saturated LQR leaves room (the default), always, or never.
 RECOVER_MODES = ("auto", "always", "never")
 #: What the recovery stage costs, as `train` and `recovery_hint` announce it.
-RECOVER_TIME = "15-60 min on 2 cores for a 2-DoF robot, up to about 2 h for a 3-DoF one, less with more cores (--workers)"
+RECOVER_TIME = "about 5 min on 2 cores for a 2-DoF robot, up to about 15 min for a 3-DoF one, less with more cores (--workers)"
+#: Fewer training epochs than this make a smoke run: `train`'s default `--recover auto` then skips the
+#: stage with one line (an explicit --recover runs it).
+SMOKE_EPOCHS = 200
 
 
 def limits_bind(system, states: int = BIND_STATES, seed: int = BIND_SEED, box: str = "half") -> dict:
@@ -75,28 +75,58 @@ def limits_bind(system, states: int = BIND_STATES, seed: int = BIND_SEED, box: s
             "room": 100.0 * (states - sat) / states >= ROOM_POINTS}
 
 
-def auto_recover(run, mode: str = "auto", config: RecoveryConfig = RecoveryConfig(), progress: bool = True) -> dict | None:
+def room_from(lqr_success: dict[str, float]) -> dict | None:
+    """`limits_bind`'s verdict from an evaluation that already ran saturated LQR: lqr_success
+    {"half": share, "domain": share} (shares in [0, 1]) -> {"box": the first of "half", "domain"
+    where LQR fails from ≥ ROOM_POINTS per cent, "failed": that percentage}, or None (no room)."""
+    for box in ("half", "domain"):
+        if box in lqr_success and 100.0 * (1.0 - lqr_success[box]) >= ROOM_POINTS - 1e-9:
+            return {"box": box, "failed": 100.0 * (1.0 - lqr_success[box])}
+    return None
+
+
+def auto_recover(run, mode: str = "auto", config: RecoveryConfig = RecoveryConfig(), progress: bool = True, lqr_success: dict | None = None) -> dict | None:
     """What `train --recover MODE` does after training: ``"always"`` runs `recover`, ``"never"``
-    nothing, ``"auto"`` runs it only when `limits_bind` finds room (saturated LQR fails on ≥
-    ROOM_POINTS per cent of its half-box states; where it does not, of its training-box states, and
-    then the plans start from the training box), printing the test either way when `progress`.
-    Returns recover's summary entry, or None when it did not run."""
+    nothing, ``"auto"`` runs it only where saturated LQR leaves room (fails on ≥ ROOM_POINTS per cent
+    of the half box; where it does not, of the training box, and then the plans start from the
+    training box). That verdict comes from the evaluation's LQR results when given (`lqr_success`,
+    see `room_from`), else from `limits_bind`; it is printed either way when `progress`. Returns
+    recover's summary entry, or None when it did not run."""
     if mode not in RECOVER_MODES:
         raise IdapbcError(f"unknown recover mode {mode!r}. Fix: use one of {', '.join(RECOVER_MODES)}.")
     if mode == "never":
         return None
     if mode == "auto":
-        for box in ("half", "domain"):  # the training box only where the half box leaves no room
-            test = limits_bind(run.system, box=box)
-            if progress and test["states"]:
-                _tell(test, box, run.system)
-            if test["room"]:
-                break
+        if lqr_success is not None and run.system.m:
+            room = room_from(lqr_success)
+            if progress:
+                _tell_evaluation(lqr_success, room)
+            if room is None:
+                return None
+            box = room["box"]
         else:
-            return None
+            for box in ("half", "domain"):  # the training box only where the half box leaves no room
+                test = limits_bind(run.system, box=box)
+                if progress and test["states"]:
+                    _tell(test, box, run.system)
+                if test["room"]:
+                    break
+            else:
+                return None
         if box == "domain":
             config = replace(config, start_box="domain")
     return recover(run, config, progress)
+
+
+def _tell_evaluation(lqr_success: dict, room: dict | None) -> None:
+    """Print the room verdict read from the evaluation and what `auto_recover` does next."""
+    shares = ", ".join(f"{100.0 * (1.0 - v):.0f} % of the {'half box' if k == 'half' else 'training box'}" for k, v in lqr_success.items())
+    if room is None:
+        print(f"saturated LQR fails from {shares}: no room for a recovery law (--recover always fits one anyway)", flush=True)
+    else:
+        start = "" if room["box"] == "half" else " from training-box starts"
+        print(f"saturated LQR fails from {shares}: fitting a recovery law{start} where the law loses states ({RECOVER_TIME}; "
+              "Ctrl-C keeps the run as it is and `idapbc-pin train --resume RUN` continues; --recover never skips it)", flush=True)
 
 
 def recovery_hint(run, half_box_lqr_success: float | None = None) -> str | None:

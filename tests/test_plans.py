@@ -1,0 +1,216 @@
+"""Torque plans by iterative LQR (`recovery.ilqr`, `recovery.plans.plan_candidates`, `TrackThenLaw`)
+and the finished chunks a killed recovery stage reads back (`recovery.chunks`).
+
+Claims:
+* the plant's Jacobians in z = (q, v) equal Pinocchio's analytic ABA derivatives, and the knot map's
+  (their exponential over a knot) are close to central differences of the plant's rollout;
+* iLQR plans stay within the limits, never cost more than their warm start, and bring the plant's
+  end state closer to x*; each problem's plan is the one it gets when solved alone;
+* tracked iLQR candidates bring a pendubot with an 8 N·m shoulder to x* from half-box states saturated
+  LQR loses, in the judge (Pinocchio's aba at 2 ms, the limits applied);
+* a chunk store gives back exactly what was written, and nothing for another key or a damaged file;
+  a labelling step started again after an interruption plans only the chunks it had not finished,
+  and ends with the labels of an uninterrupted step;
+* kill -9 during the stage leaves a run that works with its own law, and `train --resume RUN`
+  finishes the stage.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import idapbc_pin as ip
+from idapbc_pin.control.baseline import LQRController
+from idapbc_pin.recovery import stage as stage_module
+from idapbc_pin.recovery.chunks import CHUNKS_DIR, ChunkStore, chunk_key
+from idapbc_pin.recovery.ilqr import ILQRSettings, _knot_jacobians, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout
+from idapbc_pin.recovery.plans import PERIODS, PLAN_STEP, PlanSettings, TrackThenLaw, plan_candidates
+from idapbc_pin.recovery.stage import RecoveryConfig, collect_labels
+from idapbc_pin.sim.integrate import simulate
+from idapbc_pin.sim.metrics import success
+from idapbc_pin.sim.states import uniform_states
+
+
+@pytest.fixture(scope="module")
+def weak_pendubot():
+    return ip.load_system("pendubot", effort={"shoulder": 8.0})
+
+
+@pytest.fixture(scope="module")
+def lost(weak_pendubot):
+    """Half-box starts saturated LQR loses on the 8 N·m pendubot, with its inputs there."""
+    system = weak_pendubot
+    x0 = uniform_states(system, 40, "half", 11)
+    traj = simulate(system, LQRController(system), x0, T=20.0, dt=PLAN_STEP)
+    idx = np.flatnonzero(~success(traj, system))
+    assert idx.size >= 4
+    return x0[idx[:4]], traj.u[idx[:4]]
+
+
+def test_the_field_jacobians_equal_pinocchio_s_aba_derivatives(weak_pendubot):
+    """∂ż/∂z and ∂ż/∂u of ż = (v, a(q, v, B u)) by central differences of the pooled ABA, against
+    Pinocchio's analytic computeABADerivatives (with the joints' damping τ − D v)."""
+    import pinocchio as pin
+
+    system = weak_pendubot
+    plant = system.plant
+    rng = np.random.default_rng(0)
+    x = uniform_states(system, 3, "domain", 3)
+    q, v = system.split(x)
+    u = rng.uniform(-8, 8, (3, 1))
+    J, G = field_jacobians(system, np.concatenate([q, v], axis=1), u)
+    nq, B, D = system.nq, np.asarray(system.B), np.diag(plant.damping)
+    for k in range(3):
+        data = plant.model.createData()
+        tau = B @ u[k] - plant.damping * v[k]
+        da_dq, da_dv, Minv = (np.array(a) for a in pin.computeABADerivatives(plant.model, data, plant.config(q[k : k + 1])[0], v[k], tau))
+        Minv = np.triu(Minv) + np.triu(Minv, 1).T
+        np.testing.assert_allclose(J[k, :nq], np.hstack([np.zeros((nq, nq)), np.eye(nq)]), atol=0)
+        np.testing.assert_allclose(J[k, nq:, :nq], da_dq, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(J[k, nq:, nq:], da_dv - Minv @ D, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(G[k, nq:], Minv @ B, rtol=1e-6, atol=1e-8)
+
+
+def test_the_knot_map_s_jacobians_approximate_central_differences_of_the_rollout(weak_pendubot):
+    system = weak_pendubot
+    x = uniform_states(system, 3, "domain", 3)
+    z = np.concatenate(system.split(x), axis=1)
+    u, dt = np.array([[3.0], [-8.0], [0.0]]), 0.02
+    A, B = _knot_jacobians(system, z, u, dt)
+    step = lambda zs, us: rollout(system, zs, us[:, None, :], dt, 4)[:, 1]  # noqa: E731
+    h = 1e-6
+    A_fd = np.stack([(step(z + h * e, u) - step(z - h * e, u)) / (2 * h) for e in np.eye(system.n)], axis=-1)
+    B_fd = (step(z, u + h) - step(z, u - h)) / (2 * h)
+    # the field frozen at the knot's start: within a tenth of the largest entry over 20 ms (the line search judges on the true rollout)
+    assert np.abs(A - A_fd).max() < 0.1 * np.abs(A_fd).max() and np.abs(B[:, :, 0] - B_fd).max() < 0.1 * np.abs(B_fd).max()
+
+
+def test_ilqr_plans_stay_within_the_limits_and_improve_on_their_warm_start(weak_pendubot, lost):
+    system = weak_pendubot
+    x0, _ = lost
+    bound, S, K, H = np.array([8.0]), LQRController(system).S, 50, 1.0
+    U0 = np.zeros((len(x0), K, 1))
+    settings = ILQRSettings(iterations=6)
+    U, Z, gains, cost = ilqr_plans(system, x0, U0, bound, H, S, settings)
+    assert U.shape == (len(x0), K, 1) and Z.shape == (len(x0), K + 1, system.n) and gains.shape == (len(x0), K, 1, system.n)
+    assert np.abs(U).max() <= 8.0 + 1e-12 and np.isfinite(gains).all()
+    z0 = np.concatenate(system.split(x0), axis=1)
+    np.testing.assert_allclose(rollout(system, z0, U, H / K, settings.substeps), Z, atol=1e-9)
+    Q, Sz, r = plan_weights(system, S, settings, bound)
+    start = plan_cost(system, rollout(system, z0, U0, H / K, settings.substeps), U0, Q, Sz, r, H / K)
+    assert np.all(cost <= start) and np.any(cost < 0.5 * start)
+    alone = ilqr_plans(system, x0[1:2], U0[1:2], bound, H, S, settings)[0]
+    np.testing.assert_allclose(alone, U[1:2], atol=1e-9)
+
+
+def test_tracked_ilqr_candidates_recover_states_saturated_lqr_loses(weak_pendubot, lost):
+    system = weak_pendubot
+    x0, failed_u = lost
+    lqr, settings = LQRController(system), PlanSettings()
+    starts, U, X, gains = plan_candidates(system, x0, failed_u, np.array([8.0]), settings)
+    assert len(starts) == (2 + 2 * len(PERIODS)) * len(x0) and np.abs(U).max() <= 8.0 + 1e-12
+    tracker = TrackThenLaw(U, X, gains, settings.knot_step, lqr, system)
+    assert tracker.horizon == pytest.approx(settings.horizon)
+    ok = success(simulate(system, tracker, starts, T=20.0, dt=PLAN_STEP), system).reshape(-1, len(x0))
+    assert ok.any(0).sum() >= len(x0) // 2  # starts saturated LQR lost, brought to x* by a tracked plan, then LQR
+
+
+def test_a_chunk_store_gives_back_what_it_kept_and_nothing_else(tmp_path):
+    store = ChunkStore(tmp_path)
+    part = (np.arange(12.0).reshape(3, 4), np.ones((3, 1)), 2, 1)
+    key = chunk_key(np.zeros((2, 4)), 7, PlanSettings())
+    assert store.read("labels", 0, key) is None
+    store.write("labels", 0, key, part)
+    X, U, taught, recovered = store.read("labels", 0, key)
+    np.testing.assert_array_equal(X, part[0]) and np.testing.assert_array_equal(U, part[1])
+    assert (taught, recovered) == (2, 1)
+    assert store.read("labels", 0, chunk_key(np.zeros((2, 4)), 8, PlanSettings())) is None  # another seed: planned again
+    (tmp_path / CHUNKS_DIR / "labels-0.npz").write_bytes(b"not a zip")
+    assert store.read("labels", 0, key) is None  # damaged: planned again
+    store.clear()
+    assert not (tmp_path / CHUNKS_DIR).exists()
+    assert ChunkStore(None).read("labels", 0, key) is None
+
+
+def test_a_labelling_step_started_again_plans_only_the_chunks_it_had_not_finished(weak_pendubot, tmp_path, monkeypatch):
+    system = weak_pendubot
+    x0 = uniform_states(system, 16, "half", 5)
+    config = RecoveryConfig(workers=1, judge_T=8.0, plan=PlanSettings(horizon=0.5, ilqr_iterations=2))
+    whole = collect_labels(system, x0, 3, config, progress=False)
+    calls = []
+    real = stage_module._label_chunk
+
+    def chunk(job):
+        calls.append(job[2])
+        if len(calls) == 3:
+            raise KeyboardInterrupt  # killed while the third chunk is planned
+        return real(job)
+
+    monkeypatch.setattr(stage_module, "_label_chunk", chunk)
+    store = ChunkStore(tmp_path)
+    with pytest.raises(KeyboardInterrupt):
+        collect_labels(system, x0, 3, config, progress=False, store=store)
+    done = list(calls[:2])
+    calls.clear()
+    monkeypatch.setattr(stage_module, "_label_chunk", real)
+    again = collect_labels(system, x0, 3, config, progress=False, store=store)
+    for a, b in zip(whole[:2], again[:2]):
+        np.testing.assert_array_equal(a, b)
+    assert whole[2:] == again[2:]
+    monkeypatch.setattr(stage_module, "_label_chunk", lambda job: calls.append(job[2]) or real(job))
+    collect_labels(system, x0, 3, config, progress=False, store=store)
+    assert calls == [] and len(done) == 2  # every chunk is read back now
+
+
+TINY_TOML = """[recovery]
+starts = 16
+dagger = 0
+width = 8
+steps = 30
+fits = 1
+gate_states = 4
+near_states = 2
+confirm_states = 2
+inner_scales = [0.25]
+judge_T = 8.0
+workers = 1
+
+[recovery.plan]
+horizon = 0.5
+ilqr_iterations = 2
+"""
+
+
+def test_a_kill_during_the_stage_leaves_a_working_run_and_resume_finishes_the_stage(tmp_path):
+    """kill -9 while the recovery stage plans: the run still loads and runs its own law, its finished
+    chunks are on disk, and `train --resume RUN` finishes the stage from them."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    system = ip.load_system("pendubot", effort={"shoulder": 8.0})
+    run = ip.train(system, ip.TrainConfig.fast(epochs=5, width=8, depth=1, samples=64, dtype="float64"), out=tmp_path / "runs", progress=False)
+    (tmp_path / "tiny.toml").write_text(TINY_TOML)
+    chunks = run.path / CHUNKS_DIR
+    proc = subprocess.Popen([sys.executable, "-m", "idapbc_pin.cli", "recover", str(run.path), "--config", str(tmp_path / "tiny.toml")],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=os.environ | {"PYTHONWARNINGS": "ignore"})
+    deadline = time.time() + 120
+    while time.time() < deadline and not (chunks.is_dir() and any(chunks.glob("*.npz"))) and proc.poll() is None:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the stage ended before a chunk was saved: nothing to kill"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    saved = sorted(p.name for p in chunks.glob("*.npz"))
+    assert saved and len(saved) < 8
+    killed = ip.load_run(run.path)  # the run still works with its own law
+    assert not killed.uses_recovery and "recovery" not in killed.summary
+    assert np.isfinite(killed.controller(uniform_states(system, 3, "half", 0))).all()
+    main_args = ["train", "--resume", str(run.path), "--recover", "always", "--recover-config", str(tmp_path / "tiny.toml"), "--evaluate", "0"]
+    from idapbc_pin.cli.main import main
+
+    assert main(main_args) == 0
+    resumed = ip.load_run(run.path)
+    assert "recovery" in resumed.summary and not chunks.exists()  # the stage ran to its gate, and cleared its chunks
