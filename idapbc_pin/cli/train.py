@@ -91,14 +91,15 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 def _trained(run_dir, config: TrainConfig) -> bool:
     """Whether the run at `run_dir` finished its training (with its check of the law outside the
-    box) at `config.epochs` or more: `train --resume` then goes on with the recovery stage and the
-    evaluation without training again."""
+    box) at `config.epochs` or more, as its summary.json says: `train --resume` then goes on with
+    the recovery stage and the evaluation without training again."""
     from .._io import read_json
 
     summary_path = Path(run_dir) / "summary.json"
-    if not summary_path.is_file():
+    try:
+        summary = read_json(summary_path, fix="delete summary.json and run `idapbc-pin train --resume` again")
+    except IdapbcError:  # missing or damaged: the resume trains (no epochs left) and rewrites it
         return False
-    summary = read_json(summary_path, fix="delete summary.json and run `idapbc-pin train --resume` again")
     done = summary.get("status") == "finished" and not (summary.get("fallback") or {}).get("interrupted")
     return bool(done and int(summary.get("epochs_done", -1)) >= config.epochs)
 
