@@ -135,7 +135,7 @@ def test_a_chunk_store_gives_back_what_it_kept_and_nothing_else(tmp_path):
 
 def test_a_labelling_step_started_again_plans_only_the_chunks_it_had_not_finished(weak_pendubot, tmp_path, monkeypatch):
     system = weak_pendubot
-    x0 = uniform_states(system, 16, "half", 5)
+    x0 = uniform_states(system, 8, "half", 5)  # one start per chunk
     config = RecoveryConfig(workers=1, judge_T=8.0, plan=PlanSettings(horizon=0.5, ilqr_iterations=2))
     whole = collect_labels(system, x0, 3, config, progress=False)
     calls = []
@@ -164,7 +164,7 @@ def test_a_labelling_step_started_again_plans_only_the_chunks_it_had_not_finishe
 
 
 TINY_TOML = """[recovery]
-starts = 16
+starts = 8
 dagger = 0
 width = 8
 steps = 30

@@ -249,7 +249,7 @@ def test_plans_searched_together_equal_plans_searched_one_start_at_a_time(weak_p
 def test_labels_are_torques_within_the_limits_of_trajectories_that_reach_the_target(weak_pendubot):
     system = weak_pendubot
     x0 = uniform_states(system, 2, "half", 101)
-    X, U, lqr_ok, recovered = collect_labels(system, x0, 101, RecoveryConfig(workers=1), progress=False)
+    X, U, lqr_ok, recovered = collect_labels(system, x0, 101, RecoveryConfig(workers=1, plan=PlanSettings(horizon=1.0, ilqr_iterations=4)), progress=False)
     assert lqr_ok + recovered >= 1
     assert len(X) == len(U) == (lqr_ok + recovered) * (LABEL_SPAN // LABEL_EVERY)
     assert np.all(np.abs(U) <= 8.0 + 1e-12) and np.isfinite(X).all()
@@ -283,7 +283,7 @@ def test_the_labels_do_not_depend_on_the_number_of_worker_processes(weak_pendubo
     it settles at all (starts judged over 8 s)."""
     system = planning_system(weak_pendubot)
     x0 = uniform_states(system, 9, "domain", 5)  # more starts than chunks (8): one chunk holds two
-    plan = PlanSettings(population=8, iterations=1, score_T=1.0)
+    plan = PlanSettings(horizon=1.0, ilqr_iterations=4)
     labels = [collect_labels(system, x0, 3, RecoveryConfig(workers=w, plan=plan, judge_T=8.0), progress=False) for w in (1, 2)]
     (X1, U1, *counts1), (X2, U2, *counts2) = labels
     assert counts1 == counts2 and counts1[1] >= 1  # some start needed a plan
@@ -381,7 +381,7 @@ def test_train_says_which_inputs_plan_within_their_limit_and_which_within_lqr_s_
 
 
 TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, confirm_states=2, inner_scales=(0.25,), workers=1, fits=1,
-            plan=PlanSettings(population=8, iterations=2, score_T=2.0), judge_T=8.0)  # fmt: skip (one fit: the tests of --fits set their own)
+            plan=PlanSettings(horizon=0.5, ilqr_iterations=2), judge_T=8.0)  # fmt: skip (one fit: the tests of --fits set their own)
 
 
 @pytest.mark.parametrize("near_of_the_best", [90, 80])
@@ -928,7 +928,7 @@ def test_recover_on_a_robot_without_limits_fits_a_law_within_the_plan_bound(tmp_
             "--evaluate", "0", "--out", str(out), "--recover", "never"]  # fmt: skip
     assert main(argv) == 0
     (run_dir,) = out.iterdir()
-    entry = recover(run_dir, RecoveryConfig(**TINY), progress=False, keep=True)
+    entry = recover(run_dir, RecoveryConfig(**(TINY | {"start_box": "half", "starts": 8})), progress=False, keep=True)
     run = ip.load_run(run_dir)
     assert entry["used"] and np.isinf(run.system.effort).all()
     np.testing.assert_allclose(run.fallback.effort, plan_bound(run.system), rtol=1e-12)

@@ -7,7 +7,9 @@ sees it help.
 * `law`: `RecoveryLaw`, the fitted law and where it acts. Both laws reach the controller only through
   `idapbc_pin.control.controller.OuterLaw` (``apply(x, u, energy) -> u``).
 * `config`: `RecoveryConfig`, every number of the stage (a TOML file for the CLI).
-* `plans` (torque plans within the limits), `fit` (the law from labels), `gate` (keep it or not),
+* `ilqr` (batched iLQR within box limits on the plant's own dynamics), `plans` (torque plans within
+  the limits: iLQR candidates and their tracking, or the cross-entropy search), `fit` (the law from
+  labels), `gate` (keep it or not), `chunks` (finished chunks of plans a killed stage reads back),
   `stage` (`recover`, `refit`, `regate`), `trigger` (`limits_bind`, `auto_recover`: `train`'s default).
 
 The law modules import nothing of this package's stage, so the run directory can load them.
