@@ -158,8 +158,6 @@ def _after_training(args: argparse.Namespace, run, recovery: RecoveryConfig, wor
 def _recover_mode(args: argparse.Namespace, run) -> str:
     """--recover as given; by default "auto", except after a smoke run (fewer than SMOKE_EPOCHS epochs),
     where the stage is skipped with one line."""
-    from ..recovery.trigger import SMOKE_EPOCHS
-
     if args.recover is not None:
         return args.recover
     if run.config.epochs < SMOKE_EPOCHS:
