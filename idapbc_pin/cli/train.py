@@ -161,7 +161,7 @@ def _recover_mode(args: argparse.Namespace, run) -> str:
     if args.recover is not None:
         return args.recover
     if run.config.epochs < SMOKE_EPOCHS:
-        print(f"recovery stage skipped: {run.config.epochs} epochs is a smoke run (< {SMOKE_EPOCHS}); "
+        print(f"recovery stage skipped: a smoke run ({run.config.epochs} < {SMOKE_EPOCHS} epochs); "
               f"`idapbc-pin recover {run.path}` runs it", flush=True)
         return "never"
     return "auto"
