@@ -186,10 +186,10 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
     mu = np.full(N, settings.mu0)
     alphas = np.asarray(settings.alphas)
     L = len(alphas)
-    for _ in range(settings.iterations + 1):
+    for it in range(settings.iterations + 1):  # the last pass only gives the gains of the final plan
         A, B = _knot_jacobians(system, Z[:, :-1].reshape(-1, n), U.reshape(-1, m), dt)
         kff, gains, ok = _backward(system, Z, U, A.reshape(N, K, n, n), B.reshape(N, K, n, m), Q, Sz, r_scaled, dt, mu, bound)
-        if _ == settings.iterations:
+        if it == settings.iterations:
             break
         # batched line search: every problem tries every alpha in one rollout
         rep = lambda a: np.repeat(a[:, None], L, 1).reshape((N * L,) + a.shape[1:])  # noqa: E731

@@ -157,7 +157,8 @@ def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfi
     processes (the system and the teacher are pickled to them; Ray tasks with `config.ray`), so the
     labels depend on neither the count nor the back-end. With a `store`, each finished chunk is
     saved under `step` as it arrives, and chunks already saved there are read instead of planned
-    (`chunks.ChunkStore`). `progress` shows a bar over the chunks with its ETA."""
+    (`chunks.ChunkStore`). `progress` shows a bar over the chunks with its ETA; `start` is unused (kept
+    for its callers' positional order)."""
     workers = config.workers if config.ray else resolve_workers(config.workers)  # Ray: 0 leaves the count to the cluster
     store = store or ChunkStore(None)
     chunks = [c for c in np.array_split(np.arange(len(x0)), LABEL_CHUNKS) if c.size]
