@@ -92,16 +92,19 @@ def main() -> None:
     first = None
     with tempfile.TemporaryDirectory() as out:
         run = ip.train(system, config, out=out, workers=args.workers)
-        lqr = None
-        if args.evaluate > 0:  # train's order: the law against LQR first, then the stage where it has room
-            evaluation = evaluate_run(run, n=args.evaluate, workers=args.workers)
+        lqr, evaluation = None, None
+        if args.evaluate > 0:  # train's order: the law against LQR first (its radii later where the stage may run), then the stage
+            evaluation = evaluate_run(run, n=args.evaluate, workers=args.workers, radius=args.recover == "never")
             print(format_evaluation(evaluation), flush=True)
             lqr = {box: evaluation.results[box]["LQR"].success_rate for box in ("half", "domain")}
         first = time.perf_counter() - start
-        if args.recover != "never" and auto_recover(run, args.recover, RecoveryConfig(workers=args.workers), lqr_success=lqr) and args.evaluate > 0:
+        if args.recover != "never":
+            auto_recover(run, args.recover, RecoveryConfig(workers=args.workers), lqr_success=lqr)
             run = ip.load_run(run.path)
-            if run.uses_recovery:
+            if evaluation is not None and run.uses_recovery:
                 print("with the recovery law:\n" + format_evaluation(evaluate_run(run, n=args.evaluate, workers=args.workers)), flush=True)
+            elif evaluation is not None:
+                print(evaluate_run(run, n=args.evaluate, workers=args.workers, reuse=evaluation).radius.line(), flush=True)
     total = time.perf_counter() - start
     other = total - sum(watch.seconds.values())
     print(f"\ndefault path of {args.robot} (fast preset, {config.epochs} epochs, --recover {args.recover}): {total:.1f} s wall, "

@@ -919,9 +919,10 @@ def test_an_input_without_a_limit_plans_within_the_largest_force_lqr_asks_on_the
     assert np.isfinite(plan_bound(free)).all() and plan_bound(free)[0] > pendubot.effort[0]
 
 
-def test_recover_on_a_robot_without_limits_fits_a_law_within_the_plan_bound(tmp_path):
+def test_recover_on_a_robot_without_limits_fits_a_law_within_the_plan_bound(tmp_path, monkeypatch):
     """`train --recover` on an actuator without an effort limit plans within `plan_bound`; the saved
     law's ū is that bound, while the robot itself stays unlimited."""
+    _short_gate(monkeypatch)
     config, out = tmp_path / "tiny.toml", tmp_path / "runs"
     config.write_text("[train]\nwidth = 8\ndepth = 1\n")
     argv = ["train", "pendubot", "--effort", "shoulder=inf", "--fast", "--epochs", "2", "--config", str(config),

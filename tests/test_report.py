@@ -358,6 +358,22 @@ def test_lqr_simulated_beside_the_training_gives_the_evaluation_it_would_have_gi
     assert evaluate_run(tiny_run, n=10, T=3.0, dt=0.02, baseline=other).radius.probes == plain.radius.probes
 
 
+def test_an_evaluation_without_radii_then_its_radii_give_the_evaluation_from_scratch(tiny_run):
+    """`idapbc-pin train` prints the two boxes first (no radii) and finds the radii later from the same
+    rollouts: every score and every radius probe is the one-pass evaluation's."""
+    plain = evaluate_run(tiny_run, n=10, T=3.0, dt=0.02)
+    first = evaluate_run(tiny_run, n=10, T=3.0, dt=0.02, radius=False)
+    assert first.radius is None
+    later = evaluate_run(tiny_run, n=10, T=3.0, dt=0.02, reuse=first)
+    for box in ("domain", "half"):
+        for name in ("NIDA-PBC", "LQR"):
+            assert later.results[box][name] is first.results[box][name]  # taken as they are, not simulated again
+            np.testing.assert_array_equal(later.results[box][name].success, plain.results[box][name].success)
+    assert later.radius.radius == plain.radius.radius and later.radius.probes == plain.radius.probes
+    other = evaluate_run(tiny_run, n=8, T=3.0, dt=0.02, radius=False)  # other settings: not reused
+    assert evaluate_run(tiny_run, n=10, T=3.0, dt=0.02, reuse=other).radius.probes == plain.radius.probes
+
+
 def test_cli_no_limits_flags(tiny_run, capsys):
     run = str(tiny_run.path)
     for command in ("simulate", "certify", "report", "robustness"):

@@ -75,6 +75,7 @@ def test_rollout_epochs_train_on_the_rollout_term_alone_and_are_reproducible(tmp
     from idapbc_pin.training import rollout
 
     monkeypatch.setattr(rollout, "GATE_STATES", 20)  # the gate's rule, not its size, is the claim here (100 by default)
+    monkeypatch.setattr(rollout, "GATE_HORIZON", 3.0)  # nor its horizon (20 s by default)
     system = ip.load_system("acrobot")
     config = TrainConfig(epochs=5, rollout_epochs=2, rollout_samples=4, rollout_horizon=0.1, rollout_step=0.02, rollout_tail=0.04, **TINY)
     a = train(system, config, out=tmp_path / "a", progress=False)

@@ -20,6 +20,7 @@ from .._io import finite_or_none, write_json
 from .._parallel import JobPool
 from ..control.baseline import LQRController
 from ..recovery.law import RecoveryLaw
+from ..recovery.swing_law import SwingUpLaw
 from ..run import Run
 from ..sim.limits import input_limits
 from ..sim.step import judge_step
@@ -93,6 +94,7 @@ def evaluate_run(
     workers: int = 1,
     progress: bool = False,
     baseline=None,
+    reuse: Evaluation | None = None,
 ) -> Evaluation:
     """ROA of the run's controller (optionally with extra damping ρ) and LQR on `n` states per box,
     and their ROA radii on `n` states per scale (the boxes' rollouts reused at s = 1 and 0.5).
@@ -105,26 +107,56 @@ def evaluate_run(
     progress : show a progress bar over the simulation jobs (with an ETA).
     baseline : LQR's part of this evaluation computed beforehand (`run_baseline_job`'s result, or a
         future of it, e.g. run beside the training by `idapbc-pin train`); used where its settings are
-        this evaluation's (else simulated again), so the results are the same either way.
+        this evaluation's (else simulated again), so the results are the same either way; one
+        computed without the radius serves an evaluation without it.
+    reuse : an earlier `Evaluation` of the same law with these settings (e.g. one without the radius,
+        printed first): its box rollouts are taken as they are, so only what it lacks (the radius
+        searches) is simulated; the results are those of an evaluation from scratch.
     """
     ctrl = run.controller if rho is None else run.controller.with_damping(rho)
     controllers = {"NIDA-PBC": ctrl, BASELINE: LQRController(run.system)}
     dt = judge_step(run.system, controllers, T, dt)
     if baseline is not None and not isinstance(baseline, dict):
         baseline = baseline.result()  # a future: wait for it
-    settings = (int(n), float(T), float(dt), int(seed), tuple(boxes), bool(limits), bool(radius))
-    done = {BASELINE: baseline} if baseline is not None and baseline["settings"] == settings else {}
+    settings = (int(n), float(T), float(dt), int(seed), tuple(boxes), bool(limits))
+    done = {BASELINE: baseline} if baseline is not None and _serves(baseline, settings, radius) else {}
+    if reuse is not None:
+        done = _reused(reuse, settings) | done
     results, found = _simulate(run.system, controllers, tuple(boxes), n, seed, T, dt, bool(limits), radius, workers, progress, done)
     evaluation = Evaluation(run, results, found, bool(limits))
     record = evaluation.record()
     record["rho"] = ctrl.rho
     law = getattr(ctrl, "fallback", None)
+    record["swing_up"] = isinstance(law, SwingUpLaw)  # NIDA-PBC used a swing-up law where the posture left the training box
+    law = law.inner if record["swing_up"] else law
     record["recovery"] = isinstance(law, RecoveryLaw)  # NIDA-PBC used a recovery law outside an inner box (`idapbc-pin recover`)
     record["fallback"] = law is not None and not record["recovery"]  # NIDA-PBC used the anchor's linear law outside the training box
     record["inside_gain"] = float(getattr(law, "inside_gain", 1.0)) if record["fallback"] else 1.0  # and scaled its law inside it
     record["inside_ramp"] = list(getattr(law, "inside_ramp", (0.0, 0.0))) if record["fallback"] else [0.0, 0.0]  # from 1 near x*
     write_json(run.path / "evaluation.json", record)
     return evaluation
+
+
+def _serves(part: dict, settings: tuple, radius: bool) -> bool:
+    """Whether a `run_baseline_job` result (or a `_reused` part) has these settings, and its radius
+    search where `radius` asks for one."""
+    return tuple(part["settings"][:6]) == settings and (not radius or part.get("search") is not None)
+
+
+def _reused(evaluation: Evaluation, settings: tuple) -> dict:
+    """{controller: its part of `evaluation`, as `_simulate` takes it in `done`} when `evaluation` ran
+    with `settings` (n, T, dt, seed, boxes, limits), else {}: box scores, and the radius search where
+    it has one."""
+    first = next(iter(evaluation.results.values()))
+    mine = (int(first.x0.shape[0]), float(first.T), float(first.dt), int(first.seed), tuple(evaluation.results), bool(evaluation.limits))
+    if mine != settings:
+        return {}
+    found = evaluation.radius
+    out = {}
+    for name in first.scores:
+        search = None if found is None else tuple(getattr(found, a)[name] for a in ("radius", "bracket", "below", "above", "probes"))
+        out[name] = {"settings": settings, "scores": {box: res.scores[name] for box, res in evaluation.results.items()}, "search": search}
+    return out
 
 
 def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: float, dt: float, limits: bool, radius: bool,
@@ -145,10 +177,10 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
     ready = {(i, j): (run_score_job, score_job(system, name, controllers[name], states[box], T, dt, limits=limits, stop_converged=True))
              for i, name in enumerate(names) for j, box in enumerate(boxes) if name not in done}
     scores = {(i, j): done[name]["scores"][box] for i, name in enumerate(names) if name in done for j, box in enumerate(boxes)}
-    found = {i: done[name]["search"] for i, name in enumerate(names) if name in done and radius}
+    found = {i: done[name]["search"] for i, name in enumerate(names) if name in done and radius and done[name].get("search") is not None}
     searches: dict[int, RadiusSearch] = {}
     in_flight: dict[Future, tuple] = {}
-    bar = tqdm(total=len(ready) + int(radius) * sum(name not in done for name in names), disable=not progress,
+    bar = tqdm(total=len(ready) + int(radius) * (len(names) - len(found)), disable=not progress,
                desc=f"evaluate {getattr(system, 'name', '')}", unit="job", dynamic_ncols=True, mininterval=0.5 if sys.stderr.isatty() else 15.0)
 
     def unfinished() -> bool:
@@ -160,7 +192,17 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
             del searches[i]
             bar.update()
 
+    def start_search(i: int) -> None:  # once a controller's boxes are in: its search, the boxes as its first probes
+        name = names[i]
+        known = {scale: roa_result(system, box, states[box], T, dt, seed, {name: scores[i, boxes.index(box)]}, limits=limits)
+                 for box, scale in known_box.items()}
+        searches[i] = radius_job(system, name, controllers[name], n=n, seed=seed, T=T, dt=dt, known=known, limits=limits)
+        close_if_over(i)  # decided by the boxes alone
+
     with JobPool(workers) as pool, bar:
+        for i, name in enumerate(names):  # controllers whose boxes were done before: their searches start now
+            if radius and name in done and i not in found:
+                start_search(i)
         while unfinished():
             ready = {key: job for key, job in ready.items() if len(key) == 2}  # boxes; then each search's next probe, unless in flight
             ready |= {(i, nb, s): (run_probe_job, job) for i, search in searches.items() for s, job in search.wanted()[:1]
@@ -188,11 +230,7 @@ def _simulate(system, controllers: dict, boxes: tuple, n: int, seed: int, T: flo
                 bar.update()
                 i = key[0]
                 if radius and i not in found and i not in searches and all((i, b) in scores for b in range(nb)):
-                    name = names[i]
-                    known = {scale: roa_result(system, box, states[box], T, dt, seed, {name: scores[i, boxes.index(box)]}, limits=limits)
-                             for box, scale in known_box.items()}
-                    searches[i] = radius_job(system, name, controllers[name], n=n, seed=seed, T=T, dt=dt, known=known, limits=limits)
-                    close_if_over(i)  # decided by the boxes alone
+                    start_search(i)
     # probes ahead still running when every search is over were guesses that turned out wrong: the pool stops them
     results = {box: roa_result(system, box, states[box], T, dt, seed, {name: scores[i, j] for i, name in enumerate(names)},
                                limits=limits) for j, box in enumerate(boxes)}
@@ -227,7 +265,7 @@ def run_baseline_job(job) -> dict:
     system, lqr, n, T, dt, seed, boxes, limits, radius = job
     results, found = _simulate(system, {BASELINE: lqr}, boxes, n, seed, T, dt, limits, radius, workers=1)
     search = None if found is None else tuple(getattr(found, a)[BASELINE] for a in ("radius", "bracket", "below", "above", "probes"))
-    return {"settings": (n, T, dt, seed, boxes, limits, radius), "scores": {box: results[box][BASELINE] for box in boxes}, "search": search}
+    return {"settings": (n, T, dt, seed, boxes, limits), "scores": {box: results[box][BASELINE] for box in boxes}, "search": search}
 
 
 def format_evaluation(evaluation: Evaluation) -> str:

@@ -178,11 +178,12 @@ def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfi
 
 # ------------------------------------------------------------------------------------ recover
 def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int, config: RecoveryConfig, progress: bool = True, start: float | None = None,
-                 teacher=None, networks=None, store: ChunkStore | None = None):
+                 teacher=None, networks=None, store: ChunkStore | None = None, refit: bool = True):
     """DAgger round r: run `law` alone from `config.dagger_starts` starts in `config.start_box` (seed
     plan_seed + 300 + r), label the states its failures visit at 0.5, 1.5 and 3 s (`collect_labels`
-    with `teacher`, plan streams plan_seed + 1000 (r + 1)), and fit a fresh law on all labels.
-    Returns (law, X, U, counts of the round). In round 0, when `law` fails from every start, fewer
+    with `teacher`, plan streams plan_seed + 1000 (r + 1)), and fit a fresh law on all labels (unless
+    `refit` is False: the last round leaves its fits to `_gate_fits`, which runs them side by side).
+    Returns (law, X, U, counts of the round); without `refit` the law is None where labels were added. In round 0, when `law` fails from every start, fewer
     than half of them end in the near box (`ends_near`) and `config.stop_when_lost`, nothing is
     labelled: `law`, X and U come back as they were, the counts with "stopped": True. A residual law
     runs on `networks` (the run's controller without a fallback, `_fit`), everywhere but at x*."""
@@ -204,10 +205,15 @@ def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int,
         X, U = np.concatenate([X, Xr]), np.concatenate([U, Ur])
     else:
         taught = recovered = 0
-    law, mse = _fit(system, X, U, config, networks, f"recovery: fit, DAgger {r + 1}" if progress else None)
+    mse = None
+    if refit:
+        law, mse = _fit(system, X, U, config, networks, f"recovery: fit, DAgger {r + 1}" if progress else None)
+    elif visited.size:
+        law = None  # fitted to the labels of this round by `_gate_fits`
     if progress:
-        print(f"DAgger round {r + 1}/{config.dagger}: of those states {_teacher_name(config)} brings {taught} to x*, plans {recovered}; refitted on "
-              f"{len(X)} labels, mean squared error {mse:.4f}  [{time.perf_counter() - start:.0f} s]", flush=True)
+        fitted = f"refitted on {len(X)} labels, mean squared error {mse:.4f}" if mse is not None else f"{len(X)} labels"
+        print(f"DAgger round {r + 1}/{config.dagger}: of those states {_teacher_name(config)} brings {taught} to x*, plans {recovered}; {fitted}  "
+              f"[{time.perf_counter() - start:.0f} s]", flush=True)
     return law, X, U, {"failed": int(failed.size), "visited": int(len(visited)), "teacher": int(taught), "plans": int(recovered), "mse": mse}
 
 
@@ -252,7 +258,8 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
             print(f"fitted: mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
         rounds = []
         for r in range(config.dagger):
-            law, X, U, info = dagger_round(system, law, X, U, r, config, progress, start, teacher, networks, store)
+            last = r == config.dagger - 1 and config.fits > 1  # its fits run side by side in `_gate_fits`
+            law, X, U, info = dagger_round(system, law, X, U, r, config, progress, start, teacher, networks, store, refit=not last)
             rounds.append(info)
             if info.get("stopped"):
                 break
@@ -321,14 +328,17 @@ def refit(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool
     return _save_and_tell(run, law, earlier | _verdict(gate, config, keep) | {"refit": refitted}, config, progress, start)
 
 
-def _gate_fits(run, system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, progress: bool, start: float, networks):
-    """Fit `config.fits` − 1 more laws to the labels (seeds after `config.fit_seed`, whose fit `law`
-    is) on `system` (the run's, with `plans.plan_bound` as its limits, as `law` was fitted) and let
-    the gate choose among all (`choose_fit`); returns (the chosen law, its gate). `networks`: as in `_fit`."""
-    laws = [law]
+def _gate_fits(run, system, law: RecoveryLaw | None, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, progress: bool, start: float, networks):
+    """Fit the laws of `config.fits` seeds (from `config.fit_seed`) to the labels that `law` does
+    not stand for already (the fit of the first seed; None: every seed, in parallel), on `system`
+    (the run's, with `plans.plan_bound` as its limits, as `law` was fitted), and let the gate choose
+    among all (`choose_fit`); returns (the chosen law, its gate). `networks`: as in `_fit`."""
+    laws = [] if law is None else [law]
     base = base_inputs(networks, X, system.effort) if config.form == "residual" else None
-    jobs = [(system, X, U, config.width, config.steps, config.fit_seed + k, base, None, config.batch) for k in range(1, config.fits)]
-    for k, (more, mse) in enumerate(process_map(fit_job, jobs, config.workers, config.ray), start=1):
+    jobs = [(system, X, U, config.width, config.steps, config.fit_seed + k, base, None, config.batch) for k in range(len(laws), config.fits)]
+    if progress and law is None:
+        print(f"fitting {config.fits} laws to the {len(X)} labels side by side ...", flush=True)
+    for k, (more, mse) in enumerate(process_map(fit_job, jobs, config.workers, config.ray), start=len(laws)):
         laws.append(more)
         if progress:
             print(f"fit {k + 1}/{config.fits} (seed {config.fit_seed + k}): mean squared error {mse:.4f}  [{time.perf_counter() - start:.0f} s]", flush=True)
