@@ -94,6 +94,9 @@ FIELD_HELP = {
     "box's boundary (still skew / positive definite) instead of extrapolating their networks, where R_d's "
     "exponential diagonal would grow without bound at the speeds a saturated swing reaches. H_d is not clamped (its "
     "convexity is kept); inside the box nothing changes",
+    "swing_up": "after training (and the recovery stage), fit a swing-up law from the resting posture to x* within the effort "
+    "limits and keep it if simulation shows it helps (`idapbc-pin train --swing-up`; its numbers: SwingUpConfig, "
+    "--swing-config); then judge the run from near-resting states beside saturated LQR and the energy-pumping law",
 }
 
 
@@ -142,6 +145,7 @@ class TrainConfig(Settings):
     bounded_structure: bool = True
     fallback: str = "auto"
     fallback_gain: float = 0.0
+    swing_up: bool = False
 
     def __post_init__(self):
         checks = [

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..config import FIELD_HELP, TrainConfig
 from ..errors import IdapbcError
-from ..recovery.config import RecoveryConfig
+from ..recovery.config import RecoveryConfig, SwingUpConfig
 from ..recovery.trigger import RECOVER_TIME, SMOKE_EPOCHS
 from ._args import (add_limits_argument, add_ray_argument, add_seed_argument, add_system_arguments, add_workers_argument, config_keys, ray_of,
                     system_kwargs, workers_of)
@@ -62,21 +62,23 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
     workers = workers_of(args)
     recovery = _recovery_config(args)  # a bad file is refused before training
+    swing = SwingUpConfig.from_file(args.swing_config) if args.swing_config else SwingUpConfig()
+    swing = swing if args.workers is None else swing.replace(workers=workers)
     if args.resume:
         saved = read_config(args.resume)
-        config = saved.replace(**{k: getattr(args, k) for k in FLAGS if getattr(args, k) is not None})
+        config = saved.replace(**{k: getattr(args, k) for k in FLAGS if getattr(args, k) is not None}, **({"swing_up": True} if args.swing_up else {}))
         system = load_run_system(args.resume)
         if _trained(args.resume, config):  # only the stages after training are left
             run = load_run(args.resume)
             print(f"run directory: {run.path} (trained: {config.epochs} epochs; continuing after training)", flush=True)
             with contextlib.ExitStack() as stack:
-                _after_training(args, run, recovery, workers, _baseline_beside_training(stack, args, system, workers))
+                _after_training(args, run, recovery, workers, _baseline_beside_training(stack, args, system, workers), swing, config.swing_up)
             return 0
     else:
         if args.source is None:
             raise IdapbcError("train needs SOURCE (or --resume RUN). Fix: see `idapbc-pin train --help`.")
         given = TrainConfig.file_values(args.config) if args.config else {}  # only the keys the file sets
-        overrides = {k: getattr(args, k) for k in (*FLAGS, "seed") if getattr(args, k) is not None}
+        overrides = {k: getattr(args, k) for k in (*FLAGS, "seed") if getattr(args, k) is not None} | ({"swing_up": True} if args.swing_up else {})
         config = (TrainConfig.fast(**given) if args.fast else TrainConfig(**given)).replace(**overrides)
         system = load_system(args.source, **system_kwargs(args))
     with contextlib.ExitStack() as stack:
@@ -85,7 +87,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             run = train(system, config, resume=args.resume, workers=workers)
         else:
             run = train(system, config, out=args.out, workers=workers)
-        _after_training(args, run, recovery, workers, baseline)
+        _after_training(args, run, recovery, workers, baseline, swing, config.swing_up)
     return 130 if run.summary.get("status") == "interrupted" else 0
 
 
@@ -116,9 +118,12 @@ def _baseline_beside_training(stack: contextlib.ExitStack, args: argparse.Namesp
     return pool.submit(run_baseline_job, baseline_job(system, n=args.evaluate, limits=not args.no_limits))
 
 
-def _after_training(args: argparse.Namespace, run, recovery: RecoveryConfig, workers: int, baseline) -> None:
-    """The summary, then (unless interrupted) the evaluation, the recovery stage where it has room
-    (then the evaluation again, with the law it kept), and the next commands."""
+def _after_training(args: argparse.Namespace, run, recovery: RecoveryConfig, workers: int, baseline, swing: SwingUpConfig, swing_up: bool = False) -> None:
+    """The summary, then (unless interrupted) the evaluation's two boxes, the recovery stage where it
+    has room (then the evaluation again, with the law it kept), the ROA radii, and the next commands.
+    Where the stage may run, the first evaluation leaves the radii out, so its tables come first; the
+    radii come with the last evaluation (or alone, from the same rollouts, where the law stays). With
+    `swing_up`, the swing-up stage and the evaluation from near-resting states come last."""
     from ..training.summary import format_train_summary
 
     print(format_train_summary(run))
@@ -126,9 +131,10 @@ def _after_training(args: argparse.Namespace, run, recovery: RecoveryConfig, wor
         print(f"interrupted: resume with  idapbc-pin train --resume {run.path}")
         return
     mode = _recover_mode(args, run)
-    evaluation = _evaluate(args, run, workers, baseline) if args.evaluate > 0 else None
+    stage = mode != "never" and not run.uses_recovery
+    evaluation = _evaluate(args, run, workers, baseline, radius=not stage) if args.evaluate > 0 else None
     lqr = None if evaluation is None or args.no_limits else {box: evaluation.results[box]["LQR"].success_rate for box in ("half", "domain")}
-    if mode != "never" and not run.uses_recovery:
+    if stage:
         from ..recovery.trigger import auto_recover
 
         try:
@@ -143,16 +149,44 @@ def _after_training(args: argparse.Namespace, run, recovery: RecoveryConfig, wor
             run = load_run(run.path)  # with the recovery law it keeps
             print("with the recovery law:", flush=True)
             _evaluate(args, run, workers, baseline)
+        elif evaluation is not None:  # the law stays: its radius from the same rollouts
+            print(_evaluate(args, run, workers, baseline, reuse=evaluation, tables=False).radius.line(), flush=True)
     elif mode == "never" and not run.uses_recovery and not args.no_limits:
         from ..recovery.trigger import recovery_hint
 
         hint = recovery_hint(run, None if lqr is None else lqr["half"])
         if hint:
             print(hint)
+    if swing_up and not _swing_up(run, swing, args.evaluate > 0):
+        return
     print(
         f"next: idapbc-pin report {run.path}   (ROA vs LQR, certificate.json, figure.png, replay.html)\n"
         f"      idapbc-pin view {run.path}     (3-D replay in the browser)"
     )
+
+
+def _swing_up(run, config: SwingUpConfig, evaluate: bool) -> bool:
+    """The swing-up stage (unless the run has been through it: a resumed run), then, with `evaluate`,
+    the run judged from near-resting states beside saturated LQR and the energy-pumping law (printed,
+    and written to swingup.json). False when Ctrl-C stopped the stage (the run keeps its law as it is)."""
+    from ..run import load_run
+
+    if "swing_up" not in run.summary:
+        from ..recovery.swing_stage import swing_up
+
+        print("swing-up: fitting a law from the resting posture to x* within the effort limits (a few minutes on 2 cores for a "
+              "2-DoF robot; Ctrl-C keeps the run as it is)", flush=True)
+        try:
+            swing_up(run, config)
+        except KeyboardInterrupt:
+            print(f"swing-up stage interrupted: the run keeps its law as it is; `idapbc-pin train --resume {run.path}` runs the stage "
+                  "again, reading back its finished chunks of plans", flush=True)
+            return False
+    if evaluate:
+        from ..evaluation.swingup import evaluate_run_swingup
+
+        print(evaluate_run_swingup(load_run(run.path), workers=config.workers).table(), flush=True)
+    return True
 
 
 def _recover_mode(args: argparse.Namespace, run) -> str:
@@ -167,12 +201,16 @@ def _recover_mode(args: argparse.Namespace, run) -> str:
     return "auto"
 
 
-def _evaluate(args: argparse.Namespace, run, workers: int, baseline):
-    """`evaluate_run` as `train --evaluate N` runs it, printed; returns the `Evaluation`."""
+def _evaluate(args: argparse.Namespace, run, workers: int, baseline, *, radius: bool = True, reuse=None, tables: bool = True):
+    """`evaluate_run` as `train --evaluate N` runs it (with the ROA radii unless `radius` is False;
+    `reuse`: an earlier evaluation of the same law whose rollouts serve again), printed unless
+    `tables` is False; returns the `Evaluation`."""
     from ..evaluation.evaluate import evaluate_run, format_evaluation
 
-    evaluation = evaluate_run(run, n=args.evaluate, limits=not args.no_limits, workers=workers, progress=True, baseline=baseline)
-    print(format_evaluation(evaluation), flush=True)
+    evaluation = evaluate_run(run, n=args.evaluate, limits=not args.no_limits, workers=workers, progress=True, baseline=baseline,
+                              radius=radius, reuse=reuse)
+    if tables:
+        print(format_evaluation(evaluation), flush=True)
     return evaluation
 
 
@@ -216,6 +254,12 @@ def add_train_command(sub) -> None:
                         "saturated LQR fails from at least 10 %% of the evaluation's half-box states, or else of its training-box "
                         "states (then the plans start from the training box); skipped with one line after fewer than "
                         f"{SMOKE_EPOCHS} epochs unless given. never: skip it. --recover alone: always")
+    p.add_argument("--swing-up", action="store_true", dest="swing_up",
+                   help="then fit a swing-up law from the resting posture (a pendulum hanging) to x* within the effort limits, keep it "
+                        "if simulation shows it helps, and judge the run from 20 near-resting states beside saturated LQR and the "
+                        "energy-pumping law (swingup.json; TrainConfig.swing_up)")
+    p.add_argument("--swing-config", metavar="FILE", dest="swing_config",
+                   help="the swing-up stage's settings: a TOML file with a [swing_up] table (SwingUpConfig's fields)")
     p.add_argument("--recover-config", metavar="FILE", dest="recover_config",
                    help="the recovery stage's settings: a TOML file with a [recovery] table, as `idapbc-pin recover --config` reads")
     add_ray_argument(p, "the recovery stage (with --recover)")

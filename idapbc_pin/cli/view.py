@@ -9,7 +9,7 @@ from pathlib import Path
 from ..errors import IdapbcError
 from ..model import load_system
 from ..run import resolve_run
-from ..viewer import PICK_CANDIDATES, view
+from ..viewer import PICK_CANDIDATES, PICKS, view
 from ._args import (add_command, add_checkpoint_argument, add_horizon_argument, add_limits_argument, add_seed_argument, add_states_argument, add_system_arguments,
                     add_x0_argument, library_default, seed_of, system_kwargs, x0_of)
 
@@ -24,9 +24,10 @@ def add_view_command(subparsers) -> argparse.ArgumentParser:
     add_states_argument(p, view, "rollouts from random states of the half-size training box")
     add_horizon_argument(p, view, "duration of each rollout")
     pick = library_default(view, "pick")
-    p.add_argument("--pick", choices=["random", "success"], default=pick,
+    p.add_argument("--pick", choices=list(PICKS), default=pick,
                    help=f"random: the first K random half-box states; success: up to K rollouts that reach x* "
-                        f"(the success criterion of docs/method.md), chosen among {PICK_CANDIDATES}·K random states (default {pick})")
+                        f"(the success criterion of docs/method.md), chosen among {PICK_CANDIDATES}·K random states; hanging: K swing-ups "
+                        f"from near the resting posture; auto: hanging for a run with a swing-up law, else random (default {pick})")
     add_seed_argument(p, view, "seed of the random initial states")
     p.add_argument("--html", metavar="FILE", help="write the standalone HTML replay (offline, one file)")
     p.add_argument("--port", type=int, metavar="P", help="HTTP port of the live page (default: first free from 7000)")

@@ -7,5 +7,7 @@
   give; `baseline`: `LQRController`, the reference every learned law is compared with.
 * `controller`: `Controller`, the law u = (gᵀg)⁻¹gᵀ(f̃_d − f) in numpy, and `OuterLaw`, the protocol
   of a law that replaces it where it does not act (`idapbc_pin.recovery`).
+* `energy_pump`: `EnergyPumpLaw`, the classical energy-pumping swing-up with an LQR catch, the
+  swing-up reference (`idapbc_pin.evaluation.swingup`).
 * `desired_flow` and `_runtime`: f̃_d in numpy from frozen weights (run time and export).
 """

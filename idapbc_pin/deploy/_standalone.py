@@ -22,6 +22,10 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
                   "recovery": the run's recovery law outside an inner box; tanh hidden layers;
                   with a "level" c, only where also H_d(x) > c, H_d from desired_flow.py;
                   with "residual": u ← ū clip(clip(u / ū, ±1) + MLP(δ / s), ±1) there instead)
+    u ← ū tanh(MLP(φ(δ)))  where some |δ_i| > box_i        (last, if the "fallback" has kind "swing_up":
+                  the run's swing-up law outside its kept box (a null half-width is not read),
+                  around the "inner" fallback above; φ(δ) = (sin δ_a, cos δ_a, δ_o / s_o): the
+                  angles' sines and cosines, then the other components scaled)
     u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
 f̃_d = (J_d − R_d)∇H_d comes from desired_flow.py with weights.npz (the same function as
@@ -74,9 +78,10 @@ class ExportedController:
         wrap = meta.get("wrap")  # (2 nv,) bool or null; only its q half can be True
         self.wrap = np.zeros(len(self.joints), bool) if wrap is None else np.array(wrap, bool)[: len(self.joints)]
         fallback = meta.get("fallback")  # null: the learned law everywhere
-        self.fallback = None if fallback is None else {
-            k: np.array(v, dtype=bool if k == "angle_mask" else np.float64) for k, v in fallback.items() if k != "kind"
-        }
+        self.swing = None  # a swing-up law around the fallback
+        if fallback is not None and fallback.get("kind") == "swing_up":
+            self.swing, fallback = _arrays(fallback), fallback.get("inner")
+        self.fallback = None if fallback is None else _arrays(fallback)
         self.recovery = fallback is not None and fallback.get("kind") == "recovery"
         self.flow = _load_sibling(directory, "desired_flow").load_flow(directory / meta["weights"])
         self.model = pin.buildModelFromUrdf(str(directory / meta["urdf"]))
@@ -125,7 +130,8 @@ class ExportedController:
         p, p_dot = self.momentum_and_drift(q, v)
         x = np.concatenate([q, p], axis=1)
         u = (self.flow(x)[:, self.nv :] - p_dot) @ self.B_pinv_T
-        return u if self.fallback is None else self.outside_box(x, u)
+        u = u if self.fallback is None else self.outside_box(x, u)
+        return u if self.swing is None else self.swing_up(x, u)
 
     def outside_box(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """On the rows of x (N, n) outside the fallback's box, u* − Kδ (linear) or the recovery law;
@@ -159,6 +165,24 @@ class ExportedController:
             return fb["effort"] * np.clip(np.clip(u / fb["effort"], -1.0, 1.0) + z, -1.0, 1.0)
         return fb["effort"] * np.tanh(z)
 
+    def swing_up(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """On the rows of x (N, n) outside the swing-up law's kept box, that law ū tanh(MLP(φ(δ)));
+        u (N, m) elsewhere."""
+        sw = self.swing
+        mask = sw["angle_mask"]
+        d = x - sw["x_star"]
+        d[:, mask] = np.pi - np.mod(np.pi - d[:, mask], 2 * np.pi)  # wrap to (−π, π]
+        out = (np.abs(d) > sw["box"]).any(axis=1)  # an unread component's null reads as nan: never outside
+        if not out.any():
+            return u
+        z = np.concatenate([np.sin(d[out][:, mask]), np.cos(d[out][:, mask]), d[out][:, ~mask] / sw["scale"][~mask]], axis=1)
+        depth = sum(1 for k in sw if k.startswith("W"))
+        for k in range(depth - 1):
+            z = np.tanh(z @ sw[f"W{k}"].T + sw[f"b{k}"])
+        u = u.copy()
+        u[out] = sw["effort"] * np.tanh(z @ sw[f"W{depth - 1}"].T + sw[f"b{depth - 1}"])
+        return u
+
     def torque(self, q, v) -> np.ndarray:
         """τ = B clip(u, ±EFFORT): (N, nv) ×2 -> (N, nv), or (nv,) ×2 -> (nv,)."""
         q, v = np.asarray(q, dtype=np.float64), np.asarray(v, dtype=np.float64)
@@ -169,6 +193,11 @@ class ExportedController:
         u = np.minimum(np.maximum(self.control(q, v), -self.effort), self.effort)  # = np.clip, faster
         tau = u @ self.B.T
         return tau[0] if single else tau
+
+
+def _arrays(fallback: dict) -> dict:
+    """controller.json's "fallback" (or its "inner") as arrays by name (angle_mask boolean)."""
+    return {k: np.array(v, dtype=bool if k == "angle_mask" else np.float64) for k, v in fallback.items() if k not in ("kind", "inner")}
 
 
 _CONTROLLER = ExportedController(HERE)

@@ -11,14 +11,20 @@ sees it help.
   the limits: iLQR candidates and their tracking, or the cross-entropy search), `fit` (the law from
   labels), `gate` (keep it or not), `chunks` (finished chunks of plans a killed stage reads back),
   `stage` (`recover`, `refit`, `regate`), `trigger` (`limits_bind`, `auto_recover`: `train`'s default).
+* Swing-up, the same machinery from the resting posture: `swing_law` (`SwingUpLaw`, acting where the
+  posture leaves the training box, around the run's own outer law), `swing_stage` (`swing_up`, its
+  labels, fit, DAgger rounds and gate; `SwingUpConfig` in `config`).
 
 The law modules import nothing of this package's stage, so the run directory can load them.
 """
 
 from .box_law import BoxFallback
-from .config import RecoveryConfig
+from .config import RecoveryConfig, SwingUpConfig
 from .law import RecoveryLaw
 from .stage import recover, refit, regate
+from .swing_law import SwingUpLaw
+from .swing_stage import swing_up
 from .trigger import auto_recover, limits_bind
 
-__all__ = ["BoxFallback", "RecoveryConfig", "RecoveryLaw", "auto_recover", "limits_bind", "recover", "refit", "regate"]
+__all__ = ["BoxFallback", "RecoveryConfig", "RecoveryLaw", "SwingUpConfig", "SwingUpLaw", "auto_recover", "limits_bind", "recover", "refit", "regate",
+           "swing_up"]

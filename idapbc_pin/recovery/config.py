@@ -9,7 +9,7 @@ from .._settings import Settings
 from ..errors import IdapbcError
 from .plans import PlanSettings
 
-__all__ = ["FORMS", "RecoveryConfig", "START_BOXES", "TEACHERS"]
+__all__ = ["FORMS", "RecoveryConfig", "START_BOXES", "SwingUpConfig", "TEACHERS"]
 
 
 #: Boxes the recovery law's start states may be drawn from (`RecoveryConfig.start_box`).
@@ -120,3 +120,60 @@ class RecoveryConfig(Settings):
         for ok, what in checks:
             if not ok:
                 raise IdapbcError(f"bad recovery setting: {what}. Fix: pass valid values.")
+
+
+@dataclass(frozen=True)
+class SwingUpConfig(Settings):
+    """How `swing_up` fits and gates a swing-up law (`idapbc-pin train --swing-up --swing-config FILE`
+    reads it from a TOML file's ``[swing_up]`` table; `from_file`).
+
+    Attributes
+    ----------
+    starts : near-resting start states labelled by plans (`sim.states.resting_states`, seed
+        `plan_seed`; the first exactly at rest).
+    plan_seed : seed of those starts (and, + 300 + r, of DAgger round r's).
+    horizon : length of each plan from a start, s; the run's law catches after it.
+    ilqr_iterations : iterations of each iLQR solve.
+    dagger : DAgger rounds after the first fit.
+    dagger_starts : near-resting starts of the fitted law per DAgger round.
+    width, steps, batch, fit_seed : the MLP's width, and the fit's Adam steps, minibatch and seed.
+    gate_states : near-resting states of the gate (a seed of their own), judged by "holds" over `judge_T`.
+    box_states : states of the gate from the half box and the training box (half each), judged over
+        20 s: the law is kept only if it loses at most `box_loss` of those the run's law brings to x*.
+    margin : near-resting states the law must hold beyond the run's law to be kept.
+    box_loss : see `box_states`.
+    inner_scales : kept boxes r·s (every component) the gate tries beside the training box's angles
+        alone (`swing_stage.kept_boxes`); none by default: a law acting through the box's postures
+        at speed held fewer swing-ups than one that leaves every posture of the box to the run's law.
+    judge_T : horizon of every swing-up rollout (the teacher's, the plans', DAgger's, the gate's), s.
+    workers, ray : as `RecoveryConfig`'s: processes (0: one per core) or Ray tasks; the time only.
+    """
+
+    _what, _table, _fix = "swing-up config", "swing_up", "see SwingUpConfig's fields"
+
+    starts: int = 40
+    plan_seed: int = 211
+    horizon: float = 4.0
+    ilqr_iterations: int = 12
+    dagger: int = 2
+    dagger_starts: int = 30
+    width: int = 128
+    steps: int = 4500
+    batch: int = 1024
+    fit_seed: int = 0
+    gate_states: int = 20
+    box_states: int = 100
+    margin: int = 2
+    box_loss: int = 2
+    inner_scales: tuple = ()
+    judge_T: float = 10.0
+    workers: int = 0
+    ray: str | None = None
+
+    def __post_init__(self):
+        ok = (all(0 < r <= 1 for r in self.inner_scales) and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations) >= 1
+              and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed) >= 0
+              and self.horizon > 0 and self.judge_T >= self.horizon + 2.0)
+        if not ok:
+            raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch and ilqr_iterations must be ≥ 1, "
+                              "the other counts and seeds ≥ 0, inner_scales in (0, 1], horizon > 0 and judge_T ≥ horizon + 2 s. Fix: pass valid values.")

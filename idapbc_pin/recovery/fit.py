@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 from ..model.angles import wrap_angles
 from .law import RecoveryLaw
 
-__all__ = ["base_inputs", "fit_job", "fit_recovery_law"]
+__all__ = ["base_inputs", "fit_job", "fit_mlp", "fit_recovery_law"]
 
 #: Chunk of states per call of the IDA-PBC law in `base_inputs`.
 _BASE_CHUNK = 20_000
@@ -49,14 +49,27 @@ def fit_recovery_law(system, X: np.ndarray, U: np.ndarray, width: int, steps: in
     effort = np.asarray(system.effort, dtype=np.float64)
     scale = (hi - lo) / 2
     x_star, mask = np.asarray(system.x_star, dtype=np.float64), np.asarray(system.angle_mask, dtype=bool)
+    F = wrap_angles(X - x_star, mask) / scale
+    (weights, biases), loss = fit_mlp(F, U / effort, width, steps, seed, None if base is None else np.asarray(base, dtype=np.float64) / effort,
+                                      progress, batch)
+    return RecoveryLaw(weights, biases, x_star, scale, effort, mask, np.zeros(system.n), residual=base is not None), loss
+
+
+def fit_mlp(F: np.ndarray, Y: np.ndarray, width: int, steps: int, seed: int = 0, base: np.ndarray | None = None,
+            progress: str | None = None, batch: int = 1024) -> tuple[tuple[tuple, tuple], float]:
+    """The least-squares fit of tanh(MLP(F)) ≈ Y (the direct form) or of clip(base + MLP(F), ±1) ≈ Y
+    (the residual form, `base` (K, m)), features F (K, d), targets Y (K, m) in units of ū: two tanh
+    layers of `width`, Adam on minibatches of `batch` for `steps` steps (the rate divided by 10 for
+    the last third), float32, seeded by `seed`. Returns ((weights, biases) as float64 arrays per
+    layer, the last minibatch's loss); `progress`: the label of a bar over the steps (None: no bar)."""
     gen = torch.Generator().manual_seed(seed)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        layers = [torch.nn.Linear(system.n, width), torch.nn.Linear(width, width), torch.nn.Linear(width, system.m)]
+        layers = [torch.nn.Linear(F.shape[1], width), torch.nn.Linear(width, width), torch.nn.Linear(width, Y.shape[1])]
     net = torch.nn.Sequential(layers[0], torch.nn.Tanh(), layers[1], torch.nn.Tanh(), layers[2]).float()
-    F = torch.as_tensor(wrap_angles(X - x_star, mask) / scale, dtype=torch.float32)
-    Y = torch.as_tensor(U / effort, dtype=torch.float32)
-    B = None if base is None else torch.as_tensor(np.asarray(base, dtype=np.float64) / effort, dtype=torch.float32)
+    F = torch.as_tensor(F, dtype=torch.float32)
+    Y = torch.as_tensor(Y, dtype=torch.float32)
+    B = None if base is None else torch.as_tensor(base, dtype=torch.float32)
     at_limit = Y.abs() >= 1.0 - 1e-9
     opt = torch.optim.Adam(net.parameters(), 3e-3)
     loss = torch.zeros(())
@@ -77,7 +90,7 @@ def fit_recovery_law(system, X: np.ndarray, U: np.ndarray, width: int, steps: in
     bar.close()
     weights = tuple(m.weight.detach().double().numpy().copy() for m in layers)
     biases = tuple(m.bias.detach().double().numpy().copy() for m in layers)
-    return RecoveryLaw(weights, biases, x_star, scale, effort, mask, np.zeros(system.n), residual=base is not None), float(loss.detach())
+    return (weights, biases), float(loss.detach())
 
 
 def fit_job(job) -> tuple[RecoveryLaw, float]:

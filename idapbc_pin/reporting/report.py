@@ -128,7 +128,8 @@ def report(
     Runs `evaluate_run` (ROA of Neural IDA-PBC vs LQR on the domain and the half box,
     ``evaluation.json``), `certify` (``certificate.json``), the figure (``figure.png``) and a
     meshcat replay of up to 3 rollouts that reach x* (``replay.html``, `view` with
-    ``pick="success"``); the summary is also
+    ``pick="success"``; for a run with a swing-up law, 3 swing-ups from near hanging, ``pick="hanging"``,
+    and its swing-up evaluation, ``swingup.json`` and ``swingup.png``); the summary is also
     written to ``report.txt``. The ROA radii (`n_roa` states per scale) are part of the evaluation
     unless ``radius=False``; ``limits=False`` lifts the effort limits in the evaluation, the
     certificate and the figure (the replay keeps `view`'s default). `workers`: processes simulating
@@ -142,8 +143,14 @@ def report(
     slice_data = basin_slice(ctrl, cert.to_dict(), T=T, limits=limits) if ctrl.system.nq >= 2 else None
     fig_path = save_png(plot(rows, slice_data), run.path / "figure.png")
     parts = [format_evaluation(evaluation), cert.table(), f"figure: {fig_path}"]
+    if run.uses_swing_up and limits:  # a swing-up run: from near hanging too
+        from ..evaluation.swingup import evaluate_run_swingup
+        from .swingup_figure import swingup_figure
+
+        swing = evaluate_run_swingup(run, seed=seed, workers=workers)
+        parts += [f"swing-up from 20 near-resting states:\n{swing.table()}", f"swing-up figure: {swingup_figure(run, swing)}"]
     if html:
-        viewer = view(run, n=3, T=10.0, seed=seed, pick="success", open_server=False, limits=limits)
+        viewer = view(run, n=3, T=10.0, seed=seed, pick="hanging" if run.uses_swing_up else "success", open_server=False, limits=limits)
         parts.append(f"replay: {viewer.write_html(run.path / 'replay.html')} ({viewer.note})")
     text = "\n\n".join(parts)
     atomic_write_bytes(run.path / "report.txt", (text + "\n").encode())

@@ -4,7 +4,8 @@ A run directory is written by `idapbc_pin.training.train` and read only through 
 """
 
 from .checkpoints import CHECKPOINTS, DEFAULT_CHECKPOINT, check_checkpoints, load_weights, read_checkpoint, save_checkpoint
-from .directory import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, Run, load_run, read_recovery, resolve_run
+from .directory import (RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, SWINGUP_FILE, SWINGUP_REFUSED_FILE, Run, load_run, read_recovery,
+                        read_swing_up, resolve_run)
 from .record import load_run_system, read_config, system_record
 
 __all__ = [
@@ -14,6 +15,8 @@ __all__ = [
     "RECOVERY_LABELS_FILE",
     "RECOVERY_REFUSED_FILE",
     "Run",
+    "SWINGUP_FILE",
+    "SWINGUP_REFUSED_FILE",
     "check_checkpoints",
     "load_run",
     "load_run_system",
@@ -21,6 +24,7 @@ __all__ = [
     "read_checkpoint",
     "read_config",
     "read_recovery",
+    "read_swing_up",
     "resolve_run",
     "save_checkpoint",
     "system_record",

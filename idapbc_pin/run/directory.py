@@ -6,6 +6,7 @@ Layout of a run directory (`<out>/<stamp>/`, `out` defaults to ``runs/<system>``
     robot.urdf       copy of the URDF (if any)     metrics.csv   one row per epoch, every term by name
     checkpoints/last.pt, best.pt                   summary.json  final terms, ε, eigenvalues at x*, status
     recovery.npz     the recovery law, when `idapbc-pin recover` kept one (`idapbc_pin.recovery`)
+    swingup.npz      the swing-up law, when `train --swing-up` kept one; swingup.json its evaluation from hanging
 
 Every file is read through this subpackage (JSON through `_io.read_json`, checkpoints through
 `checkpoints.read_checkpoint`, each once per load), so a damaged file always gives the same one-line
@@ -32,7 +33,8 @@ from ..model import System
 from .checkpoints import CHECKPOINTS, DEFAULT_CHECKPOINT, checkpoint_problem, load_weights, read_checkpoint
 from .record import load_run_system, read_config
 
-__all__ = ["RECOVERY_FILE", "RECOVERY_LABELS_FILE", "RECOVERY_REFUSED_FILE", "Run", "load_run", "read_recovery", "resolve_run"]
+__all__ = ["RECOVERY_FILE", "RECOVERY_LABELS_FILE", "RECOVERY_REFUSED_FILE", "Run", "SWINGUP_FILE", "SWINGUP_REFUSED_FILE", "load_run", "read_recovery",
+           "read_swing_up", "resolve_run"]
 
 #: The recovery law of a run, beside its IDA-PBC law (`idapbc_pin.recovery.recover`).
 RECOVERY_FILE = "recovery.npz"
@@ -42,6 +44,9 @@ RECOVERY_REFUSED_FILE = "recovery-refused.npz"
 #: The labels (x, u) the last `recover` fitted its law to (LQR, plans and DAgger rounds), so that
 #: `recover --refit` fits a law again (another seed, width or length) in a minute, without the plans.
 RECOVERY_LABELS_FILE = "recovery-labels.npz"
+#: The swing-up law of a run, around its own law (`idapbc_pin.recovery.swing_up`), and the one the
+#: swing-up stage's gate refused (kept aside, never applied).
+SWINGUP_FILE, SWINGUP_REFUSED_FILE = "swingup.npz", "swingup-refused.npz"
 
 
 @dataclass
@@ -61,6 +66,12 @@ class Run:
         """The control law u = (gᵀg)⁻¹gᵀ(f̃_d − f) with the trained networks, and the run's law
         where they do not act (`fallback`)."""
         return Controller(self.system, self.nets, self.fallback)
+
+    @property
+    def box_controller(self) -> Controller:
+        """The run's law without a swing-up law: the networks, and its recovery or linear law outside
+        their box (what the swing-up stage improves on and hands over to)."""
+        return Controller(self.system, self.nets, self._box_fallback())
 
     @property
     def own_controller(self) -> Controller:
@@ -113,12 +124,24 @@ class Run:
         return bool((self.summary.get("recovery") or {}).get("used", False))
 
     @property
+    def uses_swing_up(self) -> bool:
+        """True when the swing-up stage kept a swing-up law (summary.json → swing_up → used)."""
+        return bool((self.summary.get("swing_up") or {}).get("used", False))
+
+    def _box_fallback(self) -> OuterLaw | None:
+        """The recovery law outside its inner box when the run has one, else the linear law outside
+        the training box when the run uses it, else None."""
+        return read_recovery(self.path) if self.uses_recovery else self._linear_fallback()
+
+    @property
     def fallback(self) -> OuterLaw | None:
         """The law that replaces the networks' where they do not act, or None: the recovery law
         outside its inner box when the run has one (`recovery.law`), else the linear law
-        outside the training box when the run uses it (`recovery.box_law`)."""
+        outside the training box when the run uses it (`recovery.box_law`); with a swing-up law
+        (`recovery.swing_law`), that law wrapped in it, acting where the posture leaves the box."""
         if self._fallback is None:
-            self._fallback = read_recovery(self.path) if self.uses_recovery else self._linear_fallback()
+            box = self._box_fallback()
+            self._fallback = read_swing_up(self.path, inner=box) if self.uses_swing_up else box
         return self._fallback
 
 
@@ -133,6 +156,18 @@ def read_recovery(run_dir, name: str = RECOVERY_FILE) -> OuterLaw:
     from ..recovery.law import RecoveryLaw  # the recovery package's stage opens runs through this module
 
     return read_npz(path, RecoveryLaw.from_arrays, fix=fix)
+
+
+def read_swing_up(run_dir, name: str = SWINGUP_FILE, inner: OuterLaw | None = None) -> OuterLaw:
+    """The run's swing-up law (``swingup.npz``, or `SWINGUP_REFUSED_FILE`) around `inner`, the run's
+    own outer law (read without pickles); a missing or damaged file raises a one-line `DamagedFileError`."""
+    path = Path(run_dir) / name
+    fix = "run `idapbc-pin train --resume RUN --swing-up` again (or delete summary.json's \"swing_up\" entry to drop the law)"
+    if not path.is_file():
+        raise DamagedFileError(f"'{path}' is missing, but summary.json says the run uses a swing-up law. Fix: {fix}.")
+    from ..recovery.swing_law import SwingUpLaw  # the recovery package's stage opens runs through this module
+
+    return read_npz(path, lambda arrays: SwingUpLaw.from_arrays(arrays, inner), fix=fix)
 
 
 def load_run(path, checkpoint: str | None = None, *, device: str = "cpu") -> Run:
@@ -170,7 +205,7 @@ def load_run(path, checkpoint: str | None = None, *, device: str = "cpu") -> Run
     nets = build_nets(system, config.replace(device=str(load_on)))
     load_weights(nets, state, path / "checkpoints" / f"{name}.pt")
     run = Run(path, system, config, nets, _read_summary(path), checkpoint=name)
-    if run.uses_recovery:
+    if run.uses_recovery or run.uses_swing_up:
         run.fallback  # noqa: B018 -- reads recovery.npz now: a damaged one is refused at load, like a checkpoint
     run.inside_gain, run.inside_ramp  # noqa: B018 -- a damaged summary.json entry is refused at load too
     return run

@@ -14,8 +14,11 @@ from .trajectory import Trajectory
 __all__ = [
     "SUCCESS_TOL",
     "SUCCESS_WINDOW",
+    "HOLD_ANGLE",
+    "HOLD_SPEED",
     "at_target",
     "equilibrium_offset",
+    "holds",
     "in_target_box",
     "peak_input",
     "settled",
@@ -56,6 +59,20 @@ def success(traj: Trajectory, system, window: float = SUCCESS_WINDOW, tol: float
     seconds, and not diverged (DESIGN §4)."""
     box = in_target_box(traj, system, tol)[:, _window(traj.t, window)]
     return box.all(axis=1) & ~traj.diverged
+
+
+#: DESIGN §4, swing-up: a swing-up *holds* when over the last SUCCESS_WINDOW seconds every wrapped
+#: angle (and prismatic coordinate) is within HOLD_ANGLE rad (m) of x* and every speed within HOLD_SPEED.
+HOLD_ANGLE, HOLD_SPEED = 0.1, 0.5
+
+
+def holds(traj: Trajectory, system, window: float = SUCCESS_WINDOW) -> np.ndarray:
+    """(N,) bool: the swing-up verdict "holds" (DESIGN §4): ‖wrap(q − q*)‖∞ ≤ HOLD_ANGLE and
+    ‖v‖∞ ≤ HOLD_SPEED at every sample of the last `window` seconds, and not diverged."""
+    nq = system.nq
+    dq = wrap_angles(traj.q - np.asarray(system.x_star)[:nq], np.asarray(system.angle_mask)[:nq])
+    near = (np.abs(dq).max(axis=-1) <= HOLD_ANGLE) & (np.abs(traj.v).max(axis=-1) <= HOLD_SPEED)
+    return near[:, _window(traj.t, window)].all(axis=1) & ~traj.diverged
 
 
 def settled(traj: Trajectory, window: float = SUCCESS_WINDOW, tol: float = SUCCESS_TOL) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import IdapbcError
 
-__all__ = ["evaluation_box", "half_box", "initial_states", "scaled_box", "uniform_states"]
+__all__ = ["RESTING_SPREAD", "evaluation_box", "half_box", "initial_states", "resting_states", "scaled_box", "uniform_states"]
 
 
 def half_box(system) -> tuple[np.ndarray, np.ndarray]:
@@ -62,3 +62,23 @@ def scaled_box(system, s: float) -> tuple[np.ndarray, np.ndarray]:
         return lo, hi
     x_star = np.asarray(system.x_star, float)
     return x_star + s * (lo - x_star), x_star + s * (hi - x_star)
+
+
+#: Spread of the near-resting starts of a swing-up about the resting posture: ± rad (m) and ± rad/s (m/s).
+RESTING_SPREAD = 0.1
+
+
+def resting_states(system, n: int, seed: int = 0, spread: float = RESTING_SPREAD) -> np.ndarray:
+    """n start states x = (q, p) (n, 2·nq) of a swing-up (DESIGN §4): the first exactly at rest in the
+    resting posture q_rest (`idapbc_pin.model.resting.resting_configuration`), the others q_rest +
+    U(−spread, spread) and speeds U(−spread, spread), drawn from numpy's default_rng(seed)."""
+    from ..model.resting import resting_configuration
+
+    if n < 1:
+        raise IdapbcError(f"a swing-up needs at least one start state, got n = {n}. Fix: pass n ≥ 1.")
+    rng = np.random.default_rng(seed)
+    q = np.tile(resting_configuration(system), (n, 1))
+    v = np.zeros_like(q)
+    q[1:] += rng.uniform(-spread, spread, q[1:].shape)
+    v[1:] += rng.uniform(-spread, spread, v[1:].shape)
+    return system.state_from(q, v)

@@ -21,13 +21,14 @@ simulation live elsewhere.
 
 from .animation import DEFAULT_FPS, Segment
 from .camera import Camera
-from .replay import PICK_CANDIDATES, view, write_html
+from .replay import PICK_CANDIDATES, PICKS, view, write_html
 from .server import SERVER_MARKER, MeshcatServer
 from .viewer import Viewer
 
 __all__ = [
     "DEFAULT_FPS",
     "PICK_CANDIDATES",
+    "PICKS",
     "SERVER_MARKER",
     "Camera",
     "MeshcatServer",

@@ -23,12 +23,15 @@ from ..model import load_system
 from ..run import resolve_run
 from ..sim.integrate import simulate
 from ..sim.metrics import success
-from ..sim.states import initial_states
+from ..sim.states import initial_states, resting_states
 from ..sim.step import judge_step
 from .animation import DEFAULT_FPS
 from .viewer import Viewer
 
-__all__ = ["PICK_CANDIDATES", "view", "write_html"]
+__all__ = ["PICKS", "PICK_CANDIDATES", "view", "write_html"]
+
+#: Which rollouts `view` shows (its ``pick``).
+PICKS = ("auto", "random", "success", "hanging")
 
 #: With ``pick="success"``, candidates drawn per requested rollout.
 PICK_CANDIDATES = 20
@@ -99,10 +102,13 @@ def _pick_successes(system, controller, n: int, T: float, dt: float, seed: int, 
 
 def _rollouts_to_show(system, controller, trajectories, x0, n: int, pick: str, T: float, dt: float, seed: int, limits: bool = True):
     """-> (trajectories, a note saying which rollouts they are)."""
-    if pick not in ("random", "success"):
-        raise IdapbcError(f"pick must be 'random' or 'success', got {pick!r}.")
+    if pick not in PICKS:
+        raise IdapbcError(f"pick must be one of {', '.join(PICKS)}, got {pick!r}.")
     if trajectories is not None:
         return trajectories, "given trajectories"
+    if x0 is None and pick == "hanging":
+        start = resting_states(system, n, seed)
+        return _simulate(system, controller, start, T, dt, limits), f"{len(start)} swing-ups from near the resting posture (the first exactly at rest)"
     if x0 is None and pick == "success":
         if n < 1:
             raise IdapbcError(f"n must be at least 1, got {n}.")
@@ -119,7 +125,7 @@ def view(
     *,
     x0=None,
     n: int = 3,
-    pick: str = "random",
+    pick: str = "auto",
     T: float = 10.0,
     dt: float | None = None,
     seed: int = 0,
@@ -153,7 +159,9 @@ def view(
         half-size training box (seed `seed`), or from `x0`,
         with the run's controller, or the LQR baseline when given a `System`.
     x0 : (N, n) initial states (q, p) or (N, nq) positions at rest; overrides `n` and `pick`.
-    pick : ``"random"`` (the first `n` uniform half-box states) or ``"success"``: up to `n` rollouts
+    pick : ``"auto"`` (the default: ``"hanging"`` for a run with a swing-up law, else ``"random"``),
+        ``"hanging"`` (`n` swing-ups from near the resting posture, the first exactly at rest;
+        `sim.states.resting_states`), ``"random"`` (the first `n` uniform half-box states) or ``"success"``: up to `n` rollouts
         that reach x* within `T` (the success criterion of docs/method.md), chosen among
         ``PICK_CANDIDATES · n`` uniform half-box states and filled up with failing ones; prints how
         many reach x*. A picture of what the controller does where it works, not of how often it
@@ -178,6 +186,10 @@ def view(
     Viewer (``.url``, ``.write_html(path)``, ``.close()``; shows inline in a notebook).
     """
     system, controller = _system_and_controller(run_or_system, checkpoint)
+    if pick == "auto":  # a run with a swing-up law is shown swinging up
+        run = run_or_system if hasattr(run_or_system, "uses_swing_up") else None
+        run = resolve_run(run_or_system, checkpoint=checkpoint) if run is None and controller is not None and isinstance(run_or_system, (str, Path)) else run
+        pick = "hanging" if getattr(run, "uses_swing_up", False) else "random"
     trajectories, note = _rollouts_to_show(system, controller, trajectories, x0, n, pick, T, dt, seed, limits)
     viewer = Viewer(system, trajectories, layout=layout, trace=trace, trace_link=trace_link, fps=fps, loop=loop, style=style, grid=grid)
     viewer.note = note

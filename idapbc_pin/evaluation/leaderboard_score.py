@@ -1,0 +1,93 @@
+"""The RealAIGym simulation leaderboard's v2 score of one swing-up: success · (1 − ⅕ Σ tanh(π c_i / n_i)).
+
+The criteria c_i of a trajectory sampled at t_0 … t_K (the input τ_k held over [t_k, t_{k+1}]),
+summed over every joint (an unactuated joint's torque is 0):
+
+* swing-up time: when the tip enters the region above the threshold and stays there to the end
+  (`idapbc_pin.evaluation.swingup` measures it); success: it does so before the end;
+* energy Σ_k Σ_j |(q_{k+1,j} − q_{k,j}) τ_{k,j}| (J);
+* torque cost Σ_k τ_kᵀ τ_k (t_{k+1} − t_k) (N²·m²·s);
+* torque smoothness Σ_j std_k(τ_{k+1,j} − τ_{k,j}) over all samples, population std (N·m);
+* velocity cost Σ_k v_kᵀ v_k (t_{k+1} − t_k), every joint (rad²/s);
+
+normalised by n = 20 s, 60 J, 20, 0.1 N·m and 400 (`NORMALISATION`), each with weight 1, and the
+sum divided by the number of criteria with a non-zero weight (5).
+
+Definitions read from github.com/dfki-ric-underactuated-lab/double_pendulum:
+src/python/double_pendulum/analysis/leaderboard.py (``leaderboard_scores`` with
+``score_version="v2"``, ``get_energy``, ``get_torque_cost``, ``get_tau_smoothness``,
+``get_velocity_cost``, ``get_swingup_time``) and
+leaderboard/pendubot/simulation_v2/calculate_leaderboard_score.py (weights and normalisations; the
+acrobot's are the same). This module is written independently from those definitions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = ["NORMALISATION", "LeaderboardScore", "leaderboard_score"]
+
+#: The v2 normalisation n_i of each criterion (weights 1).
+NORMALISATION = {"swingup_time": 20.0, "energy": 60.0, "torque_cost": 20.0, "torque_smoothness": 0.1, "velocity_cost": 400.0}
+
+
+@dataclass(frozen=True)
+class LeaderboardScore:
+    """The v2 criteria of one trajectory and its score (module docstring for the definitions).
+
+    Attributes
+    ----------
+    success : the tip swung up before the end and stayed up.
+    swingup_time : s, nan without success.
+    energy : J. torque_cost : N²·m²·s. torque_smoothness : N·m. velocity_cost : rad²/s (m²/s on
+        prismatic joints).
+    score : success · (1 − ⅕ Σ tanh(π c_i / n_i)), in [0, 1]; 0 without success.
+    """
+
+    success: bool
+    swingup_time: float
+    energy: float
+    torque_cost: float
+    torque_smoothness: float
+    velocity_cost: float
+    score: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready (nan as None)."""
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
+
+
+def leaderboard_score(t, q, v, tau, swingup_time: float) -> LeaderboardScore:
+    """The RealAIGym v2 score of one trajectory.
+
+    Parameters
+    ----------
+    t : (K,) sample times, s. q, v : (K, nq) positions (rad or m, not wrapped) and velocities.
+    tau : (K, nq) joint torques (N·m or N), B u; tau[k] held over [t_k, t_{k+1}].
+    swingup_time : s, from the tip test; nan (or ≥ t[-1]) means no success.
+    """
+    t, q, v, tau = (np.asarray(a, float) for a in (t, q, v, tau))
+    if not (t.ndim == 1 and q.shape == v.shape == tau.shape and q.shape[0] == t.shape[0] and t.shape[0] >= 2):
+        raise ValueError(f"need t (K,) and q, v, tau (K, nq) with K ≥ 2, got {t.shape}, {q.shape}, {v.shape}, {tau.shape}")
+    h = np.diff(t)
+    criteria = {
+        "swingup_time": float(swingup_time),
+        "energy": float(np.abs(np.diff(q, axis=0) * tau[:-1]).sum()),
+        "torque_cost": float((np.einsum("kj,kj->k", tau[:-1], tau[:-1]) * h).sum()),
+        "torque_smoothness": float(np.std(np.diff(tau, axis=0), axis=0).sum()),
+        "velocity_cost": float((np.einsum("kj,kj->k", v[:-1], v[:-1]) * h).sum()),
+    }
+    success = bool(math.isfinite(criteria["swingup_time"]) and criteria["swingup_time"] < t[-1])
+    penalty = sum(math.tanh(math.pi * criteria[k] / n) for k, n in NORMALISATION.items()) / len(NORMALISATION) if success else 1.0
+    return LeaderboardScore(
+        success=success,
+        swingup_time=criteria["swingup_time"] if success else math.nan,
+        energy=criteria["energy"],
+        torque_cost=criteria["torque_cost"],
+        torque_smoothness=criteria["torque_smoothness"],
+        velocity_cost=criteria["velocity_cost"],
+        score=float(1.0 - penalty) if success else 0.0,
+    )

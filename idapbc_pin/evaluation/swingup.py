@@ -1,0 +1,210 @@
+"""The swing-up evaluation (DESIGN §4): from hanging to upright under the URDF's torque limits.
+
+From N states near the resting equilibrium (`swingup_states`: the first exactly at rest there, the
+others ±0.1 rad or m and ±0.1 rad/s or m/s), each controller runs T = 10 s on the true plant (RK4 at
+2 ms, the law held over each step: 500 Hz; effort limits on every controller), and two verdicts are
+read side by side:
+
+* *holds*: over the last `HOLD_WINDOW` s every wrapped angle within `HOLD_POSITION` rad of x*'s
+  (a prismatic coordinate within `HOLD_POSITION` m), every speed within `HOLD_SPEED`;
+* the *tip test* of the RealAIGym leaderboard: the tip stays above the threshold from the swing-up
+  time to the end. With h_rest and h* the tip's height (`idapbc_pin.model.resting.tip_height`) at
+  rest and at x*, the normalised height (h − h_rest)/(h* − h_rest) stays ≥ `TIP_SHARE`. For a chain
+  hanging straight down from its pivot (h_rest = −L, h* = L) that is exactly the leaderboard's
+  h ≥ 0.9 L measured from the pivot.
+
+For the exact hanging start also the leaderboard's v2 score (`leaderboard_score`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._parallel import process_map
+from ..model.angles import wrap_angles
+from ..model.resting import resting_configuration, tip_height
+from ..sim.integrate import simulate
+from ..sim.metrics import HOLD_ANGLE, HOLD_SPEED, SUCCESS_WINDOW, holds as holds_verdict
+from ..sim.states import RESTING_SPREAD, resting_states
+from .leaderboard_score import LeaderboardScore, leaderboard_score
+
+__all__ = [
+    "HOLD_POSITION",
+    "HOLD_SPEED",
+    "HOLD_WINDOW",
+    "START_SPREAD",
+    "TIP_SHARE",
+    "SwingupResult",
+    "SwingupScore",
+    "evaluate_run_swingup",
+    "evaluate_swingup",
+    "judge_swingup",
+    "swingup_states",
+]
+
+#: The holds verdict (`sim.metrics.holds`) reads the last HOLD_WINDOW seconds for
+#: |wrap(q − q*)| ≤ HOLD_POSITION (rad or m) and |v| ≤ HOLD_SPEED (rad/s or m/s) on every coordinate.
+HOLD_WINDOW, HOLD_POSITION, HOLD_SPEED = SUCCESS_WINDOW, HOLD_ANGLE, HOLD_SPEED
+#: The tip test: normalised tip height ≥ TIP_SHARE (0.95 ⇔ the leaderboard's 0.9 L above the pivot).
+TIP_SHARE = 0.95
+#: Start states: q_rest ± U(−START_SPREAD, START_SPREAD) and v ± U(−START_SPREAD, START_SPREAD).
+START_SPREAD = RESTING_SPREAD
+
+
+def swingup_states(system, n: int = 20, seed: int = 0) -> np.ndarray:
+    """(n, 2 nq) start states x = (q, p): the first exactly at rest at `resting_configuration`, the
+    others q_rest + U(−0.1, 0.1) (rad or m) with v = U(−0.1, 0.1) (rad/s or m/s), p = M(q) v
+    (`idapbc_pin.sim.states.resting_states`, which the swing-up stage draws its starts from too)."""
+    return resting_states(system, int(n), seed, START_SPREAD)
+
+
+def _stays_from(flags: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N,) s: the first sample time from which `flags` (N, K) holds to the end; nan where the last
+    sample fails."""
+    stays = np.flip(np.logical_and.accumulate(np.flip(flags, axis=1), axis=1), axis=1)
+    out = t[np.argmax(stays, axis=1)].astype(float)
+    out[~stays[:, -1]] = np.nan
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class SwingupScore:
+    """One controller's swing-up verdicts, one entry per start state (N,).
+
+    Attributes
+    ----------
+    holds : bool, in the hold box over the last `HOLD_WINDOW` s, not diverged.
+    tip : bool, the tip test passed (a swing-up time before the end).
+    swingup_time : s, first time from which the tip test holds to the end; nan without `tip`.
+    time_to_goal : s, first time from which the hold box holds to the end; nan if it does not hold
+        at the end (or the row diverged).
+    peak_input : max |u| (N·m or N). peak_ratio : max over inputs of max |u_i| / effort_i (nan
+        without a finite limit).
+    energy : Σ|Δq_a · u| over the actuated joints (J).
+    diverged : bool, the rollout blew up.
+    hanging : the leaderboard's v2 score of the first state's trajectory (the exact hanging start).
+    """
+
+    holds: np.ndarray
+    tip: np.ndarray
+    swingup_time: np.ndarray
+    time_to_goal: np.ndarray
+    peak_input: np.ndarray
+    peak_ratio: np.ndarray
+    energy: np.ndarray
+    diverged: np.ndarray
+    hanging: LeaderboardScore
+
+    def to_dict(self) -> dict:
+        """JSON-ready (nan as None)."""
+
+        def plain(a):
+            return [None if isinstance(x, float) and not math.isfinite(x) else x for x in np.asarray(a).tolist()]
+
+        out = {k: plain(getattr(self, k)) for k in ("holds", "tip", "swingup_time", "time_to_goal", "peak_input", "peak_ratio", "energy", "diverged")}
+        out["hanging"] = self.hanging.to_dict()
+        return out
+
+
+def judge_swingup(system, traj) -> SwingupScore:
+    """The swing-up verdicts (`SwingupScore`) of a `Trajectory` of `system` recorded at every step
+    (row 0 taken as the exact hanging start for the v2 score)."""
+    nq = system.nq
+    t, q, v, u = traj.t, traj.q, traj.v, traj.u
+    N, K = q.shape[:2]
+    q_star = np.asarray(system.x_star, float)[:nq]
+    h_rest, h_star = float(tip_height(system, resting_configuration(system))), float(tip_height(system, q_star))
+    z = (tip_height(system, q.reshape(-1, nq)).reshape(N, K) - h_rest) / (h_star - h_rest)
+    swingup = _stays_from(z >= TIP_SHARE, t)
+    swingup[traj.diverged | ~(swingup < t[-1])] = np.nan
+    dq = wrap_angles(q - q_star, np.asarray(system.angle_mask, bool)[:nq])
+    box = (np.abs(dq) <= HOLD_POSITION).all(axis=-1) & (np.abs(v) <= HOLD_SPEED).all(axis=-1)
+    holds = holds_verdict(traj, system, HOLD_WINDOW)
+    to_goal = _stays_from(box, t)
+    to_goal[traj.diverged] = np.nan
+    B = np.asarray(system.B, float)
+    effort = np.asarray(system.effort, float)
+    peak_each = np.abs(u).max(axis=1) if K else np.zeros((N, system.m))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(np.isfinite(effort), peak_each / effort, np.nan)
+    peak_ratio = np.full(N, np.nan) if np.all(np.isnan(ratio)) else np.nanmax(ratio, axis=1)
+    energy = np.abs(np.diff(q @ B, axis=1) * u[:, :-1]).sum(axis=(1, 2))
+    hanging = leaderboard_score(t, q[0], v[0], u[0] @ B.T, swingup[0])
+    return SwingupScore(holds=holds, tip=np.isfinite(swingup), swingup_time=swingup, time_to_goal=to_goal,
+                        peak_input=peak_each.max(axis=1), peak_ratio=peak_ratio, energy=energy,
+                        diverged=np.asarray(traj.diverged, bool).copy(), hanging=hanging)
+
+
+def _judge_job(job) -> SwingupScore:
+    """Worker: (system, controller, x0, T, dt, limits) -> its `SwingupScore`."""
+    system, ctrl, x0, T, dt, limits = job
+    return judge_swingup(system, simulate(system, ctrl, x0, T=T, dt=dt, limits=limits))
+
+
+def _median(a) -> float:
+    a = np.asarray(a, float)
+    return float(np.nanmedian(a)) if np.isfinite(a).any() else math.nan
+
+
+@dataclass(frozen=True, eq=False)
+class SwingupResult:
+    """Several controllers judged from the same swing-up starts.
+
+    Attributes
+    ----------
+    system : name of the system. states : (N, n) start states (q, p). T, dt : horizon and step (s).
+    limits : effort limits applied. scores : controller name -> `SwingupScore`, in the order given.
+    """
+
+    system: str
+    states: np.ndarray
+    T: float
+    dt: float
+    limits: bool
+    scores: dict = field(default_factory=dict)
+
+    def table(self) -> str:
+        """A markdown table, one row per controller: holds k/N, tip k/N, median swing-up time, median
+        time to goal (over the states that have one), median peak |u| / limit, hanging-start v2 score."""
+        N = self.states.shape[0]
+        rows = ["| controller | holds | tip | median swing-up time | median time to goal | median peak input / limit | hanging-start score |",
+                "|---|---|---|---|---|---|---|"]
+        for name, s in self.scores.items():
+            score = f"{s.hanging.score:.3f}" + (f" (swing-up {s.hanging.swingup_time:.2f} s)" if s.hanging.success else "")
+            rows.append(f"| {name} | {int(s.holds.sum())}/{N} | {int(s.tip.sum())}/{N} | {_median(s.swingup_time):.2f} s | "
+                        f"{_median(s.time_to_goal):.2f} s | {_median(s.peak_ratio):.2f} | {score} |")
+        return "\n".join(rows)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the settings, the start states and every controller's verdicts."""
+        return {"system": self.system, "T": self.T, "dt": self.dt, "limits": self.limits, "states": self.states.tolist(),
+                "scores": {k: s.to_dict() for k, s in self.scores.items()}}
+
+
+def evaluate_swingup(system, controllers: dict, n: int = 20, T: float = 10.0, dt: float = 0.002, seed: int = 0,
+                     limits: bool = True, workers: int = 1) -> SwingupResult:
+    """Judge `controllers` (name -> law (N, n) -> (N, m)) swinging `system` up from the same
+    `swingup_states` (n, seed): one batched `simulate` per controller over T s at the RK4 step dt
+    (the law held over each step), with the effort limits unless `limits` is False; `workers`
+    processes (0: one per core; `idapbc_pin._parallel.process_map`, the laws must pickle)."""
+    x0 = swingup_states(system, n, seed)
+    jobs = [(system, ctrl, x0, float(T), float(dt), bool(limits)) for ctrl in controllers.values()]
+    scores = dict(zip(controllers, process_map(_judge_job, jobs, workers)))
+    return SwingupResult(system=str(system.name), states=x0, T=float(T), dt=float(dt), limits=bool(limits), scores=scores)
+
+
+def evaluate_run_swingup(run, n: int = 20, T: float = 10.0, seed: int = 0, workers: int = 1) -> SwingupResult:
+    """A run judged from `n` near-resting states (`evaluate_swingup`) beside saturated LQR and the
+    energy-pumping law (`EnergyPumpLaw`, handing over to LQR near x*), with the effort limits; the
+    result is also written to the run directory as ``swingup.json``."""
+    from .._io import write_json
+    from ..control.baseline import LQRController
+    from ..control.energy_pump import EnergyPumpLaw
+
+    controllers = {"NIDA-PBC": run.controller, "LQR": LQRController(run.system), "energy pump + LQR": EnergyPumpLaw(run.system)}
+    result = evaluate_swingup(run.system, controllers, n=n, T=T, seed=seed, workers=workers)
+    write_json(run.path / "swingup.json", result.to_dict() | {"swing_up_law": bool(getattr(run, "uses_swing_up", False))})
+    return result

@@ -1,0 +1,273 @@
+"""`swing_up`: fit a swing-up law for a run, from its resting posture to x*, and keep it where it helps.
+
+The reach stage's machinery (`recovery.stage`) with another start set (DESIGN §3). `SwingUpConfig`
+holds every number.
+
+1. **Labels.** From `starts` states near the resting posture (`sim.states.resting_states`: the
+   first exactly at rest there, a pendulum hanging), the teacher runs first: the classical
+   energy-pumping law outside the training box's angles and the run's law inside them
+   (`PumpThenRun`; the run's law is `Run.box_controller`: its networks with its recovery or linear
+   law). Where it does not bring a start to x* within `judge_T`, iLQR plans of `horizon` seconds
+   within the effort limits are searched from ten warm starts (its own failed inputs first;
+   `plans.plan_candidates`), each tracked by its time-varying LQR and then caught by the teacher
+   (`collect_labels`, the same chunks, workers and resumable store as the reach stage's). The labels are the states of the trajectories that reach x*, every 10 ms over their
+   first 6 s, with the inputs applied there; where the run has a recovery law, the recovery stage's
+   own labels (``recovery-labels.npz``, at most as many as the swing-up's) join them, so that the
+   law also knows the box.
+2. **Fit.** A `SwingUpLaw` MLP (features: sin and cos of every angle, the other components scaled
+   by the labels' spread) by least squares on u/ū (`fit.fit_mlp`).
+3. **DAgger**, `dagger` rounds: the run's law with the fitted swing-up law (outside the training
+   box's angles) runs from
+   `dagger_starts` new near-resting starts; the states its failures visit at 1, 2.5 and 4 s are
+   labelled as in step 1, with that law as the teacher (its own rollouts label the states it brings
+   to x*, and its failed inputs warm-start the plans of the others), and a fresh law is fitted on all
+   labels.
+4. **Gate.** The run's law as it is and with each fitted swing-up law (the first fit's and each
+   DAgger round's) outside each candidate kept box (the training box's angles alone, and r·s for r
+   in `inner_scales`, none by default), from `gate_states` near-resting states of their own ("holds" over `judge_T`,
+   `sim.metrics.holds`); the candidate that holds the most of them (ties: the later fit, the larger
+   box) is then judged from `box_states` states of the half box and the training box (success over
+   20 s): it is kept when it holds at least `margin` more near-resting states than the run's law
+   and loses at most `box_loss` box states.
+
+The law goes to ``swingup.npz`` when kept (every command on the run then applies it), else to
+``swingup-refused.npz``, and the entry to summary.json → "swing_up"; each write atomic.
+"""
+
+from __future__ import annotations
+
+import io
+import sys
+import time
+from dataclasses import asdict
+
+import numpy as np
+import torch
+
+from .._io import atomic_write_bytes, write_json
+from .._parallel import process_map
+from ..control.energy_pump import EnergyPumpLaw
+from ..model.angles import wrap_angles
+from ..run import SWINGUP_FILE, SWINGUP_REFUSED_FILE, resolve_run
+from ..sim.compare import compare_laws
+from ..sim.integrate import simulate
+from ..sim.metrics import holds
+from ..sim.states import resting_states, uniform_states
+from .chunks import ChunkStore
+from .config import RecoveryConfig, SwingUpConfig
+from .fit import fit_mlp
+from .gate import GATE_HORIZON, RECOVERY_GATE_SEED, read_labels
+from .plans import PLAN_STEP, PlanSettings, planning_system
+from .stage import collect_labels
+from .swing_law import SwingUpLaw, swing_features
+
+__all__ = ["SWING_GATE_SEED", "fit_swing_law", "kept_boxes", "swing_gate", "swing_up"]
+
+#: Seed offset of the swing-up gate's states (neither the plans', DAgger's nor an evaluation's).
+SWING_GATE_SEED = RECOVERY_GATE_SEED + 5_000
+#: Times (s) of a failed DAgger rollout whose states are labelled.
+DAGGER_TIMES = (1.0, 2.5, 4.0)
+
+
+def _box_half_widths(system) -> np.ndarray:
+    """(n,) the training box's half-widths about its centre."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in system.domain)
+    return (hi - lo) / 2
+
+
+def kept_boxes(system, config: SwingUpConfig) -> dict:
+    """The candidate kept boxes of the gate, {name: (n,) half-widths}: "posture" (the training box's
+    angles, ∞ elsewhere), and "r = …" (r·s on every component) for r in `config.inner_scales`."""
+    s, mask = _box_half_widths(system), np.asarray(system.angle_mask, dtype=bool)
+    return {"posture": np.where(mask, s, np.inf)} | {f"r = {r:g}": float(r) * s for r in config.inner_scales}
+
+
+def _labels_config(config: SwingUpConfig) -> RecoveryConfig:
+    """The reach stage's settings `collect_labels` reads, for swing-up plans."""
+    plan = PlanSettings(horizon=config.horizon, ilqr_iterations=config.ilqr_iterations)
+    return RecoveryConfig(plan=plan, judge_T=max(config.judge_T, 8.0), workers=config.workers, ray=config.ray, teacher="run")
+
+
+def fit_swing_law(system, X: np.ndarray, U: np.ndarray, config: SwingUpConfig, seed: int | None = None,
+                  progress: str | None = None) -> tuple[SwingUpLaw, float]:
+    """Least-squares fit of a `SwingUpLaw` to labels X (K, n), U (K, m) (within ±ū) around no inner
+    law, with the training box's angles as its kept box; returns (law, the last minibatch's mean
+    squared error in units of ū)."""
+    effort = np.asarray(system.effort, dtype=np.float64)
+    x_star, mask = np.asarray(system.x_star, dtype=np.float64), np.asarray(system.angle_mask, dtype=bool)
+    box = _box_half_widths(system)
+    delta = wrap_angles(np.asarray(X, dtype=np.float64) - x_star, mask)
+    scale = np.maximum(delta.std(axis=0), box)  # the labels' spread, at least the box's
+    F = swing_features(delta, mask, scale)
+    (weights, biases), mse = fit_mlp(F, U / effort, config.width, config.steps, config.fit_seed if seed is None else seed,
+                                     None, progress, config.batch)
+    return SwingUpLaw(weights, biases, x_star, scale, effort, mask, np.where(mask, box, np.inf)), mse
+
+
+def _box_labels(run, system, limit: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most `limit` of the recovery stage's labels (evenly spaced), where the run has a recovery
+    law; else none."""
+    if not run.uses_recovery:
+        return np.empty((0, system.n)), np.empty((0, system.m))
+    X, U = read_labels(run.path, system.n, system.m)
+    keep = np.unique(np.linspace(0, len(X) - 1, min(limit, len(X))).astype(int)) if limit > 0 else np.arange(0)
+    return X[keep], U[keep]
+
+
+class PumpThenRun:
+    """The first teacher of the swing-up labels: the classical energy-pumping law (`EnergyPumpLaw`)
+    where the posture lies outside the training box's angles, the run's law (`run_law`) inside
+    them. Its rollouts from near hanging label the starts it brings to x*; for the others its inputs
+    are the first warm start of the plans, and it catches each plan after its horizon, so a plan
+    only has to bring the robot to where pumping and the run's law finish the job.
+    (N, n) -> (N, m); picklable."""
+
+    def __init__(self, system, run_law):
+        self.run_law, self.pump = run_law, EnergyPumpLaw(system)
+        self.x_star, self.mask = np.asarray(system.x_star, dtype=np.float64), np.asarray(system.angle_mask, dtype=bool)
+        self.box = np.where(self.mask, _box_half_widths(system), np.inf)
+
+    def __call__(self, x):
+        x = np.atleast_2d(x)
+        u = np.array(self.run_law(x), dtype=np.float64).reshape(len(x), -1)
+        out = (np.abs(wrap_angles(x - self.x_star, self.mask)) > self.box).any(axis=1)
+        if out.any():
+            u[out] = self.pump(x[out])
+        return u
+
+
+def _label(system, x0, seed: int, config: SwingUpConfig, teacher, store, step: str, progress: bool):
+    """Labels from the starts x0 (`collect_labels` with swing-up plans); with the count of starts the
+    teacher and the plans brought to x*."""
+    return collect_labels(system, x0, seed, _labels_config(config), progress, None, teacher, store, step)
+
+
+def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: bool = True) -> dict:
+    """Fit, gate and save a swing-up law for a run (see the module docstring); returns the summary
+    entry written to summary.json → "swing_up"."""
+    run = resolve_run(run_or_path)
+    system = planning_system(run.system)
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    teacher = run.box_controller
+    store = ChunkStore(run.path)
+    x0 = resting_states(system, config.starts, config.plan_seed)
+    X, U, taught, planned = _label(system, x0, config.plan_seed, config, PumpThenRun(system, teacher), store, "swing-labels", progress)
+    Xb, Ub = _box_labels(run, system, len(X))
+    if progress:
+        print(f"swing-up labels: energy pumping with the run's law in the box brings {taught} of {config.starts} near-resting starts to x*, "
+              f"plans {planned} more; "
+              f"{len(X)} labels, and {len(Xb)} of the recovery stage's  [{time.perf_counter() - start:.0f} s]", flush=True)
+    if not len(X):
+        reason = (f"no plan from the resting posture reached x* within {config.horizon:g} s: nothing to fit a swing-up law to "
+                  "(a longer horizon in the swing-up config may find some)")
+        if progress:
+            print(f"swing-up: {reason}; the run keeps its law as it is", flush=True)
+        entry = {"used": False, "reason": reason, "teacher_starts": int(taught), "plan_starts": 0, "seconds": round(time.perf_counter() - start, 1),
+                 "config": asdict(config)}
+        write_json(run.path / "summary.json", dict(run.summary) | {"swing_up": entry})
+        run.summary = dict(run.summary) | {"swing_up": entry}
+        store.clear()
+        return entry
+    X, U = np.concatenate([X, Xb]), np.concatenate([U, Ub])
+    law, mse = fit_swing_law(system, X, U, config, progress="swing-up: fit" if progress else None)
+    first_mse, laws, rounds = mse, [law], []
+    for r in range(config.dagger):
+        law, X, U, info = _dagger_round(system, teacher, law, X, U, r, config, store, progress, start)
+        laws.append(law)
+        rounds.append(info)
+    (k, box), gate = swing_gate(run, laws, config, progress)
+    law = laws[k].with_box(kept_boxes(system, config)[box])
+    entry = {"used": gate["used"], "gate": gate, "fit": k, "labels": int(len(X)), "teacher_starts": int(taught), "plan_starts": int(planned), "first_fit_mse": first_mse,
+             "dagger": rounds, "seconds": round(time.perf_counter() - start, 1), "config": asdict(config)}
+    save_swing_up(run, law, entry)
+    store.clear()
+    if progress:
+        print(f"{format_swing_gate(gate, config)}  [{time.perf_counter() - start:.0f} s]", flush=True)
+    return entry
+
+
+def _dagger_round(system, teacher, law: SwingUpLaw, X: np.ndarray, U: np.ndarray, r: int, config: SwingUpConfig, store, progress: bool, start: float):
+    """DAgger round r: the run's law with `law` from `dagger_starts` near-resting starts (seed
+    plan_seed + 300 + r); the states its failures visit at `DAGGER_TIMES` are labelled with that law
+    as the teacher, and a fresh law is fitted on all labels. Returns (law, X, U, the round's counts)."""
+    xd = resting_states(system, config.dagger_starts, config.plan_seed + 300 + r)
+    ctrl = teacher.with_fallback(law.with_inner(teacher.fallback))  # its kept box: the training box's angles
+    traj = simulate(system, ctrl, xd, T=config.judge_T, dt=PLAN_STEP)
+    failed = np.flatnonzero(~holds(traj, system))
+    ticks = sorted({min(round(t / PLAN_STEP), traj.x.shape[1] - 1) for t in DAGGER_TIMES})  # a short judge_T: its last sample
+    visited = np.concatenate([traj.x[failed, k] for k in ticks]) if failed.size else xd[:0]
+    # the law itself labels the visited states it brings to x*, and its own failed inputs are the
+    # first warm start of their plans: the labels continue what the law does, rather than average
+    # swings in opposite directions that plans from nearby states may choose
+    Xr, Ur, _, planned = (_label(system, visited, config.plan_seed + 1000 * (r + 1), config, ctrl, store, f"swing-dagger{r + 1}", progress)
+                          if failed.size else (X[:0], U[:0], 0, 0))
+    X, U = np.concatenate([X, Xr]), np.concatenate([U, Ur])
+    law, mse = fit_swing_law(system, X, U, config, progress=f"swing-up: fit, DAgger {r + 1}" if progress else None)
+    if progress:
+        print(f"swing-up DAgger round {r + 1}/{config.dagger}: the law fails from {failed.size} of {config.dagger_starts} starts; "
+              f"plans from {planned} of the {len(visited)} states they visit; refitted on {len(X)} labels  "
+              f"[{time.perf_counter() - start:.0f} s]", flush=True)
+    return law, X, U, {"failed": int(failed.size), "visited": int(len(visited)), "plans": int(planned), "labels": int(len(X)), "mse": mse}
+
+
+def _holds_job(job) -> np.ndarray:
+    """Worker: (system, law, x0, T) -> (N,) bool, "holds" of each start."""
+    system, law, x0, T = job
+    torch.set_num_threads(1)
+    return holds(simulate(system, law, x0, T=T, dt=PLAN_STEP), system)
+
+
+def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False) -> tuple[tuple[int, str], dict]:
+    """The run's law with and without each of `laws` (around the run's own outer law) outside each
+    candidate kept box (`kept_boxes`), from the gate's states: ((k, box name) of the candidate judged,
+    {"states", "run", "law": near-resting starts each holds, "candidates": {box name: holds of each
+    law}; "box_states", "run_box", "law_box": box states the run's law and the candidate bring to x*;
+    "fit", "box", "used": the verdict}) (see the module docstring)."""
+    system, seed = run.system, SWING_GATE_SEED + run.config.seed
+    ctrl = run.box_controller
+    boxes = kept_boxes(system, config)
+    cands = [(k, name) for name in boxes for k in range(len(laws))]
+    with_laws = [ctrl.with_fallback(laws[k].with_box(boxes[name]).with_inner(ctrl.fallback)) for k, name in cands]
+    x_swing = resting_states(system, config.gate_states, seed)
+    jobs = [(system, c, x_swing, config.judge_T) for c in [ctrl, *with_laws]]
+    run_holds, *held = (int(h.sum()) for h in process_map(_holds_job, jobs, config.workers, config.ray))
+    order = list(boxes)
+    best = max(range(len(cands)), key=lambda i: (held[i], cands[i][0], -order.index(cands[i][1])))
+    half = config.box_states // 2
+    box = 0, 0
+    if config.box_states:
+        x_box = np.concatenate([uniform_states(system, half, "half", seed + 1), uniform_states(system, config.box_states - half, "domain", seed + 2)])
+        box = tuple(int(ok.sum()) for ok, _ in compare_laws(system, [(ctrl, x_box), (with_laws[best], x_box)], T=GATE_HORIZON, dt=PLAN_STEP,
+                                                               workers=config.workers, ray=config.ray))
+    used = held[best] >= run_holds + config.margin and box[1] >= box[0] - config.box_loss
+    if progress:
+        print(f"swing-up gate: simulated {config.gate_states} near-resting states for the run's law and {len(cands)} candidates "
+              f"({len(laws)} fits × {len(boxes)} kept boxes), {config.box_states} box states for two laws", file=sys.stderr, flush=True)
+    candidates = {name: [held[i] for i, (_, b) in enumerate(cands) if b == name] for name in boxes}
+    return cands[best], {"states": config.gate_states, "run": run_holds, "law": held[best], "candidates": candidates, "fit": cands[best][0],
+                         "box": cands[best][1], "box_states": config.box_states, "run_box": box[0], "law_box": box[1], "used": bool(used)}
+
+
+def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
+    """The swing-up gate's figures and verdict in one line."""
+    verdict = "kept" if gate["used"] else (f"not kept (needs {config.margin} more held than the run's law, and at most "
+                                            f"{config.box_loss} fewer box states)")
+    cands = "; ".join(f"kept box {name}: {', '.join(map(str, held))}" for name, held in gate["candidates"].items())
+    return (f"swing-up gate: of {gate['states']} near-resting states the run's law holds {gate['run']} at x*, with the swing-up law "
+            f"{gate['law']} (fit {gate['fit'] + 1}, kept box {gate['box']}; each fit: {cands}); of {gate['box_states']} box states it brings {gate['run_box']} to x*, with the swing-up law {gate['law_box']}: {verdict}")
+
+
+def save_swing_up(run, law: SwingUpLaw, entry: dict) -> None:
+    """Write `law` and summary.json → "swing_up" = `entry`: ``swingup.npz`` when ``entry["used"]``,
+    else ``swingup-refused.npz``; then remove the other file (atomic writes, in an order that never
+    leaves summary.json naming a law that is not on disk)."""
+    keep, drop = (SWINGUP_FILE, SWINGUP_REFUSED_FILE) if entry["used"] else (SWINGUP_REFUSED_FILE, SWINGUP_FILE)
+    buf = io.BytesIO()
+    np.savez(buf, **law.arrays())
+    atomic_write_bytes(run.path / keep, buf.getvalue())
+    summary = dict(run.summary) | {"swing_up": entry | {"law_file": keep}}
+    write_json(run.path / "summary.json", summary)
+    (run.path / drop).unlink(missing_ok=True)
+    run.summary = summary
+    run._fallback = None

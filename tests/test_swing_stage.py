@@ -1,0 +1,255 @@
+"""The swing-up law and its stage (`recovery.swing_law`, `recovery.swing_stage`): the law acts only
+where the posture leaves the training box, is continuous around the whole circle, stays within the
+limits; the stage writes a law the run loads, and a kill leaves the run as it was."""
+
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+import idapbc_pin as ip
+from idapbc_pin.model.angles import wrap_angles
+from idapbc_pin.recovery.config import SwingUpConfig
+from idapbc_pin.recovery.swing_law import SwingUpLaw, swing_features
+from idapbc_pin.recovery.swing_stage import fit_swing_law, swing_up
+from idapbc_pin.run import SWINGUP_FILE, SWINGUP_REFUSED_FILE
+from idapbc_pin.sim.states import resting_states
+
+from .conftest import sample_domain
+
+#: The smallest stage that exercises every step: two starts, half-second plans, one DAgger round.
+TINY = dict(starts=2, horizon=0.5, ilqr_iterations=2, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=2, box_states=4, judge_T=3.0, workers=1)
+
+
+def random_swing_law(system, seed: int = 0, width: int = 16, inner=None, box=None) -> SwingUpLaw:
+    """A swing-up law with random weights (large enough that its output saturates somewhere), kept box
+    `box` (default: the training box's angles alone)."""
+    rng = np.random.default_rng(seed)
+    mask = np.asarray(system.angle_mask, dtype=bool)
+    sizes = [2 * int(mask.sum()) + system.n - int(mask.sum()), width, width, system.m]
+    weights = tuple(2.0 * rng.standard_normal((b, a)) for a, b in zip(sizes[:-1], sizes[1:]))
+    biases = tuple(rng.standard_normal(b) for b in sizes[1:])
+    lo, hi = system.domain
+    box = np.where(mask, (hi - lo) / 2, np.inf) if box is None else box
+    return SwingUpLaw(weights, biases, np.asarray(system.x_star, float), (hi - lo) / 2, np.asarray(system.effort, float), mask, box, inner)
+
+
+@pytest.fixture(scope="module")
+def weak_pendubot():
+    return ip.load_system("pendubot", effort={"shoulder": 8.0})
+
+
+def test_the_swing_up_law_acts_only_where_the_posture_leaves_the_box_and_stays_within_the_limits(weak_pendubot):
+    system = weak_pendubot
+    law = random_swing_law(system)
+    x = np.concatenate([sample_domain(system, 1000), system.x_star + 3 * (sample_domain(system, 1000, seed=1) - system.x_star)])
+    u = law.apply(x, np.full((len(x), system.m), 123.0))
+    d = wrap_angles(x - system.x_star, system.angle_mask)
+    posture_in = (np.abs(d[:, : system.nq]) <= law.box[: system.nq]).all(axis=1)  # speeds never decide
+    assert 0 < posture_in.sum() < len(x)
+    np.testing.assert_array_equal(u[posture_in], 123.0)
+    assert np.abs(u[~posture_in]).max() <= system.effort.max() * (1 + 1e-12)
+    assert (np.abs(u[~posture_in]) > 0.9 * system.effort).any()
+    fast = np.concatenate([system.x_star[: system.nq], [50.0, -50.0]])[None]  # x* at a huge momentum: the run's law
+    np.testing.assert_array_equal(law.apply(fast, [[7.0]]), [[7.0]])
+    lo, hi = system.domain
+    boxed = law.with_box(0.5 * (hi - lo) / 2)  # a kept box r·s in every component: the momentum decides too
+    assert boxed.outside(fast).all()
+    inside = (np.abs(d) <= boxed.box).all(axis=1)
+    np.testing.assert_array_equal(boxed.apply(x, np.full((len(x), system.m), 123.0))[inside], 123.0)
+    assert not inside[~posture_in].any() and 0 < inside.sum() < posture_in.sum()
+
+
+def test_the_swing_up_law_is_continuous_through_the_hanging_posture(weak_pendubot):
+    """δ = +π and δ = −π are the same hanging posture: features of sines and cosines give the same input
+    on either side of the wrap, where a law of δ itself would jump."""
+    law = random_swing_law(weak_pendubot, seed=3)
+    eps = 1e-7
+    a = np.array([[math.pi - eps, 0.0, 0.3, 0.1]])
+    b = np.array([[-math.pi + eps, 0.0, 0.3, 0.1]])
+    np.testing.assert_allclose(law.law(a), law.law(b), atol=1e-5)
+    F = swing_features(law.delta(a), law.angle_mask, law.scale)
+    assert F.shape == (1, 2 * 2 + 2)
+
+
+def test_the_swing_up_law_wraps_the_run_own_outer_law_and_round_trips_its_arrays(weak_pendubot):
+    from tests.test_recovery import random_law
+
+    system = weak_pendubot
+    inner = random_law(system, inner_scale=0.2)
+    law = random_swing_law(system, inner=inner)
+    x = sample_domain(system, 500)
+    u0 = np.zeros((len(x), system.m))
+    np.testing.assert_array_equal(law.apply(x, u0), inner.apply(x, u0))  # inside the box's postures: the inner law alone
+    back = SwingUpLaw.from_arrays(law.arrays(), inner)
+    far = system.x_star + 3 * (sample_domain(system, 500, seed=2) - system.x_star)
+    np.testing.assert_array_equal(back.apply(far, np.zeros((500, system.m))), law.apply(far, np.zeros((500, system.m))))
+    broken = law.arrays() | {"W0": law.weights[0][:, :-1]}
+    with pytest.raises(ValueError, match="do not fit"):
+        SwingUpLaw.from_arrays(broken)
+
+
+def test_fit_swing_law_reproduces_its_labels(weak_pendubot):
+    """A least-squares fit on labels from a smooth law outside the box reproduces them to a small error."""
+    system = weak_pendubot
+    rng = np.random.default_rng(0)
+    q = rng.uniform(-math.pi, math.pi, (3000, 2))
+    x = system.state_from(q, rng.uniform(-2, 2, (3000, 2)))
+    U = system.effort * np.tanh(np.sin(q[:, :1]) + 0.3 * np.cos(q[:, 1:]))
+    law, mse = fit_swing_law(system, x, U, SwingUpConfig(steps=1500, width=32))
+    assert mse < 0.01
+    assert np.abs(law.law(x) - U).mean() < 0.15 * system.effort[0]
+
+
+def test_resting_states_start_exactly_at_rest_then_spread():
+    system = ip.load_system("pendubot")
+    x = resting_states(system, 5, seed=1)
+    q, v = system.split(x)
+    np.testing.assert_allclose(wrap_angles(q[0] - np.array([math.pi, 0.0]), np.array([True, True])), 0.0, atol=1e-6)
+    np.testing.assert_array_equal(v[0], 0.0)
+    assert np.abs(q[1:] - q[0]).max() <= 0.1 and np.abs(v[1:]).max() <= 0.1 and np.abs(v[1:]).max() > 0
+    np.testing.assert_array_equal(resting_states(system, 5, seed=1), x)
+
+
+@pytest.fixture(scope="module")
+def tiny_swing_run(tmp_path_factory):
+    system = ip.load_system("pendubot", effort={"shoulder": 8.0})
+    config = ip.TrainConfig.fast(epochs=5, width=8, depth=1, samples=64, dtype="float64")
+    return ip.train(system, config, out=tmp_path_factory.mktemp("runs"), progress=False)
+
+
+def test_a_stage_whose_short_plans_reach_nothing_leaves_the_run_as_it_was(tiny_swing_run, tmp_path):
+    """Half-second plans cannot swing the pendubot up: the stage says so, records why, writes no law."""
+    path = tmp_path / "run"
+    shutil.copytree(tiny_swing_run.path, path)
+    entry = swing_up(path, SwingUpConfig(**TINY), progress=False)
+    assert not entry["used"] and "no plan" in entry["reason"]
+    assert not (path / SWINGUP_FILE).exists() and not (path / SWINGUP_REFUSED_FILE).exists()
+    run = ip.load_run(path)
+    assert run.summary["swing_up"]["reason"] == entry["reason"] and not run.uses_swing_up
+
+
+@pytest.fixture(scope="module")
+def swung_run(tiny_swing_run, tmp_path_factory):
+    """The tiny run through a tiny swing-up stage whose labels come from a smooth law outside the box
+    (the plans that would give real ones take minutes): labels, fit, DAgger round, gate and files."""
+    from idapbc_pin.recovery import swing_stage
+
+    def labels(system, x0, seed, config, progress, start, teacher, store, step):
+        rng = np.random.default_rng(seed)
+        q = rng.uniform(-math.pi, math.pi, (400, system.nq))
+        x = system.state_from(q, rng.uniform(-2, 2, (400, system.nq)))
+        return x, system.effort * np.tanh(np.sin(q[:, :1])), 0, len(x0)
+
+    path = tmp_path_factory.mktemp("swung") / "run"
+    shutil.copytree(tiny_swing_run.path, path)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(swing_stage, "collect_labels", labels)
+        mp.setattr(swing_stage, "GATE_HORIZON", 1.0)  # the box part of the gate: its counts, not their values, are checked here
+        entry = swing_up(path, SwingUpConfig(**TINY), progress=False)
+    return ip.load_run(path), entry
+
+
+def test_the_stage_writes_its_law_and_entry_and_the_run_applies_a_kept_one(swung_run, tmp_path):
+    run, entry = swung_run
+    name = SWINGUP_FILE if entry["used"] else SWINGUP_REFUSED_FILE
+    assert (run.path / name).is_file() and not (run.path / (SWINGUP_REFUSED_FILE if entry["used"] else SWINGUP_FILE)).exists()
+    summary = json.loads((run.path / "summary.json").read_text())
+    gate = summary["swing_up"]["gate"]
+    assert summary["swing_up"]["law_file"] == name and gate["states"] == TINY["gate_states"]
+    assert list(gate["candidates"]) == ["posture"] and all(len(h) == 1 + TINY["dagger"] for h in gate["candidates"].values())
+    assert gate["law"] == gate["candidates"][gate["box"]][gate["fit"]] == max(max(h) for h in gate["candidates"].values())
+    assert not list((run.path / "recovery-chunks").glob("*")) if (run.path / "recovery-chunks").exists() else True
+    # kept by hand: every command on the run applies it around the run's own outer law
+    path = tmp_path / "run"
+    shutil.copytree(run.path, path)
+    (path / name).rename(path / SWINGUP_FILE)
+    (path / "summary.json").write_text(json.dumps(summary | {"swing_up": summary["swing_up"] | {"used": True, "law_file": SWINGUP_FILE}}))
+    kept = ip.load_run(path)
+    assert kept.uses_swing_up and isinstance(kept.controller.fallback, SwingUpLaw)
+    x = resting_states(kept.system, 3, seed=0)
+    law = kept.controller.fallback
+    np.testing.assert_allclose(kept.controller(x), kept.system.saturate(law.law(x)), atol=1e-12)  # hanging: the swing-up law
+    box = kept.system.x_star + 0.2 * (sample_domain(kept.system, 200) - kept.system.x_star)  # within every candidate kept box
+    inside = ~law.outside(box)
+    assert inside.any()
+    np.testing.assert_allclose(kept.controller(box[inside]), kept.box_controller(box[inside]), atol=1e-12)  # its kept box: the run's law
+
+
+def test_a_damaged_swing_up_law_is_refused_at_load_in_one_line(swung_run, tmp_path):
+    run, _ = swung_run
+    path = tmp_path / "run"
+    shutil.copytree(run.path, path)
+    summary = json.loads((path / "summary.json").read_text())
+    (path / "summary.json").write_text(json.dumps(summary | {"swing_up": {"used": True, "law_file": SWINGUP_FILE}}))
+    (path / SWINGUP_FILE).write_bytes(b"not a zip")
+    with pytest.raises(ip.IdapbcError, match="swingup.npz is damaged"):
+        ip.load_run(path)
+
+
+def test_the_standalone_export_applies_the_swing_up_law_as_the_library_does(swung_run, tmp_path):
+    from tests.test_export import _close, _run_standalone
+
+    run, _ = swung_run
+    path = tmp_path / "run"
+    shutil.copytree(run.path, path)
+    law = random_swing_law(run.system, seed=5)
+    np.savez(path / SWINGUP_FILE, **law.arrays())
+    summary = json.loads((path / "summary.json").read_text())
+    (path / "summary.json").write_text(json.dumps(summary | {"swing_up": {"used": True, "law_file": SWINGUP_FILE}}))
+    kept = ip.load_run(path)
+    folder = ip.export(kept, tmp_path / "export", onnx=False)
+    record = json.loads((folder / "controller.json").read_text())
+    assert record["fallback"]["kind"] == "swing_up" and "swing-up law" in (folder / "README.md").read_text()
+    rng = np.random.default_rng(0)
+    q = rng.uniform(-math.pi, math.pi, (400, 2))
+    v = rng.uniform(-3, 3, (400, 2))
+    q[:100] *= 0.2  # some inside the box's postures
+    expected = kept.controller.torque(q, v)
+    out = _run_standalone(folder, q, v, tmp_path)
+    _close(out["batched"], expected, 1e-9)
+    _close(out["single"], expected, 1e-9)
+
+
+def test_train_swing_up_runs_the_stage_after_training_and_records_it(tmp_path, capsys):
+    """`train --swing-up` sets TrainConfig.swing_up, reads --swing-config and runs the stage after
+    training (here plans too short to reach x*: the stage says so and the run keeps its law); with
+    --evaluate 0 it judges nothing (`simulate --from hanging` judges a run from near hanging)."""
+    from idapbc_pin.cli.main import main
+
+    train_toml, swing_toml, out = tmp_path / "tiny.toml", tmp_path / "swing.toml", tmp_path / "runs"
+    train_toml.write_text("[train]\nwidth = 8\ndepth = 1\n")
+    swing_toml.write_text("[swing_up]\n" + "".join(f"{k} = {v!r}\n" for k, v in TINY.items()).replace("'", '"'))
+    argv = ["train", "pendubot", "--effort", "shoulder=8", "--fast", "--epochs", "2", "--config", str(train_toml), "--evaluate", "0",
+            "--recover", "never", "--swing-up", "--swing-config", str(swing_toml), "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    (run_dir,) = out.iterdir()
+    run = ip.load_run(run_dir)
+    assert run.config.swing_up and "no plan" in run.summary["swing_up"]["reason"]
+    text = capsys.readouterr().out
+    assert "swing-up: no plan" in text and "| energy pump + LQR |" not in text and not (run_dir / "swingup.json").exists()
+
+
+def test_a_bad_swing_config_is_one_line_and_exit_2(tmp_path, capsys):
+    from idapbc_pin.cli.main import main
+
+    bad = tmp_path / "swing.toml"
+    bad.write_text("[swing_up]\nhorizon = -1.0\n")
+    assert main(["train", "pendubot", "--swing-up", "--swing-config", str(bad), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad swing-up setting" in err[0] and "Fix:" in err[0]
+    assert not any(tmp_path.glob("*/config.json"))
+
+
+def test_simulate_from_hanging_prints_the_swing_up_table_and_writes_its_files(swung_run, capsys):
+    from idapbc_pin.cli.main import main
+
+    run, _ = swung_run
+    assert main(["simulate", str(run.path), "--from", "hanging", "--n", "3", "--T", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "swing-up of pendubot from 3 near-resting states" in text and "| NIDA-PBC |" in text and "| energy pump + LQR |" in text
+    record = json.loads((run.path / "swingup.json").read_text())
+    assert set(record["scores"]) == {"NIDA-PBC", "LQR", "energy pump + LQR"} and len(record["states"]) == 3 and record["T"] == 2.0
+    assert (run.path / "swingup.png").stat().st_size > 10_000
