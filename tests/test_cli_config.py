@@ -173,7 +173,7 @@ def test_the_cli_stays_small_and_every_evaluation_default_is_the_library_s():
     certify = parser.parse_args(["certify", "RUN"])
     assert (certify.n, certify.settle) == (CERTIFY_DEFAULTS["n"], CERTIFY_DEFAULTS["settle"])
     view = parser.parse_args(["view", "RUN"])
-    assert (view.n, view.T, view.pick) == (VIEW_DEFAULTS["n"], VIEW_DEFAULTS["T"], "random")
+    assert (view.n, view.T, view.pick) == (VIEW_DEFAULTS["n"], VIEW_DEFAULTS["T"], "auto")  # hanging for a swing-up run, else random
     robustness = parser.parse_args(["robustness", "RUN"])
     assert (robustness.box, robustness.n) == ("half", 100) and not hasattr(robustness, "noise")  # the conditions' own defaults apply
 

@@ -192,21 +192,29 @@ def test_a_damaged_swing_up_law_is_refused_at_load_in_one_line(swung_run, tmp_pa
 def test_the_standalone_export_applies_the_swing_up_law_as_the_library_does(swung_run, tmp_path):
     from tests.test_export import _close, _run_standalone
 
+    from tests.test_recovery import random_law
+
+    from idapbc_pin.run import RECOVERY_FILE
+
     run, _ = swung_run
     path = tmp_path / "run"
     shutil.copytree(run.path, path)
     law = random_swing_law(run.system, seed=5)
     np.savez(path / SWINGUP_FILE, **law.arrays())
+    np.savez(path / RECOVERY_FILE, **random_law(run.system, inner_scale=0.3).arrays())  # the law it wraps: a recovery law
     summary = json.loads((path / "summary.json").read_text())
-    (path / "summary.json").write_text(json.dumps(summary | {"swing_up": {"used": True, "law_file": SWINGUP_FILE}}))
+    (path / "summary.json").write_text(json.dumps(summary | {"swing_up": {"used": True, "law_file": SWINGUP_FILE}, "recovery": {"used": True}}))
     kept = ip.load_run(path)
     folder = ip.export(kept, tmp_path / "export", onnx=False)
     record = json.loads((folder / "controller.json").read_text())
-    assert record["fallback"]["kind"] == "swing_up" and "swing-up law" in (folder / "README.md").read_text()
+    assert record["fallback"]["kind"] == "swing_up" and record["fallback"]["wraps"]["kind"] == "recovery"
+    readme = (folder / "README.md").read_text()
+    assert "swing-up law" in readme and "recovery law" in readme
     rng = np.random.default_rng(0)
     q = rng.uniform(-math.pi, math.pi, (400, 2))
     v = rng.uniform(-3, 3, (400, 2))
     q[:100] *= 0.2  # some inside the box's postures
+    q[:50], v[:50] = 0.05 * q[:50], 0.05 * v[:50]  # some inside the recovery law's inner box
     expected = kept.controller.torque(q, v)
     out = _run_standalone(folder, q, v, tmp_path)
     _close(out["batched"], expected, 1e-9)

@@ -24,7 +24,7 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
                   with "residual": u ← ū clip(clip(u / ū, ±1) + MLP(δ / s), ±1) there instead)
     u ← ū tanh(MLP(φ(δ)))  where some |δ_i| > box_i        (last, if the "fallback" has kind "swing_up":
                   the run's swing-up law outside its kept box (a null half-width is not read),
-                  around the "inner" fallback above; φ(δ) = (sin δ_a, cos δ_a, δ_o / s_o): the
+                  around the fallback it "wraps", above; φ(δ) = (sin δ_a, cos δ_a, δ_o / s_o): the
                   angles' sines and cosines, then the other components scaled)
     u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
@@ -80,7 +80,7 @@ class ExportedController:
         fallback = meta.get("fallback")  # null: the learned law everywhere
         self.swing = None  # a swing-up law around the fallback
         if fallback is not None and fallback.get("kind") == "swing_up":
-            self.swing, fallback = _arrays(fallback), fallback.get("inner")
+            self.swing, fallback = _arrays(fallback), fallback.get("wraps")
         self.fallback = None if fallback is None else _arrays(fallback)
         self.recovery = fallback is not None and fallback.get("kind") == "recovery"
         self.flow = _load_sibling(directory, "desired_flow").load_flow(directory / meta["weights"])
@@ -196,8 +196,8 @@ class ExportedController:
 
 
 def _arrays(fallback: dict) -> dict:
-    """controller.json's "fallback" (or its "inner") as arrays by name (angle_mask boolean)."""
-    return {k: np.array(v, dtype=bool if k == "angle_mask" else np.float64) for k, v in fallback.items() if k not in ("kind", "inner")}
+    """controller.json's "fallback" (or the one a swing-up law "wraps") as arrays by name (angle_mask boolean)."""
+    return {k: np.array(v, dtype=bool if k == "angle_mask" else np.float64) for k, v in fallback.items() if k not in ("kind", "wraps")}
 
 
 _CONTROLLER = ExportedController(HERE)

@@ -131,13 +131,13 @@ def deploy_readme(record: dict) -> str:
     )
     fallback = record.get("fallback")
     swing = fallback if fallback is not None and fallback.get("kind") == "swing_up" else None
-    fallback = fallback.get("inner") if swing is not None else fallback
+    fallback = fallback.get("wraps") if swing is not None else fallback
     line, text = _fallback_text(fallback)
     if swing is not None:
         line += "    u    ← ū tanh(MLP(φ(δ)))  where some |δ_i| > box_i                        (the swing-up law)\n"
         text += ("\nOutside a box around x* (controller.json's \"fallback\" → \"box\"; null: a component not read) the run uses its swing-up law, a small "
                  "MLP fitted to torque plans from the resting posture (`idapbc-pin train --swing-up`); it sees the sines and cosines of "
-                 "the angles and the other components scaled. Its weights are controller.json's \"fallback\", around the \"inner\" law "
+                 "the angles and the other components scaled. Its weights are controller.json's \"fallback\", around the law it \"wraps\", "
                  "above (`controller.py` applies it). It was kept because it brought more simulated near-resting states to x* under the "
                  "effort limits; no certificate covers it.\n")
     body = _BODY.format(dtype=record["dtype"], n=2 * nv, nv=nv, x_star=x_star, joints=_joint_table(record), onnx_row=onnx_row,
@@ -147,7 +147,7 @@ def deploy_readme(record: dict) -> str:
 
 def _fallback_text(fallback: dict | None) -> tuple[str, str]:
     """The law's line and paragraph for the run's recovery or linear law (controller.json's
-    "fallback", or a swing-up law's "inner"); empty without one."""
+    "fallback", or the one a swing-up law "wraps"); empty without one."""
     line, text = "", ""
     if fallback is not None and fallback.get("kind") == "recovery":
         level = f" and H_d(x) > {fallback['level']:.6g}" if "level" in fallback else ""  # the IDA-PBC law also keeps {H_d ≤ level}

@@ -32,7 +32,7 @@ from .config import RecoveryConfig
 from .law import RecoveryLaw
 from .plans import PLAN_STEP
 
-__all__ = ["GATE_HORIZON", "LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery"]
+__all__ = ["GATE_HORIZON", "LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery", "write_law"]
 
 #: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
 RECOVERY_GATE_SEED = 7_368_787
@@ -186,14 +186,21 @@ def energy_levels(run, quantiles) -> list[float]:
 
 def save_recovery(run, law: RecoveryLaw, entry: dict) -> None:
     """Write the judged `law` (at ``entry["inner_scale"]``) and summary.json → "recovery" = `entry`:
-    ``recovery.npz`` when ``entry["used"]``, else ``recovery-refused.npz``; then remove the other
-    file. Each write is atomic, and the order never leaves summary.json naming a law that is not on
-    disk (a crash in between leaves at most a stale file that nothing reads)."""
-    keep, drop = (RECOVERY_FILE, RECOVERY_REFUSED_FILE) if entry["used"] else (RECOVERY_REFUSED_FILE, RECOVERY_FILE)
+    ``recovery.npz`` when ``entry["used"]``, else ``recovery-refused.npz`` (`write_law`)."""
+    law = law.with_inner(entry["inner_scale"]).with_level(math.inf if entry.get("level") is None else entry["level"])
+    write_law(run, law.arrays(), "recovery", entry, (RECOVERY_FILE, RECOVERY_REFUSED_FILE))
+
+
+def write_law(run, arrays: dict, key: str, entry: dict, files: tuple[str, str]) -> None:
+    """Write a fitted outer law's `arrays` and summary.json → `key` = `entry` | {"law_file": …}: to
+    files[0] when ``entry["used"]``, else to files[1] (a refused law, never applied); then remove the
+    other file. Each write is atomic, and the order never leaves summary.json naming a law that is
+    not on disk (a crash in between leaves at most a stale file that nothing reads)."""
+    keep, drop = files if entry["used"] else files[::-1]
     buf = io.BytesIO()
-    np.savez(buf, **law.with_inner(entry["inner_scale"]).with_level(math.inf if entry.get("level") is None else entry["level"]).arrays())
+    np.savez(buf, **arrays)
     atomic_write_bytes(run.path / keep, buf.getvalue())
-    summary = dict(run.summary) | {"recovery": entry | {"law_file": keep}}
+    summary = dict(run.summary) | {key: entry | {"law_file": keep}}
     write_json(run.path / "summary.json", summary)
     (run.path / drop).unlink(missing_ok=True)
     run.summary = summary

@@ -133,10 +133,10 @@ class SwingUpLaw:
 
     def to_json(self) -> dict:
         """controller.json's "fallback" of an export (kind "swing_up"): every array as lists (an
-        unread component of the kept box as null), and the run's own outer law it wraps as "inner"
+        unread component of the kept box as null), and the run's own outer law it wraps as "wraps"
         (None: the networks alone)."""
         inner = None if self.inner is None else self.inner.to_json()
         out = {k: np.asarray(v).tolist() for k, v in self.arrays().items()}
         out["box"] = [float(b) if np.isfinite(b) else None for b in self.box]
-        return {"kind": "swing_up"} | out | {"inner": inner}
+        return {"kind": "swing_up"} | out | {"wraps": inner}
 

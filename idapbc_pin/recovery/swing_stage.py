@@ -36,7 +36,6 @@ The law goes to ``swingup.npz`` when kept (every command on the run then applies
 
 from __future__ import annotations
 
-import io
 import sys
 import time
 from dataclasses import asdict
@@ -44,7 +43,7 @@ from dataclasses import asdict
 import numpy as np
 import torch
 
-from .._io import atomic_write_bytes, write_json
+from .._io import write_json
 from .._parallel import process_map
 from ..control.energy_pump import EnergyPumpLaw
 from ..model.angles import wrap_angles
@@ -56,7 +55,7 @@ from ..sim.states import resting_states, uniform_states
 from .chunks import ChunkStore
 from .config import RecoveryConfig, SwingUpConfig
 from .fit import fit_mlp
-from .gate import GATE_HORIZON, RECOVERY_GATE_SEED, read_labels
+from .gate import GATE_HORIZON, RECOVERY_GATE_SEED, read_labels, write_law
 from .plans import PLAN_STEP, PlanSettings, planning_system
 from .stage import collect_labels
 from .swing_law import SwingUpLaw, swing_features
@@ -260,14 +259,5 @@ def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
 
 def save_swing_up(run, law: SwingUpLaw, entry: dict) -> None:
     """Write `law` and summary.json → "swing_up" = `entry`: ``swingup.npz`` when ``entry["used"]``,
-    else ``swingup-refused.npz``; then remove the other file (atomic writes, in an order that never
-    leaves summary.json naming a law that is not on disk)."""
-    keep, drop = (SWINGUP_FILE, SWINGUP_REFUSED_FILE) if entry["used"] else (SWINGUP_REFUSED_FILE, SWINGUP_FILE)
-    buf = io.BytesIO()
-    np.savez(buf, **law.arrays())
-    atomic_write_bytes(run.path / keep, buf.getvalue())
-    summary = dict(run.summary) | {"swing_up": entry | {"law_file": keep}}
-    write_json(run.path / "summary.json", summary)
-    (run.path / drop).unlink(missing_ok=True)
-    run.summary = summary
-    run._fallback = None
+    else ``swingup-refused.npz`` (`gate.write_law`)."""
+    write_law(run, law.arrays(), "swing_up", entry, (SWINGUP_FILE, SWINGUP_REFUSED_FILE))
