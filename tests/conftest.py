@@ -57,3 +57,9 @@ def _short_fallback_gate():
         patch.setattr(fallback_gate, "GATE_STATES", 4)
         patch.setattr(fallback_gate, "GATE_HORIZON", 0.5)
         yield
+
+
+def pytest_collection_modifyitems(config, items):
+    """The end-to-end tests marked slow run first (the order is otherwise the files'): with two
+    workers a test of minutes that starts last leaves the other core idle to the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
