@@ -20,6 +20,7 @@ import numpy as np
 from ..control.baseline import LQRController
 from ..errors import IdapbcError
 from ..model import load_system
+from ..recovery.swing_law import SwingUpLaw
 from ..run import resolve_run
 from ..sim.integrate import simulate
 from ..sim.metrics import success
@@ -187,9 +188,7 @@ def view(
     """
     system, controller = _system_and_controller(run_or_system, checkpoint)
     if pick == "auto":  # a run with a swing-up law is shown swinging up
-        run = run_or_system if hasattr(run_or_system, "uses_swing_up") else None
-        run = resolve_run(run_or_system, checkpoint=checkpoint) if run is None and controller is not None and isinstance(run_or_system, (str, Path)) else run
-        pick = "hanging" if getattr(run, "uses_swing_up", False) else "random"
+        pick = "hanging" if isinstance(getattr(controller, "fallback", None), SwingUpLaw) else "random"
     trajectories, note = _rollouts_to_show(system, controller, trajectories, x0, n, pick, T, dt, seed, limits)
     viewer = Viewer(system, trajectories, layout=layout, trace=trace, trace_link=trace_link, fps=fps, loop=loop, style=style, grid=grid)
     viewer.note = note
