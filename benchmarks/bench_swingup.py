@@ -8,8 +8,10 @@ directory adds a table for its own system with its controller beside the two ref
 ``--train``, each robot is first trained as a user would, ``idapbc-pin train ROBOT --fast --swing-up``
 (the default path: training, the box evaluation, the recovery stage where the limits bind, the
 swing-up stage), timed, and its run is judged beside the references. The RealAIGym rows carry the
-leaderboard's published figures as a quoted line.
+leaderboard's published figures as a quoted line. ``--starts hanging circle`` adds a table from
+states at rest with every angle drawn from the full circle (the first again exactly hanging).
 Run: python benchmarks/bench_swingup.py [--n 20] [--T 10] [--only [NAME ...]] [--run RUN ...] [--train] [--workers 1]
+         [--starts hanging circle]
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import torch
 import idapbc_pin as ip
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.control.energy_pump import EnergyPumpLaw
-from idapbc_pin.evaluation.swingup import evaluate_swingup
+from idapbc_pin.evaluation.swingup import STARTS, evaluate_swingup
 
 URDF_DIR = Path(__file__).resolve().parents[1] / "urdf"
 
@@ -80,12 +82,14 @@ def trained_run(name: str, out: str, seed: int):
 
 
 def report(title: str, system, controllers: dict, args, published: str | None = None) -> None:
-    """Evaluate and print one table."""
-    t0 = time.perf_counter()
-    result = evaluate_swingup(system, controllers, n=args.n, T=args.T, seed=args.seed, workers=args.workers)
+    """Evaluate and print one table per start set of `--starts`."""
     limit = ", ".join(f"{j}={e:g}" for j, e in zip(system.actuated, system.effort))
-    print(f"\n### {title} (actuated {limit}; {time.perf_counter() - t0:.1f} s)\n")
-    print(result.table())
+    for starts in args.starts:
+        t0 = time.perf_counter()
+        result = evaluate_swingup(system, controllers, n=args.n, T=args.T, seed=args.seed, workers=args.workers, starts=starts)
+        where = "near hanging" if starts == "hanging" else "at rest, angles from the full circle"
+        print(f"\n### {title}, from {where} (actuated {limit}; {time.perf_counter() - t0:.1f} s)\n")
+        print(result.table())
     if published:
         print(f'\n> RealAIGym leaderboard, published: {published} — "{SOURCE}"')
 
@@ -95,6 +99,8 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=20, help="start states per robot (default 20)")
     parser.add_argument("--T", type=float, default=10.0, help="horizon, s (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the start states")
+    parser.add_argument("--starts", nargs="+", choices=STARTS, default=["hanging"],
+                        help="start sets: hanging (near-resting, default) and/or circle (at rest, every angle from the full circle)")
     parser.add_argument("--only", nargs="*", default=None, help=f"robots to run (default all: {', '.join(ROBOTS)}; `--only` alone: none, for --run)")
     parser.add_argument("--run", nargs="+", default=[], help="run directories judged on their own systems")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (0: one per core)")

@@ -149,6 +149,19 @@ def test_train_passes_the_recover_config_file_to_its_recovery_stage(tmp_path, tr
     assert trained["mode"] == "always" and trained["recovery"] == RecoveryConfig()
 
 
+def test_a_smoke_run_skips_the_roa_radii_with_one_line(tmp_path, trained, capsys, monkeypatch):
+    """Fewer than SMOKE_EPOCHS epochs: the evaluation's two boxes without the radius searches; a full run has them."""
+    asked = []
+    lqr = SimpleNamespace(results={box: {"LQR": SimpleNamespace(success_rate=0.5)} for box in ("half", "domain")})
+    monkeypatch.setattr("idapbc_pin.evaluation.evaluate.evaluate_run", lambda run, **kw: asked.append(kw["radius"]) or lqr)
+    monkeypatch.setattr("idapbc_pin.evaluation.evaluate.format_evaluation", lambda evaluation: "tables")
+    argv = ["train", "pendubot", "--fast", "--workers", "1", "--recover", "never", "--no-limits", "--out", str(tmp_path)]
+    assert main([*argv, "--epochs", "5"]) == 0
+    assert asked == [False] and "ROA radii skipped: a smoke run (5 < 200 epochs)" in capsys.readouterr().out
+    assert main([*argv, "--epochs", "300"]) == 0
+    assert asked == [False, True] and "ROA radii skipped" not in capsys.readouterr().out
+
+
 def test_a_bad_train_config_key_is_one_line_and_exit_2(tmp_path, cli):
     path = tmp_path / "train.toml"
     path.write_text("[train]\nwidht = 8\n")

@@ -20,7 +20,8 @@ from idapbc_pin.sim.states import resting_states
 from .conftest import sample_domain
 
 #: The smallest stage that exercises every step: two starts, half-second plans, one DAgger round.
-TINY = dict(starts=2, horizon=0.5, ilqr_iterations=2, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=2, box_states=4, judge_T=3.0, workers=1)
+TINY = dict(starts=2, horizon=0.5, ilqr_iterations=2, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=2, box_states=4, judge_T=3.0, workers=1,
+            circle=0.5)
 
 
 def random_swing_law(system, seed: int = 0, width: int = 16, inner=None, box=None) -> SwingUpLaw:
@@ -158,9 +159,14 @@ def test_the_stage_writes_its_law_and_entry_and_the_run_applies_a_kept_one(swung
     assert (run.path / name).is_file() and not (run.path / (SWINGUP_REFUSED_FILE if entry["used"] else SWINGUP_FILE)).exists()
     summary = json.loads((run.path / "summary.json").read_text())
     gate = summary["swing_up"]["gate"]
-    assert summary["swing_up"]["law_file"] == name and gate["states"] == TINY["gate_states"]
+    circle = round(TINY["circle"] * TINY["gate_states"])  # beside the near-resting states, states at rest from the circle
+    assert summary["swing_up"]["law_file"] == name and gate["states"] == TINY["gate_states"] + circle and gate["near_resting"] == TINY["gate_states"]
     assert list(gate["candidates"]) == ["posture"] and all(len(h) == 1 + TINY["dagger"] for h in gate["candidates"].values())
-    assert gate["law"] == gate["candidates"][gate["box"]][gate["fit"]] == max(max(h) for h in gate["candidates"].values())
+    # the most held among the candidates that keep the box (all of them where none does)
+    every = {(b, k): held for b, h in gate["candidates"].items() for k, held in enumerate(h)}
+    keeping = {(b, k): held for (b, k), held in every.items() if gate["candidates_box"][b][k] >= gate["run_box"] - SwingUpConfig().box_loss}
+    assert gate["law"] == gate["candidates"][gate["box"]][gate["fit"]] == max((keeping or every).values())
+    assert gate["law_box"] == gate["candidates_box"][gate["box"]][gate["fit"]]
     assert not list((run.path / "recovery-chunks").glob("*")) if (run.path / "recovery-chunks").exists() else True
     # kept by hand: every command on the run applies it around the run's own outer law
     path = tmp_path / "run"
@@ -261,3 +267,53 @@ def test_simulate_from_hanging_prints_the_swing_up_table_and_writes_its_files(sw
     record = json.loads((run.path / "swingup.json").read_text())
     assert set(record["scores"]) == {"NIDA-PBC", "LQR", "energy pump + LQR"} and len(record["states"]) == 3 and record["T"] == 2.0
     assert (run.path / "swingup.png").stat().st_size > 10_000
+
+
+def test_simulate_from_the_circle_judges_starts_at_rest_from_anywhere_into_their_own_file(swung_run, capsys):
+    from idapbc_pin.cli.main import main
+
+    run, _ = swung_run
+    before = (run.path / "swingup.json").read_bytes() if (run.path / "swingup.json").exists() else None
+    assert main(["simulate", str(run.path), "--from", "circle", "--n", "3", "--T", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "swing-up of pendubot from 3 states at rest, every angle from the full circle" in text and "| NIDA-PBC |" in text
+    record = json.loads((run.path / "swingup-circle.json").read_text())
+    assert record["starts"] == "circle" and len(record["states"]) == 3
+    assert np.abs(record["states"][1][2:]).max() == 0.0  # at rest: p = 0
+    after = (run.path / "swingup.json").read_bytes() if (run.path / "swingup.json").exists() else None
+    assert after == before  # the near-hanging evaluation's file is left as it was
+
+
+def test_the_figure_of_a_swing_up_run_ends_with_its_swing_up_from_hanging(swung_run):
+    """figure.png's last row: q(t), u(t) and H(t) of the run's law, saturated LQR and the energy pump
+    from the exact hanging start, the input within the effort limits drawn dashed."""
+    from idapbc_pin.evaluation.swingup import evaluate_run_swingup
+    from idapbc_pin.reporting.plot import plot
+    from idapbc_pin.reporting.report import _figure_rows
+    from idapbc_pin.reporting.swingup_figure import TITLE, draw_swingup
+
+    run, _ = swung_run
+    result = evaluate_run_swingup(run, n=1, T=1.0)
+    rows = _figure_rows(run.controller, 0.0, None, 1, 1.0, None, 0, None, False, True)
+    fig = plot(rows, swing=(TITLE.format(run.system.name), lambda axes: draw_swingup(axes, run, result)))
+    swing_axes = fig.axes[-3:]
+    assert len(fig.axes) == 5 * len(rows) + 3
+    assert [ax.get_title() for ax in swing_axes] == ["swing-up a) wrap(q − q*)", "swing-up b) u(t)", "swing-up c) energy H(t)"]
+    assert {line.get_label() for line in swing_axes[2].get_lines()} >= {"NIDA-PBC", "LQR", "energy pump + LQR", "H(x*)"}
+    u = np.concatenate([line.get_ydata() for line in swing_axes[1].get_lines() if line.get_label() in ("NIDA-PBC", "LQR")])
+    assert np.abs(u).max() <= run.system.effort[0] + 1e-9
+
+
+def test_swing_up_starts_are_near_resting_then_at_rest_from_the_full_circle():
+    """`swing_starts`: n near-resting states (the first exactly hanging), then round(circle·n) at rest
+    from the circle, none of them a second exactly-hanging start; circle = 0 gives the first part alone."""
+    from idapbc_pin.recovery.swing_stage import swing_starts
+    from idapbc_pin.sim.states import resting_states
+
+    system = ip.load_system("pendubot")
+    x = swing_starts(system, 8, 0.5, seed=3)
+    assert x.shape == (12, 4)
+    np.testing.assert_array_equal(x[:8], resting_states(system, 8, 3))
+    q, v = system.split(x[8:])
+    assert (v == 0).all() and (np.abs(wrap_angles(q - system.x_star[:2], np.ones(2, bool))) > 0.2).any(axis=1).all()
+    np.testing.assert_array_equal(swing_starts(system, 8, 0.0, seed=3), x[:8])

@@ -19,7 +19,7 @@ import pytest
 import idapbc_pin as ip
 from idapbc_pin.control.energy_pump import EnergyPumpLaw, cyclic_coordinates
 from idapbc_pin.evaluation.leaderboard_score import leaderboard_score
-from idapbc_pin.evaluation.swingup import evaluate_swingup, judge_swingup, swingup_states
+from idapbc_pin.evaluation.swingup import SwingupResult, evaluate_swingup, judge_swingup, swingup_states
 from idapbc_pin.model.resting import resting_configuration, tip_height
 from idapbc_pin.sim.trajectory import Trajectory
 
@@ -192,6 +192,26 @@ def test_tip_test_is_the_leaderboards_threshold(realaigym_pendubot):
     assert s.peak_input[0] == pytest.approx(3.0) and s.peak_ratio[0] == pytest.approx(3.0 / EFFORT)
 
 
+def test_a_cart_that_leaves_its_rail_neither_holds_nor_passes_the_tip_test():
+    """The zoo cartpole's rail is ±5 m (URDF limits). Two hand-made runs with the pole upright and still:
+    the cart goes out to 4.9 m and back (holds, tip passed), or to 5.2 m and back (off the rail: both fail)."""
+    system = ip.load_system("cartpole")
+    lower, upper = system.joints[0].lower, system.joints[0].upper
+    assert (lower, upper) == (-5.0, 5.0) and system.joints[0].kind == "prismatic"
+    t = np.arange(0, 2501) * 0.002
+    reach = np.array([[4.9], [5.2]]) * np.sin(np.pi * np.minimum(t, 1.0))[None]  # out and back within the first second
+    q = np.stack([reach, np.zeros_like(reach)], axis=2)
+    v = np.zeros_like(q)
+    traj = Trajectory(t=t, x=np.concatenate([q, v], axis=2), q=q, v=v, u=np.zeros((2, t.size, 1)), diverged=np.zeros(2, bool))
+    s = judge_swingup(system, traj)
+    np.testing.assert_array_equal(s.off_rail, [False, True])
+    np.testing.assert_array_equal(s.holds, [True, False])
+    np.testing.assert_array_equal(s.tip, [True, False])
+    assert np.isnan(s.time_to_goal[1]) and s.to_dict()["off_rail"] == [False, True]
+    result = SwingupResult(system="cartpole", states=traj.x[:, 0], T=5.0, dt=0.002, limits=True, scores={"hand": s})
+    assert "| hand | 1/2 (1 off the rail) | 1/2 |" in result.table()
+
+
 def test_doing_nothing_fails_and_lqr_at_the_target_holds(realaigym_pendubot):
     system = realaigym_pendubot
     zero = lambda x: np.zeros((np.shape(x)[0], 1))  # noqa: E731
@@ -217,3 +237,18 @@ def test_swingup_states(realaigym_pendubot):
     assert (np.abs(q[1:]) > 0).all() and (np.abs(v[1:]) > 0).all()  # the others are moved off rest
     np.testing.assert_array_equal(swingup_states(system, n=20, seed=4), x)
     assert not np.array_equal(swingup_states(system, n=20, seed=5), x)
+
+
+def test_circle_states_start_at_rest_with_every_angle_anywhere_on_the_circle():
+    """The first at rest hanging, the others at rest with each angle x*'s + U(−π, π); a cart stays at
+    its resting place. Unknown start sets are refused with the valid ones."""
+    system = ip.load_system("cartpole")
+    x = swingup_states(system, n=400, seed=2, starts="circle")
+    q, v = system.split(x)
+    np.testing.assert_array_equal(q[0], resting_configuration(system))
+    assert (v == 0).all() and (q[:, 0] == resting_configuration(system)[0]).all()
+    dq = q[1:, 1] - system.x_star[1]
+    assert np.abs(dq).max() < np.pi and dq.min() < -2.8 and dq.max() > 2.8  # the whole circle, not near hanging
+    np.testing.assert_array_equal(swingup_states(system, n=400, seed=2, starts="circle"), x)
+    with pytest.raises(ip.IdapbcError, match="unknown swing-up starts 'anywhere'.*hanging, circle"):
+        swingup_states(system, n=3, starts="anywhere")

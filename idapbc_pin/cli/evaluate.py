@@ -28,8 +28,8 @@ def _run(args: argparse.Namespace):
 def _cmd_simulate(args: argparse.Namespace) -> int:
     x0, seed = x0_of(args), seed_of(args)
     run = _run(args)
-    if args.start == "hanging":
-        return _simulate_from_hanging(args, run, seed)
+    if args.start != "box":
+        return _simulate_swingup(args, run, seed)
     result = simulate_run(
         run, n=args.n, T=args.T, dt=args.dt, x0=x0, rho=args.rho, mismatch=args.mismatch,
         saturation=args.saturation, noise=args.noise, seed=seed, box=args.box, limits=not args.no_limits, radius=not args.no_radius,
@@ -42,22 +42,25 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _simulate_from_hanging(args: argparse.Namespace, run, seed: int) -> int:
-    """`simulate RUN --from hanging`: the swing-up evaluation (20 near-resting starts and 10 s unless
-    --n / --T say otherwise), beside saturated LQR and the energy-pumping law; swingup.json."""
-    from ..evaluation.swingup import evaluate_run_swingup
+def _simulate_swingup(args: argparse.Namespace, run, seed: int) -> int:
+    """`simulate RUN --from hanging|circle`: the swing-up evaluation (20 starts and 10 s unless --n /
+    --T say otherwise), beside saturated LQR and the energy-pumping law; swingup.json (hanging, with
+    swingup.png) or swingup-circle.json."""
+    from ..evaluation.swingup import evaluate_run_swingup, swingup_file
     from ..reporting.swingup_figure import swingup_figure
 
     if args.no_limits or args.x0 is not None:
-        raise IdapbcError("simulate --from hanging judges a swing-up under the effort limits from near-resting states. Fix: drop --no-limits and --x0.")
+        raise IdapbcError(f"simulate --from {args.start} judges a swing-up under the effort limits from its own start states. "
+                          "Fix: drop --no-limits and --x0.")
     n = 20 if args.n == library_default(simulate_run, "n") else args.n
     T = 10.0 if args.T == library_default(simulate_run, "T") else args.T
-    result = evaluate_run_swingup(run, n=n, T=T, seed=seed, workers=workers_of(args))
-    print(f"swing-up of {run.system.name} from {n} near-resting states (the first exactly at rest), T = {T:g} s, RK4 at 2 ms, "
+    result = evaluate_run_swingup(run, n=n, T=T, seed=seed, workers=workers_of(args), starts=args.start)
+    where = "near-resting states" if args.start == "hanging" else "states at rest, every angle from the full circle"
+    print(f"swing-up of {run.system.name} from {n} {where} (the first exactly at rest, hanging), T = {T:g} s, RK4 at 2 ms, "
           f"the law held at 500 Hz, effort limits on every controller:")
     print(result.table())
-    print(f"wrote {Path(args.run) / 'swingup.json'}")
-    png = swingup_figure(run, result)
+    print(f"wrote {Path(args.run) / swingup_file(args.start)}")
+    png = swingup_figure(run, result) if args.start == "hanging" else None
     if png is not None:
         print(f"wrote {png}")
     return 0
@@ -120,10 +123,11 @@ def add_eval_commands(subparsers) -> None:
                    help="engine of the true plant for both controllers (default %(default)s; mujoco needs `pip install mujoco`, URDF robots only)")
     add_radius_argument(p)
     add_workers_argument(p)
-    p.add_argument("--from", dest="start", choices=("box", "hanging"), default="box",
+    p.add_argument("--from", dest="start", choices=("box", "hanging", "circle"), default="box",
                    help="box (default): states uniform in the box; hanging: the swing-up evaluation from 20 near-resting states "
                         "(the first exactly at rest) over 10 s, beside saturated LQR and the energy-pumping law (swingup.json, "
-                        "swingup.png)")
+                        "swingup.png); circle: the same from 20 states at rest, every angle drawn from the full circle "
+                        "(swingup-circle.json)")
     p.set_defaults(func=_cmd_simulate)
 
     p = subparsers.add_parser("certify", help="the paper's conditions checked on dense samples (a sampled certificate); certificate.json")

@@ -122,7 +122,8 @@ def _after_training(args: argparse.Namespace, run, recovery: RecoveryConfig, wor
     """The summary, then (unless interrupted) the evaluation's two boxes, the recovery stage where it
     has room (then the evaluation again, with the law it kept), the ROA radii, and the next commands.
     Where the stage may run, the first evaluation leaves the radii out, so its tables come first; the
-    radii come with the last evaluation (or alone, from the same rollouts, where the law stays). With
+    radii come with the last evaluation (or alone, from the same rollouts, where the law stays); a smoke
+    run (fewer than `SMOKE_EPOCHS` epochs) skips them with one line. With
     `swing_up`, the swing-up stage and the evaluation from near-resting states come last."""
     from ..training.summary import format_train_summary
 
@@ -132,7 +133,11 @@ def _after_training(args: argparse.Namespace, run, recovery: RecoveryConfig, wor
         return
     mode = _recover_mode(args, run)
     stage = mode != "never" and not run.uses_recovery
-    evaluation = _evaluate(args, run, workers, baseline, radius=not stage) if args.evaluate > 0 else None
+    smoke = run.config.epochs < SMOKE_EPOCHS
+    if smoke and args.evaluate > 0:
+        print(f"ROA radii skipped: a smoke run ({run.config.epochs} < {SMOKE_EPOCHS} epochs); `idapbc-pin simulate {run.path}` "
+              "finds them", flush=True)
+    evaluation = _evaluate(args, run, workers, baseline, radius=not (stage or smoke)) if args.evaluate > 0 else None
     lqr = None if evaluation is None or args.no_limits else {box: evaluation.results[box]["LQR"].success_rate for box in ("half", "domain")}
     if stage:
         from ..recovery.trigger import auto_recover
@@ -148,8 +153,8 @@ def _after_training(args: argparse.Namespace, run, recovery: RecoveryConfig, wor
 
             run = load_run(run.path)  # with the recovery law it keeps
             print("with the recovery law:", flush=True)
-            _evaluate(args, run, workers, baseline)
-        elif evaluation is not None:  # the law stays: its radius from the same rollouts
+            _evaluate(args, run, workers, baseline, radius=not smoke)
+        elif evaluation is not None and not smoke:  # the law stays: its radius from the same rollouts
             print(_evaluate(args, run, workers, baseline, reuse=evaluation, tables=False).radius.line(), flush=True)
     elif mode == "never" and not run.uses_recovery and not args.no_limits:
         from ..recovery.trigger import recovery_hint

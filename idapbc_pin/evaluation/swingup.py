@@ -1,14 +1,15 @@
 """The swing-up evaluation (DESIGN §4): from hanging to upright under the URDF's torque limits.
 
 From N states near the resting equilibrium (`swingup_states`: the first exactly at rest there, the
-others ±0.1 rad or m and ±0.1 rad/s or m/s), each controller runs T = 10 s on the true plant (RK4 at
-2 ms, the law held over each step: 500 Hz; effort limits on every controller), and two verdicts are
-read side by side:
+others ±0.1 rad or m and ±0.1 rad/s or m/s; or, with ``starts="circle"``, at rest with every angle
+from the full circle), each controller runs T = 10 s on the true plant (RK4 at 2 ms, the law held
+over each step: 500 Hz; effort limits on every controller), and two verdicts are read side by side:
 
 * *holds*: over the last `HOLD_WINDOW` s every wrapped angle within `HOLD_POSITION` rad of x*'s
-  (a prismatic coordinate within `HOLD_POSITION` m), every speed within `HOLD_SPEED`;
+  (a prismatic coordinate within `HOLD_POSITION` m), every speed within `HOLD_SPEED`, and a
+  prismatic joint within its URDF limits throughout (a cart on its rail);
 * the *tip test* of the RealAIGym leaderboard: the tip stays above the threshold from the swing-up
-  time to the end. With h_rest and h* the tip's height (`idapbc_pin.model.resting.tip_height`) at
+  time to the end (and the cart on its rail). With h_rest and h* the tip's height (`idapbc_pin.model.resting.tip_height`) at
   rest and at x*, the normalised height (h − h_rest)/(h* − h_rest) stays ≥ `TIP_SHARE`. For a chain
   hanging straight down from its pivot (h_rest = −L, h* = L) that is exactly the leaderboard's
   h ≥ 0.9 L measured from the pivot.
@@ -24,17 +25,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._parallel import process_map
+from ..errors import IdapbcError
 from ..model.angles import wrap_angles
 from ..model.resting import resting_configuration, tip_height
 from ..sim.integrate import simulate
-from ..sim.metrics import HOLD_ANGLE, HOLD_SPEED, SUCCESS_WINDOW, holds as holds_verdict
-from ..sim.states import RESTING_SPREAD, resting_states
+from ..sim.metrics import HOLD_ANGLE, HOLD_SPEED, SUCCESS_WINDOW, holds as holds_verdict, on_rail
+from ..sim.states import RESTING_SPREAD, circle_states, resting_states
 from .leaderboard_score import LeaderboardScore, leaderboard_score
 
 __all__ = [
     "HOLD_POSITION",
     "HOLD_SPEED",
     "HOLD_WINDOW",
+    "STARTS",
     "START_SPREAD",
     "TIP_SHARE",
     "SwingupResult",
@@ -42,6 +45,7 @@ __all__ = [
     "evaluate_run_swingup",
     "evaluate_swingup",
     "judge_swingup",
+    "swingup_file",
     "swingup_states",
 ]
 
@@ -54,10 +58,20 @@ TIP_SHARE = 0.95
 START_SPREAD = RESTING_SPREAD
 
 
-def swingup_states(system, n: int = 20, seed: int = 0) -> np.ndarray:
-    """(n, 2 nq) start states x = (q, p): the first exactly at rest at `resting_configuration`, the
-    others q_rest + U(−0.1, 0.1) (rad or m) with v = U(−0.1, 0.1) (rad/s or m/s), p = M(q) v
-    (`idapbc_pin.sim.states.resting_states`, which the swing-up stage draws its starts from too)."""
+#: The start sets: "hanging" (near the resting posture) and "circle" (at rest, angles from the full circle).
+STARTS = ("hanging", "circle")
+
+
+def swingup_states(system, n: int = 20, seed: int = 0, starts: str = "hanging") -> np.ndarray:
+    """(n, 2 nq) start states x = (q, p), the first exactly at rest at `resting_configuration`.
+    ``"hanging"``: the others q_rest + U(−0.1, 0.1) (rad or m) with v = U(−0.1, 0.1) (rad/s or m/s),
+    p = M(q) v (`idapbc_pin.sim.states.resting_states`, which the swing-up stage draws its starts
+    from too). ``"circle"``: the others at rest with every angle drawn from the full circle
+    (`idapbc_pin.sim.states.circle_states`)."""
+    if starts not in STARTS:
+        raise IdapbcError(f"unknown swing-up starts {starts!r}. Fix: one of {', '.join(STARTS)}.")
+    if starts == "circle":
+        return circle_states(system, int(n), seed)
     return resting_states(system, int(n), seed, START_SPREAD)
 
 
@@ -85,6 +99,8 @@ class SwingupScore:
         without a finite limit).
     energy : Σ|Δq_a · u| over the actuated joints (J).
     diverged : bool, the rollout blew up.
+    off_rail : bool, a prismatic joint left its URDF position limits (`sim.metrics.on_rail`): such a
+        row neither holds nor passes the tip test.
     hanging : the leaderboard's v2 score of the first state's trajectory (the exact hanging start).
     """
 
@@ -96,6 +112,7 @@ class SwingupScore:
     peak_ratio: np.ndarray
     energy: np.ndarray
     diverged: np.ndarray
+    off_rail: np.ndarray
     hanging: LeaderboardScore
 
     def to_dict(self) -> dict:
@@ -104,7 +121,7 @@ class SwingupScore:
         def plain(a):
             return [None if isinstance(x, float) and not math.isfinite(x) else x for x in np.asarray(a).tolist()]
 
-        out = {k: plain(getattr(self, k)) for k in ("holds", "tip", "swingup_time", "time_to_goal", "peak_input", "peak_ratio", "energy", "diverged")}
+        out = {k: plain(getattr(self, k)) for k in ("holds", "tip", "swingup_time", "time_to_goal", "peak_input", "peak_ratio", "energy", "diverged", "off_rail")}
         out["hanging"] = self.hanging.to_dict()
         return out
 
@@ -118,13 +135,14 @@ def judge_swingup(system, traj) -> SwingupScore:
     q_star = np.asarray(system.x_star, float)[:nq]
     h_rest, h_star = float(tip_height(system, resting_configuration(system))), float(tip_height(system, q_star))
     z = (tip_height(system, q.reshape(-1, nq)).reshape(N, K) - h_rest) / (h_star - h_rest)
+    rail = on_rail(traj, system)
     swingup = _stays_from(z >= TIP_SHARE, t)
-    swingup[traj.diverged | ~(swingup < t[-1])] = np.nan
+    swingup[traj.diverged | ~rail | ~(swingup < t[-1])] = np.nan
     dq = wrap_angles(q - q_star, np.asarray(system.angle_mask, bool)[:nq])
     box = (np.abs(dq) <= HOLD_POSITION).all(axis=-1) & (np.abs(v) <= HOLD_SPEED).all(axis=-1)
     holds = holds_verdict(traj, system, HOLD_WINDOW)
     to_goal = _stays_from(box, t)
-    to_goal[traj.diverged] = np.nan
+    to_goal[traj.diverged | ~rail] = np.nan
     B = np.asarray(system.B, float)
     effort = np.asarray(system.effort, float)
     peak_each = np.abs(u).max(axis=1) if K else np.zeros((N, system.m))
@@ -135,7 +153,7 @@ def judge_swingup(system, traj) -> SwingupScore:
     hanging = leaderboard_score(t, q[0], v[0], u[0] @ B.T, swingup[0])
     return SwingupScore(holds=holds, tip=np.isfinite(swingup), swingup_time=swingup, time_to_goal=to_goal,
                         peak_input=peak_each.max(axis=1), peak_ratio=peak_ratio, energy=energy,
-                        diverged=np.asarray(traj.diverged, bool).copy(), hanging=hanging)
+                        diverged=np.asarray(traj.diverged, bool).copy(), off_rail=~rail, hanging=hanging)
 
 
 def _judge_job(job) -> SwingupScore:
@@ -157,6 +175,7 @@ class SwingupResult:
     ----------
     system : name of the system. states : (N, n) start states (q, p). T, dt : horizon and step (s).
     limits : effort limits applied. scores : controller name -> `SwingupScore`, in the order given.
+    starts : the start set (`STARTS`).
     """
 
     system: str
@@ -165,46 +184,55 @@ class SwingupResult:
     dt: float
     limits: bool
     scores: dict = field(default_factory=dict)
+    starts: str = "hanging"
 
     def table(self) -> str:
         """A markdown table, one row per controller: holds k/N, tip k/N, median swing-up time, median
-        time to goal (over the states that have one), median peak |u| / limit, hanging-start v2 score."""
+        time to goal (over the states that have one), median peak |u| / limit, hanging-start v2 score; rows
+        that left the rail are counted beside the holds."""
         N = self.states.shape[0]
         rows = ["| controller | holds | tip | median swing-up time | median time to goal | median peak input / limit | hanging-start score |",
                 "|---|---|---|---|---|---|---|"]
         for name, s in self.scores.items():
             score = f"{s.hanging.score:.3f}" + (f" (swing-up {s.hanging.swingup_time:.2f} s)" if s.hanging.success else "")
-            rows.append(f"| {name} | {int(s.holds.sum())}/{N} | {int(s.tip.sum())}/{N} | {_median(s.swingup_time):.2f} s | "
+            rail = f" ({int(s.off_rail.sum())} off the rail)" if s.off_rail.any() else ""
+            rows.append(f"| {name} | {int(s.holds.sum())}/{N}{rail} | {int(s.tip.sum())}/{N} | {_median(s.swingup_time):.2f} s | "
                         f"{_median(s.time_to_goal):.2f} s | {_median(s.peak_ratio):.2f} | {score} |")
         return "\n".join(rows)
 
     def to_dict(self) -> dict:
         """JSON-ready: the settings, the start states and every controller's verdicts."""
-        return {"system": self.system, "T": self.T, "dt": self.dt, "limits": self.limits, "states": self.states.tolist(),
+        return {"system": self.system, "starts": self.starts, "T": self.T, "dt": self.dt, "limits": self.limits, "states": self.states.tolist(),
                 "scores": {k: s.to_dict() for k, s in self.scores.items()}}
 
 
 def evaluate_swingup(system, controllers: dict, n: int = 20, T: float = 10.0, dt: float = 0.002, seed: int = 0,
-                     limits: bool = True, workers: int = 1) -> SwingupResult:
+                     limits: bool = True, workers: int = 1, starts: str = "hanging") -> SwingupResult:
     """Judge `controllers` (name -> law (N, n) -> (N, m)) swinging `system` up from the same
-    `swingup_states` (n, seed): one batched `simulate` per controller over T s at the RK4 step dt
-    (the law held over each step), with the effort limits unless `limits` is False; `workers`
-    processes (0: one per core; `idapbc_pin._parallel.process_map`, the laws must pickle)."""
-    x0 = swingup_states(system, n, seed)
+    `swingup_states` (n, seed, starts): one batched `simulate` per controller over T s at the RK4
+    step dt (the law held over each step), with the effort limits unless `limits` is False;
+    `workers` processes (0: one per core; `idapbc_pin._parallel.process_map`, the laws must pickle)."""
+    x0 = swingup_states(system, n, seed, starts)
     jobs = [(system, ctrl, x0, float(T), float(dt), bool(limits)) for ctrl in controllers.values()]
     scores = dict(zip(controllers, process_map(_judge_job, jobs, workers)))
-    return SwingupResult(system=str(system.name), states=x0, T=float(T), dt=float(dt), limits=bool(limits), scores=scores)
+    return SwingupResult(system=str(system.name), states=x0, T=float(T), dt=float(dt), limits=bool(limits), scores=scores, starts=starts)
 
 
-def evaluate_run_swingup(run, n: int = 20, T: float = 10.0, seed: int = 0, workers: int = 1) -> SwingupResult:
-    """A run judged from `n` near-resting states (`evaluate_swingup`) beside saturated LQR and the
-    energy-pumping law (`EnergyPumpLaw`, handing over to LQR near x*), with the effort limits; the
-    result is also written to the run directory as ``swingup.json``."""
+def swingup_file(starts: str = "hanging") -> str:
+    """The run directory's file of a swing-up evaluation: ``swingup.json``, or ``swingup-circle.json``."""
+    return "swingup.json" if starts == "hanging" else f"swingup-{starts}.json"
+
+
+def evaluate_run_swingup(run, n: int = 20, T: float = 10.0, seed: int = 0, workers: int = 1, starts: str = "hanging") -> SwingupResult:
+    """A run judged from `n` swing-up starts (`evaluate_swingup`; near-resting by default, or at rest
+    from the full circle) beside saturated LQR and the energy-pumping law (`EnergyPumpLaw`, handing
+    over to LQR near x*), with the effort limits; the result is also written to the run directory
+    (`swingup_file`)."""
     from .._io import write_json
     from ..control.baseline import LQRController
     from ..control.energy_pump import EnergyPumpLaw
 
     controllers = {"NIDA-PBC": run.controller, "LQR": LQRController(run.system), "energy pump + LQR": EnergyPumpLaw(run.system)}
-    result = evaluate_swingup(run.system, controllers, n=n, T=T, seed=seed, workers=workers)
-    write_json(run.path / "swingup.json", result.to_dict() | {"swing_up_law": bool(getattr(run, "uses_swing_up", False))})
+    result = evaluate_swingup(run.system, controllers, n=n, T=T, seed=seed, workers=workers, starts=starts)
+    write_json(run.path / swingup_file(starts), result.to_dict() | {"swing_up_law": bool(getattr(run, "uses_swing_up", False))})
     return result

@@ -85,6 +85,7 @@ class RecoveryConfig(Settings):
     plan_seed: int = 101
     dagger: int = 1
     dagger_starts: int = 30
+    circle: float = 0.0
     width: int = 128
     steps: int = 4500
     batch: int = 1024
@@ -137,6 +138,10 @@ class SwingUpConfig(Settings):
     dagger : DAgger rounds after the first fit.
     dagger_starts : near-resting starts of the fitted law per DAgger round.
     width, steps, batch, fit_seed : the MLP's width, and the fit's Adam steps, minibatch and seed.
+    circle : beside each set of near-resting starts (the labels', each DAgger round's, the gate's),
+        round(circle × its count) more states at rest with every angle from the full circle
+        (`sim.states.circle_states`, seed + 1 of the set's); 0 (the default): near-resting starts
+        only, since on the zoo pendubot a law fitted with them held no more states from the circle.
     gate_states : near-resting states of the gate (a seed of their own), judged by "holds" over `judge_T`.
     box_states : states of the gate from the half box and the training box (half each), judged over
         20 s: the law is kept only if it loses at most `box_loss` of those the run's law brings to x*.
@@ -157,6 +162,7 @@ class SwingUpConfig(Settings):
     ilqr_iterations: int = 12
     dagger: int = 2
     dagger_starts: int = 30
+    circle: float = 0.0
     width: int = 128
     steps: int = 4500
     batch: int = 1024
@@ -173,7 +179,7 @@ class SwingUpConfig(Settings):
     def __post_init__(self):
         ok = (all(0 < r <= 1 for r in self.inner_scales) and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations) >= 1
               and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed) >= 0
-              and self.horizon > 0 and self.judge_T >= self.horizon + 2.0)
+              and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10)
         if not ok:
             raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch and ilqr_iterations must be ≥ 1, "
-                              "the other counts and seeds ≥ 0, inner_scales in (0, 1], horizon > 0 and judge_T ≥ horizon + 2 s. Fix: pass valid values.")
+                              "the other counts and seeds ≥ 0, inner_scales in (0, 1], circle in [0, 10], horizon > 0 and judge_T ≥ horizon + 2 s. Fix: pass valid values.")

@@ -4,7 +4,8 @@ The reach stage's machinery (`recovery.stage`) with another start set (DESIGN §
 holds every number.
 
 1. **Labels.** From `starts` states near the resting posture (`sim.states.resting_states`: the
-   first exactly at rest there, a pendulum hanging), the teacher runs first: the classical
+   first exactly at rest there, a pendulum hanging) and round(`circle` × `starts`) states at rest
+   with every angle from the full circle (`swing_starts`), the teacher runs first: the classical
    energy-pumping law outside the training box's angles and the run's law inside them
    (`PumpThenRun`; the run's law is `Run.box_controller`: its networks with its recovery or linear
    law). Where it does not bring a start to x* within `judge_T`, iLQR plans of `horizon` seconds
@@ -17,18 +18,19 @@ holds every number.
 2. **Fit.** A `SwingUpLaw` MLP (features: sin and cos of every angle, the other components scaled
    by the labels' spread) by least squares on u/ū (`fit.fit_mlp`).
 3. **DAgger**, `dagger` rounds: the run's law with the fitted swing-up law (outside the training
-   box's angles) runs from
-   `dagger_starts` new near-resting starts; the states its failures visit at 1, 2.5 and 4 s are
-   labelled as in step 1, with that law as the teacher (its own rollouts label the states it brings
+   box's angles) runs from `dagger_starts` new near-resting starts (and `circle` times as many from
+   the circle); the states its failures visit at 1, 2.5 and 4 s are labelled as in step 1, with that law as the teacher (its own rollouts label the states it brings
    to x*, and its failed inputs warm-start the plans of the others), and a fresh law is fitted on all
    labels.
 4. **Gate.** The run's law as it is and with each fitted swing-up law (the first fit's and each
    DAgger round's) outside each candidate kept box (the training box's angles alone, and r·s for r
-   in `inner_scales`, none by default), from `gate_states` near-resting states of their own ("holds" over `judge_T`,
-   `sim.metrics.holds`); the candidate that holds the most of them (ties: the later fit, the larger
-   box) is then judged from `box_states` states of the half box and the training box (success over
-   20 s): it is kept when it holds at least `margin` more near-resting states than the run's law
-   and loses at most `box_loss` box states.
+   in `inner_scales`, none by default), judged from `gate_states` near-resting states of their own
+   and `circle` times as many from the circle ("holds" over `judge_T`, `sim.metrics.holds`), and
+   from `box_states` states of the half box and the training box (success over 20 s). Among the
+   candidates that lose at most `box_loss` of the box states the run's law brings to x* (all of
+   them, where none does), the one that holds the most swing-up states is chosen (ties: the later
+   fit, the larger box); it is kept when it holds at least `margin` more than the run's law and
+   keeps the box.
 
 The law goes to ``swingup.npz`` when kept (every command on the run then applies it), else to
 ``swingup-refused.npz``, and the entry to summary.json → "swing_up"; each write atomic.
@@ -51,7 +53,7 @@ from ..run import SWINGUP_FILE, SWINGUP_REFUSED_FILE, resolve_run
 from ..sim.compare import compare_laws
 from ..sim.integrate import simulate
 from ..sim.metrics import holds
-from ..sim.states import resting_states, uniform_states
+from ..sim.states import circle_states, resting_states, uniform_states
 from .chunks import ChunkStore
 from .config import RecoveryConfig, SwingUpConfig
 from .fit import fit_mlp
@@ -60,7 +62,7 @@ from .plans import PLAN_STEP, PlanSettings, planning_system
 from .stage import collect_labels
 from .swing_law import SwingUpLaw, swing_features
 
-__all__ = ["SWING_GATE_SEED", "fit_swing_law", "kept_boxes", "swing_gate", "swing_up"]
+__all__ = ["SWING_GATE_SEED", "fit_swing_law", "kept_boxes", "swing_gate", "swing_starts", "swing_up"]
 
 #: Seed offset of the swing-up gate's states (neither the plans', DAgger's nor an evaluation's).
 SWING_GATE_SEED = RECOVERY_GATE_SEED + 5_000
@@ -135,6 +137,15 @@ class PumpThenRun:
         return u
 
 
+def swing_starts(system, n: int, circle: float, seed: int) -> np.ndarray:
+    """(n + round(circle·n), 2 nq) swing-up starts: `n` near the resting posture (`resting_states`,
+    `seed`; the first exactly at rest), then round(circle·n) at rest with every angle from the full
+    circle (`circle_states`, seed + 1, its exactly-resting first state left out)."""
+    x = resting_states(system, n, seed)
+    k = int(round(circle * n))
+    return np.concatenate([x, circle_states(system, k + 1, seed + 1)[1:]]) if k else x
+
+
 def _label(system, x0, seed: int, config: SwingUpConfig, teacher, store, step: str, progress: bool):
     """Labels from the starts x0 (`collect_labels` with swing-up plans); with the count of starts the
     teacher and the plans brought to x*."""
@@ -150,11 +161,12 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
     start = time.perf_counter()
     teacher = run.box_controller
     store = ChunkStore(run.path)
-    x0 = resting_states(system, config.starts, config.plan_seed)
+    x0 = swing_starts(system, config.starts, config.circle, config.plan_seed)
     X, U, taught, planned = _label(system, x0, config.plan_seed, config, PumpThenRun(system, teacher), store, "swing-labels", progress)
     Xb, Ub = _box_labels(run, system, len(X))
     if progress:
-        print(f"swing-up labels: energy pumping with the run's law in the box brings {taught} of {config.starts} near-resting starts to x*, "
+        print(f"swing-up labels: energy pumping with the run's law in the box brings {taught} of {len(x0)} starts "
+              f"({config.starts} near-resting, {len(x0) - config.starts} at rest from the full circle) to x*, "
               f"plans {planned} more; "
               f"{len(X)} labels, and {len(Xb)} of the recovery stage's  [{time.perf_counter() - start:.0f} s]", flush=True)
     if not len(X):
@@ -190,7 +202,7 @@ def _dagger_round(system, teacher, law: SwingUpLaw, X: np.ndarray, U: np.ndarray
     """DAgger round r: the run's law with `law` from `dagger_starts` near-resting starts (seed
     plan_seed + 300 + r); the states its failures visit at `DAGGER_TIMES` are labelled with that law
     as the teacher, and a fresh law is fitted on all labels. Returns (law, X, U, the round's counts)."""
-    xd = resting_states(system, config.dagger_starts, config.plan_seed + 300 + r)
+    xd = swing_starts(system, config.dagger_starts, config.circle, config.plan_seed + 300 + r)
     ctrl = teacher.with_fallback(law.with_inner(teacher.fallback))  # its kept box: the training box's angles
     traj = simulate(system, ctrl, xd, T=config.judge_T, dt=PLAN_STEP)
     failed = np.flatnonzero(~holds(traj, system))
@@ -204,7 +216,7 @@ def _dagger_round(system, teacher, law: SwingUpLaw, X: np.ndarray, U: np.ndarray
     X, U = np.concatenate([X, Xr]), np.concatenate([U, Ur])
     law, mse = fit_swing_law(system, X, U, config, progress=f"swing-up: fit, DAgger {r + 1}" if progress else None)
     if progress:
-        print(f"swing-up DAgger round {r + 1}/{config.dagger}: the law fails from {failed.size} of {config.dagger_starts} starts; "
+        print(f"swing-up DAgger round {r + 1}/{config.dagger}: the law fails from {failed.size} of {len(xd)} starts; "
               f"plans from {planned} of the {len(visited)} states they visit; refitted on {len(X)} labels  "
               f"[{time.perf_counter() - start:.0f} s]", flush=True)
     return law, X, U, {"failed": int(failed.size), "visited": int(len(visited)), "plans": int(planned), "labels": int(len(X)), "mse": mse}
@@ -228,23 +240,28 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False) -
     boxes = kept_boxes(system, config)
     cands = [(k, name) for name in boxes for k in range(len(laws))]
     with_laws = [ctrl.with_fallback(laws[k].with_box(boxes[name]).with_inner(ctrl.fallback)) for k, name in cands]
-    x_swing = resting_states(system, config.gate_states, seed)
+    x_swing = swing_starts(system, config.gate_states, config.circle, seed)
     jobs = [(system, c, x_swing, config.judge_T) for c in [ctrl, *with_laws]]
     run_holds, *held = (int(h.sum()) for h in process_map(_holds_job, jobs, config.workers, config.ray))
     order = list(boxes)
-    best = max(range(len(cands)), key=lambda i: (held[i], cands[i][0], -order.index(cands[i][1])))
     half = config.box_states // 2
-    box = 0, 0
+    run_box, boxed = 0, [0] * len(cands)
     if config.box_states:
         x_box = np.concatenate([uniform_states(system, half, "half", seed + 1), uniform_states(system, config.box_states - half, "domain", seed + 2)])
-        box = tuple(int(ok.sum()) for ok, _ in compare_laws(system, [(ctrl, x_box), (with_laws[best], x_box)], T=GATE_HORIZON, dt=PLAN_STEP,
-                                                               workers=config.workers, ray=config.ray))
-    used = held[best] >= run_holds + config.margin and box[1] >= box[0] - config.box_loss
+        run_box, *boxed = (int(ok.sum()) for ok, _ in compare_laws(system, [(c, x_box) for c in [ctrl, *with_laws]], T=GATE_HORIZON,
+                                                                    dt=PLAN_STEP, workers=config.workers, ray=config.ray))
+    keeps_box = [b >= run_box - config.box_loss for b in boxed]
+    # the candidate that holds the most among those that keep the box (all of them where none does)
+    pool = [i for i in range(len(cands)) if keeps_box[i]] or list(range(len(cands)))
+    best = max(pool, key=lambda i: (held[i], cands[i][0], -order.index(cands[i][1])))
+    box = run_box, boxed[best]
+    used = held[best] >= run_holds + config.margin and keeps_box[best]
     if progress:
-        print(f"swing-up gate: simulated {config.gate_states} near-resting states for the run's law and {len(cands)} candidates "
-              f"({len(laws)} fits × {len(boxes)} kept boxes), {config.box_states} box states for two laws", file=sys.stderr, flush=True)
+        print(f"swing-up gate: simulated {len(x_swing)} swing-up states and {config.box_states} box states for the run's law and "
+              f"{len(cands)} candidates ({len(laws)} fits × {len(boxes)} kept boxes)", file=sys.stderr, flush=True)
     candidates = {name: [held[i] for i, (_, b) in enumerate(cands) if b == name] for name in boxes}
-    return cands[best], {"states": config.gate_states, "run": run_holds, "law": held[best], "candidates": candidates, "fit": cands[best][0],
+    candidates_box = {name: [boxed[i] for i, (_, b) in enumerate(cands) if b == name] for name in boxes}
+    return cands[best], {"states": len(x_swing), "near_resting": config.gate_states, "run": run_holds, "law": held[best], "candidates": candidates, "candidates_box": candidates_box, "fit": cands[best][0],
                          "box": cands[best][1], "box_states": config.box_states, "run_box": box[0], "law_box": box[1], "used": bool(used)}
 
 
@@ -252,8 +269,11 @@ def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
     """The swing-up gate's figures and verdict in one line."""
     verdict = "kept" if gate["used"] else (f"not kept (needs {config.margin} more held than the run's law, and at most "
                                             f"{config.box_loss} fewer box states)")
-    cands = "; ".join(f"kept box {name}: {', '.join(map(str, held))}" for name, held in gate["candidates"].items())
-    return (f"swing-up gate: of {gate['states']} near-resting states the run's law holds {gate['run']} at x*, with the swing-up law "
+    boxed = gate.get("candidates_box", {})
+    cands = "; ".join(f"kept box {name}: {', '.join(map(str, held))}" + (f" (box states {', '.join(map(str, boxed[name]))})" if name in boxed else "")
+                      for name, held in gate["candidates"].items())
+    where = f"{gate.get('near_resting', gate['states'])} near-resting and {gate['states'] - gate.get('near_resting', gate['states'])} at rest from the full circle"
+    return (f"swing-up gate: of {gate['states']} states ({where}) the run's law holds {gate['run']} at x*, with the swing-up law "
             f"{gate['law']} (fit {gate['fit'] + 1}, kept box {gate['box']}; each fit: {cands}); of {gate['box_states']} box states it brings {gate['run_box']} to x*, with the swing-up law {gate['law_box']}: {verdict}")
 
 

@@ -171,9 +171,10 @@ def _slice_panel(ax, s: SliceData) -> None:
     ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
 
 
-def plot(rows: Sequence[FigureData], slice_data: SliceData | None = None):
-    """Draw rows of the figure (5 panels each) and, given `slice_data`, the slice row; returns the
-    matplotlib `Figure` (Agg, not shown).
+def plot(rows: Sequence[FigureData], slice_data: SliceData | None = None, swing=None):
+    """Draw rows of the figure (5 panels each), given `slice_data` the slice row, and given `swing`
+    a last row of 3 panels (``swing = (title, draw)``: ``draw(axes)`` fills them, e.g. the swing-up
+    panels of `reporting.swingup_figure.draw_swingup`); returns the matplotlib `Figure` (Agg, not shown).
 
     Every data line carries a gid ``"<panel>:<trajectory>:<component>"`` with panel in
     ``q, p, margin, u, H``; panel c) shows max(margin, 1e-6).
@@ -184,8 +185,12 @@ def plot(rows: Sequence[FigureData], slice_data: SliceData | None = None):
     rows = list(rows)
     if not rows:
         raise IdapbcError("nothing to plot. Fix: pass at least one FigureData row.")
-    fig = Figure(figsize=(22, 4.5 * (len(rows) + (slice_data is not None)) + 0.6), layout="constrained")
-    subfigs = np.atleast_1d(fig.subfigures(len(rows) + (slice_data is not None), 1))
+    extra = (slice_data is not None) + (swing is not None)
+    fig = Figure(figsize=(22, 4.5 * (len(rows) + extra) + 0.6), layout="constrained")
+    subfigs = np.atleast_1d(fig.subfigures(len(rows) + extra, 1))
+    swing_fig = None
+    if swing is not None:
+        swing_fig, subfigs = subfigs[-1], subfigs[:-1]
     if slice_data is not None:
         ax_slice = subfigs[-1].subplots(1, 3, width_ratios=[1.2, 1.3, 2.5])
         ax_slice[1].axis("off")
@@ -201,6 +206,10 @@ def plot(rows: Sequence[FigureData], slice_data: SliceData | None = None):
             _draw_rollout(axes[r], d, k, colors[k % len(colors)])
         _label_row(axes[r], d)
     _rollout_legend(fig, rows, colors)
+    if swing_fig is not None:
+        title, draw = swing
+        swing_fig.suptitle(title, x=0.005, ha="left", fontsize=11, fontweight="bold")
+        draw(swing_fig.subplots(1, 3))
     return fig
 
 

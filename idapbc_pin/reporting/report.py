@@ -129,7 +129,8 @@ def report(
     ``evaluation.json``), `certify` (``certificate.json``), the figure (``figure.png``) and a
     meshcat replay of up to 3 rollouts that reach x* (``replay.html``, `view` with
     ``pick="success"``; for a run with a swing-up law, 3 swing-ups from near hanging, ``pick="hanging"``,
-    and its swing-up evaluation, ``swingup.json`` and ``swingup.png``); the summary is also
+    its swing-up evaluation, ``swingup.json``, and a last row of figure.png with the swing-up from
+    hanging: q(t), u(t) and H(t)); the summary is also
     written to ``report.txt``. The ROA radii (`n_roa` states per scale) are part of the evaluation
     unless ``radius=False``; ``limits=False`` lifts the effort limits in the evaluation, the
     certificate and the figure (the replay keeps `view`'s default). `workers`: processes simulating
@@ -141,14 +142,17 @@ def report(
     ctrl, _, eps, _ = resolve_controller(run)
     rows = _figure_rows(ctrl, eps, None, n_figure, T, None, seed, rho_extra, True, limits)
     slice_data = basin_slice(ctrl, cert.to_dict(), T=T, limits=limits) if ctrl.system.nq >= 2 else None
-    fig_path = save_png(plot(rows, slice_data), run.path / "figure.png")
-    parts = [format_evaluation(evaluation), cert.table(), f"figure: {fig_path}"]
-    if run.uses_swing_up and limits:  # a swing-up run: from near hanging too
+    swing, panels = None, None
+    if run.uses_swing_up and limits:  # a swing-up run: from near hanging too, a row of figure.png
         from ..evaluation.swingup import evaluate_run_swingup
-        from .swingup_figure import swingup_figure
+        from .swingup_figure import TITLE, draw_swingup
 
         swing = evaluate_run_swingup(run, seed=seed, workers=workers)
-        parts += [f"swing-up from 20 near-resting states:\n{swing.table()}", f"swing-up figure: {swingup_figure(run, swing)}"]
+        panels = (TITLE.format(run.system.name), lambda axes: draw_swingup(axes, run, swing))
+    fig_path = save_png(plot(rows, slice_data, swing=panels), run.path / "figure.png")
+    parts = [format_evaluation(evaluation), cert.table(), f"figure: {fig_path}"]
+    if swing is not None:
+        parts.append(f"swing-up from 20 near-resting states (figure.png's last row):\n{swing.table()}")
     if html:
         viewer = view(run, n=3, T=10.0, seed=seed, pick="hanging" if run.uses_swing_up else "success", open_server=False, limits=limits)
         parts.append(f"replay: {viewer.write_html(run.path / 'replay.html')} ({viewer.note})")

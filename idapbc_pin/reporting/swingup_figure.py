@@ -18,24 +18,18 @@ from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
 from .plot import save_png
 
-__all__ = ["swingup_figure"]
+__all__ = ["TITLE", "draw_swingup", "swingup_figure"]
 
 _STYLES = ("-", "--", ":", "-.")
 
 
-def swingup_figure(run, result, path: Path | None = None) -> Path | None:
-    """Draw the rollouts of the run's law, saturated LQR and the energy-pumping law from the first
-    start of `result` (a `SwingupResult` of `evaluate_run_swingup`) into ``run.path / "swingup.png"``
-    (or `path`); -> its path, or None without matplotlib."""
-    try:
-        from matplotlib.figure import Figure
-    except ImportError:  # the figure is optional
-        return None
+def draw_swingup(axes, run, result) -> None:
+    """Draw the three panels (a) wrap(q − q*), b) u(t), c) H(t)) into `axes` (3 matplotlib axes):
+    the rollouts of the run's law, saturated LQR and the energy-pumping law from the first start of
+    `result` (a `SwingupResult`), over its horizon and step, with the effort limits."""
     system = run.system
     laws = {"LQR": LQRController(system), "energy pump + LQR": EnergyPumpLaw(system), "NIDA-PBC": run.controller}  # the run's law drawn on top
     x0 = result.states[:1]
-    fig = Figure(figsize=(13, 3.6), layout="constrained")
-    axes = fig.subplots(1, 3)
     nq, mask = system.nq, np.asarray(system.angle_mask, bool)[: system.nq]
     for c, (name, law) in enumerate(laws.items()):
         tr = simulate(system, law, x0, T=result.T, dt=result.dt, record_every=5)
@@ -52,11 +46,26 @@ def swingup_figure(run, result, path: Path | None = None) -> Path | None:
             axes[1].axhline(sign * e, color="grey", ls="--", lw=0.8)
     axes[2].axhline(float(system.hamiltonian(system.x_star[None])[0]), color="grey", ls="--", lw=0.8, label="H(x*)")
     for ax, title, unit in zip(axes, ("a) wrap(q − q*)", "b) u(t)", "c) energy H(t)"), ("rad or m", "N·m or N", "J")):
-        ax.set_title(title)
+        ax.set_title(f"swing-up {title}")
         ax.set_xlabel("t (s)")
         ax.set_ylabel(unit)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=6, ncol=2)
     axes[2].legend(fontsize=7)
-    fig.suptitle(f"{system.name}: swing-up from the exact hanging start, effort limits on every controller", fontsize=10)
+
+
+#: The title of the swing-up panels (swingup.png's, and figure.png's swing-up row).
+TITLE = "{}: swing-up from the exact hanging start, effort limits on every controller"
+
+
+def swingup_figure(run, result, path: Path | None = None) -> Path | None:
+    """Draw `draw_swingup`'s panels for `result` (a `SwingupResult` of `evaluate_run_swingup`) into
+    ``run.path / "swingup.png"`` (or `path`); -> its path, or None without matplotlib."""
+    try:
+        from matplotlib.figure import Figure
+    except ImportError:  # the figure is optional
+        return None
+    fig = Figure(figsize=(13, 3.6), layout="constrained")
+    draw_swingup(fig.subplots(1, 3), run, result)
+    fig.suptitle(TITLE.format(run.system.name), fontsize=10)
     return save_png(fig, path or run.path / "swingup.png")

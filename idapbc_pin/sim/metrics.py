@@ -20,6 +20,7 @@ __all__ = [
     "equilibrium_offset",
     "holds",
     "in_target_box",
+    "on_rail",
     "peak_input",
     "settled",
     "settling_time",
@@ -66,13 +67,26 @@ def success(traj: Trajectory, system, window: float = SUCCESS_WINDOW, tol: float
 HOLD_ANGLE, HOLD_SPEED = 0.1, 0.5
 
 
+def on_rail(traj: Trajectory, system) -> np.ndarray:
+    """(N,) bool: every linear coordinate (a prismatic joint: a cart on its rail) within its URDF
+    position limits [lower, upper] (m) at every sample; angles are never limited here (a swing-up
+    may turn a joint past its URDF range), and a joint without limits always passes."""
+    linear = [not j.is_angle for j in system.joints]
+    lower = np.array([j.lower if lin else -np.inf for j, lin in zip(system.joints, linear)])
+    upper = np.array([j.upper if lin else np.inf for j, lin in zip(system.joints, linear)])
+    if not (np.isfinite(lower).any() or np.isfinite(upper).any()):
+        return np.ones(traj.q.shape[0], bool)
+    return ((traj.q >= lower) & (traj.q <= upper)).all(axis=(1, 2))
+
+
 def holds(traj: Trajectory, system, window: float = SUCCESS_WINDOW) -> np.ndarray:
     """(N,) bool: the swing-up verdict "holds" (DESIGN §4): ‖wrap(q − q*)‖∞ ≤ HOLD_ANGLE and
-    ‖v‖∞ ≤ HOLD_SPEED at every sample of the last `window` seconds, and not diverged."""
+    ‖v‖∞ ≤ HOLD_SPEED at every sample of the last `window` seconds, not diverged, and on the rail
+    throughout (`on_rail`: a prismatic joint within its URDF limits at every sample)."""
     nq = system.nq
     dq = wrap_angles(traj.q - np.asarray(system.x_star)[:nq], np.asarray(system.angle_mask)[:nq])
     near = (np.abs(dq).max(axis=-1) <= HOLD_ANGLE) & (np.abs(traj.v).max(axis=-1) <= HOLD_SPEED)
-    return near[:, _window(traj.t, window)].all(axis=1) & ~traj.diverged
+    return near[:, _window(traj.t, window)].all(axis=1) & ~traj.diverged & on_rail(traj, system)
 
 
 def settled(traj: Trajectory, window: float = SUCCESS_WINDOW, tol: float = SUCCESS_TOL) -> np.ndarray:

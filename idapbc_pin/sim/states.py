@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import IdapbcError
 
-__all__ = ["RESTING_SPREAD", "evaluation_box", "half_box", "initial_states", "resting_states", "scaled_box", "uniform_states"]
+__all__ = ["RESTING_SPREAD", "circle_states", "evaluation_box", "half_box", "initial_states", "resting_states", "scaled_box", "uniform_states"]
 
 
 def half_box(system) -> tuple[np.ndarray, np.ndarray]:
@@ -82,3 +82,20 @@ def resting_states(system, n: int, seed: int = 0, spread: float = RESTING_SPREAD
     q[1:] += rng.uniform(-spread, spread, q[1:].shape)
     v[1:] += rng.uniform(-spread, spread, v[1:].shape)
     return system.state_from(q, v)
+
+
+def circle_states(system, n: int, seed: int = 0) -> np.ndarray:
+    """n start states x = (q, p) (n, 2·nq) at rest from anywhere on the full circle: the first exactly
+    in the resting posture q_rest (`idapbc_pin.model.resting.resting_configuration`), the others with
+    every angle x*'s + U(−π, π) (rad) and every linear coordinate at q_rest's (m), v = 0, drawn from
+    numpy's default_rng(seed)."""
+    from ..model.resting import resting_configuration
+
+    if n < 1:
+        raise IdapbcError(f"a swing-up needs at least one start state, got n = {n}. Fix: pass n ≥ 1.")
+    rng = np.random.default_rng(seed)
+    angle = np.asarray(system.angle_mask, bool)[: system.nq]
+    q = np.tile(resting_configuration(system), (n, 1))
+    drawn = np.asarray(system.x_star, float)[: system.nq] + rng.uniform(-np.pi, np.pi, q[1:].shape)
+    q[1:] = np.where(angle, drawn, q[1:])
+    return system.state_from(q, np.zeros_like(q))
