@@ -130,7 +130,7 @@ def main() -> None:
             X, U, lqr_ok, recovered, args.starts = saved["X"], saved["U"], int(saved["lqr_ok"]), int(saved["recovered"]), int(saved["starts"])
         print(f"labels read from {args.labels} (its --starts and --plan-seed apply)")
     else:
-        X, U, lqr_ok, recovered = collect_labels(system, uniform_states(system, args.starts, args.box, args.plan_seed), args.plan_seed, config, True, start)
+        X, U, lqr_ok, recovered = collect_labels(system, uniform_states(system, args.starts, args.box, args.plan_seed), args.plan_seed, config, True)
         if args.labels:
             np.savez(args.labels, X=X, U=U, lqr_ok=lqr_ok, recovered=recovered, starts=args.starts)
     print(f"labels: saturated LQR reaches x* from {lqr_ok} of {args.starts} starts, plans from {recovered} of the other {args.starts - lqr_ok}; {len(X)} labels [{time.perf_counter() - start:.0f} s]")

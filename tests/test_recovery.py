@@ -631,7 +631,7 @@ def test_recover_hands_the_teacher_the_config_names_to_the_labels(tiny_run, monk
     class Stop(Exception):
         pass
 
-    def labels(system, x0, plan_seed, config, progress, start, law, *store):
+    def labels(system, x0, plan_seed, config, progress, law, *store):
         given.append(law)
         raise Stop
 

@@ -147,7 +147,7 @@ def _cem_labels(system, law, x0, failed_u, ids, plan_seed, bound, settings, T):
     return X, U
 
 
-def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfig, progress: bool = True, start: float | None = None, teacher=None,
+def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfig, progress: bool = True, teacher=None,
                    store: ChunkStore | None = None, step: str = "labels"):
     """Labels (X (K, n), U (K, m)) of `system` from the start states x0 (N, n), with the counts of
     starts the teacher and the plans brought to x*: (X, U, teacher_ok, recovered). The teacher is
@@ -157,8 +157,7 @@ def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfi
     processes (the system and the teacher are pickled to them; Ray tasks with `config.ray`), so the
     labels depend on neither the count nor the back-end. With a `store`, each finished chunk is
     saved under `step` as it arrives, and chunks already saved there are read instead of planned
-    (`chunks.ChunkStore`). `progress` shows a bar over the chunks with its ETA; `start` is unused (kept
-    for its callers' positional order)."""
+    (`chunks.ChunkStore`). `progress` shows a bar over the chunks with its ETA."""
     workers = config.workers if config.ray else resolve_workers(config.workers)  # Ray: 0 leaves the count to the cluster
     store = store or ChunkStore(None)
     chunks = [c for c in np.array_split(np.arange(len(x0)), LABEL_CHUNKS) if c.size]
@@ -201,7 +200,7 @@ def dagger_round(system, law: RecoveryLaw, X: np.ndarray, U: np.ndarray, r: int,
         print(f"DAgger round {r + 1}/{config.dagger}: the law fails from {failed.size} of {config.dagger_starts} starts; "
               f"labelling the {len(visited)} states they visit  [{time.perf_counter() - start:.0f} s]", flush=True)
     if visited.size:
-        Xr, Ur, taught, recovered = collect_labels(system, visited, config.plan_seed + 1000 * (r + 1), config, progress, start, teacher, store, f"dagger{r + 1}")
+        Xr, Ur, taught, recovered = collect_labels(system, visited, config.plan_seed + 1000 * (r + 1), config, progress, teacher, store, f"dagger{r + 1}")
         X, U = np.concatenate([X, Xr]), np.concatenate([U, Ur])
     else:
         taught = recovered = 0
@@ -245,7 +244,7 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     teacher = run.own_controller if config.teacher == "run" else None
     networks = run.own_controller.with_fallback(None)  # the input a recovery law's apply gets
     store = ChunkStore(run.path)  # chunks a killed stage finished are read back, not planned again
-    X, U, taught, recovered = collect_labels(system, x0, config.plan_seed, config, progress, start, teacher, store, "labels")
+    X, U, taught, recovered = collect_labels(system, x0, config.plan_seed, config, progress, teacher, store, "labels")
     if not len(X):
         raise IdapbcError(f"no start state reached x*, with the teacher or with a plan: nothing to fit a recovery law to ({system.name}). Fix: check the limits.")
     save_labels(run.path, X, U)  # after every labelling step: an interrupted recover keeps its plans for --refit

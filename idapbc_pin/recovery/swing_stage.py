@@ -149,7 +149,7 @@ def swing_starts(system, n: int, circle: float, seed: int) -> np.ndarray:
 def _label(system, x0, seed: int, config: SwingUpConfig, teacher, store, step: str, progress: bool):
     """Labels from the starts x0 (`collect_labels` with swing-up plans); with the count of starts the
     teacher and the plans brought to x*."""
-    return collect_labels(system, x0, seed, _labels_config(config), progress, None, teacher, store, step)
+    return collect_labels(system, x0, seed, _labels_config(config), progress, teacher, store, step)
 
 
 def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: bool = True) -> dict:
