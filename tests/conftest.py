@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
+import os
 import signal
 
-import numpy as np
-import pytest
-import torch
+# Two workers on two cores: one thread each, in every BLAS / OpenMP pool of this process and of the
+# Pythons it starts (the CLI and README tests), as `idapbc_pin._parallel` gives its own workers.
+for _name, _value in {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}.items():
+    os.environ.setdefault(_name, _value)
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
 
 torch.set_num_threads(1)
+threadpool_limits(1)  # numpy may have loaded its BLAS before this file (a plugin's import)
 
 # The Ctrl-C tests send SIGINT to a child Python, as a terminal would. A shell that starts the
 # suite in the background without job control (`cmd &` in a script, nohup) makes it ignore SIGINT,

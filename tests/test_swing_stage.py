@@ -138,7 +138,7 @@ def swung_run(tiny_swing_run, tmp_path_factory):
     (the plans that would give real ones take minutes): labels, fit, DAgger round, gate and files."""
     from idapbc_pin.recovery import swing_stage
 
-    def labels(system, x0, seed, config, progress, start, teacher, store, step):
+    def labels(system, x0, seed, config, progress, teacher, store, step):
         rng = np.random.default_rng(seed)
         q = rng.uniform(-math.pi, math.pi, (400, system.nq))
         x = system.state_from(q, rng.uniform(-2, 2, (400, system.nq)))

@@ -19,9 +19,9 @@ holds every number.
    by the labels' spread) by least squares on u/ū (`fit.fit_mlp`).
 3. **DAgger**, `dagger` rounds: the run's law with the fitted swing-up law (outside the training
    box's angles) runs from `dagger_starts` new near-resting starts (and `circle` times as many from
-   the circle); the states its failures visit at 1, 2.5 and 4 s are labelled as in step 1, with that law as the teacher (its own rollouts label the states it brings
-   to x*, and its failed inputs warm-start the plans of the others), and a fresh law is fitted on all
-   labels.
+   the circle); the states its failures visit at 1, 2.5 and 4 s are labelled as in step 1, with
+   that law as the teacher (its own rollouts label the states it brings to x*, and its failed
+   inputs warm-start the plans of the others), and a fresh law is fitted on all labels.
 4. **Gate.** The run's law as it is and with each fitted swing-up law (the first fit's and each
    DAgger round's) outside each candidate kept box (the training box's angles alone, and r·s for r
    in `inner_scales`, none by default), judged from `gate_states` near-resting states of their own
@@ -165,8 +165,8 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
     X, U, taught, planned = _label(system, x0, config.plan_seed, config, PumpThenRun(system, teacher), store, "swing-labels", progress)
     Xb, Ub = _box_labels(run, system, len(X))
     if progress:
-        print(f"swing-up labels: energy pumping with the run's law in the box brings {taught} of {len(x0)} starts "
-              f"({config.starts} near-resting, {len(x0) - config.starts} at rest from the full circle) to x*, "
+        circle = f" ({config.starts} near-resting, {len(x0) - config.starts} at rest from the full circle)" if len(x0) > config.starts else " near-resting"
+        print(f"swing-up labels: energy pumping with the run's law in the box brings {taught} of {len(x0)}{circle} starts to x*, "
               f"plans {planned} more; "
               f"{len(X)} labels, and {len(Xb)} of the recovery stage's  [{time.perf_counter() - start:.0f} s]", flush=True)
     if not len(X):
@@ -272,8 +272,9 @@ def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
     boxed = gate.get("candidates_box", {})
     cands = "; ".join(f"kept box {name}: {', '.join(map(str, held))}" + (f" (box states {', '.join(map(str, boxed[name]))})" if name in boxed else "")
                       for name, held in gate["candidates"].items())
-    where = f"{gate.get('near_resting', gate['states'])} near-resting and {gate['states'] - gate.get('near_resting', gate['states'])} at rest from the full circle"
-    return (f"swing-up gate: of {gate['states']} states ({where}) the run's law holds {gate['run']} at x*, with the swing-up law "
+    near = gate.get("near_resting", gate["states"])
+    where = "near-resting states" if near == gate["states"] else f"states ({near} near-resting, {gate['states'] - near} at rest from the full circle)"
+    return (f"swing-up gate: of {gate['states']} {where} the run's law holds {gate['run']} at x*, with the swing-up law "
             f"{gate['law']} (fit {gate['fit'] + 1}, kept box {gate['box']}; each fit: {cands}); of {gate['box_states']} box states it brings {gate['run_box']} to x*, with the swing-up law {gate['law_box']}: {verdict}")
 
 
