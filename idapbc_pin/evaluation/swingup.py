@@ -9,10 +9,10 @@ over each step: 500 Hz; effort limits on every controller), and two verdicts are
   (a prismatic coordinate within `HOLD_POSITION` m), every speed within `HOLD_SPEED`, and a
   prismatic joint within its URDF limits throughout (a cart on its rail);
 * the *tip test* of the RealAIGym leaderboard: the tip stays above the threshold from the swing-up
-  time to the end (and the cart on its rail). With h_rest and h* the tip's height (`idapbc_pin.model.resting.tip_height`) at
-  rest and at x*, the normalised height (h − h_rest)/(h* − h_rest) stays ≥ `TIP_SHARE`. For a chain
-  hanging straight down from its pivot (h_rest = −L, h* = L) that is exactly the leaderboard's
-  h ≥ 0.9 L measured from the pivot.
+  time to the end (and the cart on its rail). With h_rest and h* the tip's height
+  (`idapbc_pin.model.resting.tip_height`) at rest and at x*, the normalised height
+  (h − h_rest)/(h* − h_rest) stays ≥ `TIP_SHARE`. For a chain hanging straight down from its pivot
+  (h_rest = −L, h* = L) that is exactly the leaderboard's h ≥ 0.9 L measured from the pivot.
 
 For the exact hanging start also the leaderboard's v2 score (`leaderboard_score`).
 """

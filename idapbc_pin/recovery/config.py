@@ -85,7 +85,6 @@ class RecoveryConfig(Settings):
     plan_seed: int = 101
     dagger: int = 1
     dagger_starts: int = 30
-    circle: float = 0.0
     width: int = 128
     steps: int = 4500
     batch: int = 1024

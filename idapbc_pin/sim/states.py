@@ -89,13 +89,8 @@ def circle_states(system, n: int, seed: int = 0) -> np.ndarray:
     in the resting posture q_rest (`idapbc_pin.model.resting.resting_configuration`), the others with
     every angle x*'s + U(−π, π) (rad) and every linear coordinate at q_rest's (m), v = 0, drawn from
     numpy's default_rng(seed)."""
-    from ..model.resting import resting_configuration
-
-    if n < 1:
-        raise IdapbcError(f"a swing-up needs at least one start state, got n = {n}. Fix: pass n ≥ 1.")
-    rng = np.random.default_rng(seed)
+    q, _ = system.split(resting_states(system, n, seed, spread=0.0))  # every row at rest in q_rest
     angle = np.asarray(system.angle_mask, bool)[: system.nq]
-    q = np.tile(resting_configuration(system), (n, 1))
-    drawn = np.asarray(system.x_star, float)[: system.nq] + rng.uniform(-np.pi, np.pi, q[1:].shape)
+    drawn = np.asarray(system.x_star, float)[: system.nq] + np.random.default_rng(seed).uniform(-np.pi, np.pi, q[1:].shape)
     q[1:] = np.where(angle, drawn, q[1:])
     return system.state_from(q, np.zeros_like(q))
