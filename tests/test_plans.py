@@ -6,6 +6,8 @@ Claims:
   (their exponential over a knot) are close to central differences of the plant's rollout;
 * iLQR plans stay within the limits, never cost more than their warm start, and bring the plant's
   end state closer to x*; each problem's plan is the one it gets when solved alone;
+* the rail term keeps a cart that starts fast toward the end of its rail on the rail, where a plan
+  without it runs off; its gradient is that of its value;
 * tracked iLQR candidates bring a pendubot with an 8 N·m shoulder to x* from half-box states saturated
   LQR loses, in the judge (Pinocchio's aba at 2 ms, the limits applied);
 * a chunk store gives back exactly what was written, and nothing for another key or a damaged file;
@@ -24,7 +26,7 @@ import idapbc_pin as ip
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.recovery import stage as stage_module
 from idapbc_pin.recovery.chunks import CHUNKS_DIR, ChunkStore, chunk_key
-from idapbc_pin.recovery.ilqr import ILQRSettings, _knot_jacobians, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout
+from idapbc_pin.recovery.ilqr import ILQRSettings, _knot_jacobians, _rail, _rail_terms, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout
 from idapbc_pin.recovery.plans import PERIODS, PLAN_STEP, PlanSettings, TrackThenLaw, plan_candidates
 from idapbc_pin.recovery.stage import RecoveryConfig, collect_labels
 from idapbc_pin.sim.integrate import simulate
@@ -102,6 +104,29 @@ def test_ilqr_plans_stay_within_the_limits_and_improve_on_their_warm_start(weak_
     assert np.all(cost <= start) and np.any(cost < 0.5 * start)
     alone = ilqr_plans(system, x0[1:2], U0[1:2], bound, H, S, settings)[0]
     np.testing.assert_allclose(alone, U[1:2], atol=1e-9)
+
+
+def test_the_rail_term_keeps_a_plan_on_the_rail_where_a_plan_without_it_runs_off():
+    """The zoo cartpole's rail is ±5 m; a start at 4 m moving out at 4 m/s, pole near upright."""
+    system = ip.load_system("cartpole")
+    x0 = system.state_from(np.array([[4.0, 0.3]]), np.array([[4.0, 0.0]]))
+    S, U0 = LQRController(system).S, np.zeros((1, 100, 1))
+    far = {rail: ilqr_plans(system, x0, U0, system.effort, 2.0, S, ILQRSettings(rail=rail))[1][0, :, 0].max() for rail in (0.0, 1e3)}
+    assert far[0.0] > 5.0 and far[1e3] <= 5.0
+
+
+def test_the_rail_term_s_gradient_is_that_of_its_value():
+    system = ip.load_system("cartpole")
+    rail = _rail(system, ILQRSettings())
+    np.testing.assert_allclose(rail[0], [-4.0, -np.inf])  # ±5 m pulled in by a tenth of the range
+    np.testing.assert_allclose(rail[1], [4.0, np.inf])
+    q = np.random.default_rng(0).uniform(-6, 6, (50, 2))
+    value, grad, hess = _rail_terms(q, rail)
+    h = 1e-6
+    fd = np.stack([(_rail_terms(q + h * e, rail)[0] - _rail_terms(q - h * e, rail)[0]) / (2 * h) for e in np.eye(2)], axis=1)
+    np.testing.assert_allclose(grad, fd, atol=1e-5)
+    assert (value > 0).sum() > 5 and np.all(value[np.abs(q[:, 0]) < 4.0] == 0.0) and np.all(grad[:, 1] == 0.0)
+    np.testing.assert_array_equal(hess[:, 0] > 0, np.abs(q[:, 0]) > 4.0)
 
 
 def test_tracked_ilqr_candidates_recover_states_saturated_lqr_loses(weak_pendubot, lost):

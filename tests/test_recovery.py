@@ -7,7 +7,7 @@ Claims:
 * a fit recovers a saturated linear law from its own labels, the same for the same seed;
 * the residual form adds its MLP to the IDA-PBC law's saturated input, within the limits, and where
   the labels are that law's own inputs its fit reproduces them, closer than the direct form;
-* labels are torques within the limits of trajectories that reach x*;
+* labels are torques within the limits of trajectories that reach x*, with a cart on its rail;
 * a torque plan within the limits brings a pendubot with an 8 N·m shoulder to x* from a half-box
   state saturated LQR loses; plans searched together equal plans searched one start at a time;
 * the plans' starts and the DAgger starts come from the box `start_box` names (half box or
@@ -50,6 +50,7 @@ from idapbc_pin.errors import IdapbcError
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
+from idapbc_pin.sim.trajectory import Trajectory
 from idapbc_pin.sim.states import scaled_box
 from idapbc_pin.sim.states import evaluation_box, uniform_states
 from idapbc_pin.recovery import stage as recovery_module
@@ -253,6 +254,19 @@ def test_labels_are_torques_within_the_limits_of_trajectories_that_reach_the_tar
     assert lqr_ok + recovered >= 1
     assert len(X) == len(U) == (lqr_ok + recovered) * (LABEL_SPAN // LABEL_EVERY)
     assert np.all(np.abs(U) <= 8.0 + 1e-12) and np.isfinite(X).all()
+
+
+def test_a_trajectory_that_reaches_the_target_off_the_rail_labels_nothing():
+    """The zoo cartpole's rail is ±5 m. Two hand-made trajectories end at rest at x*: the cart goes
+    out to 4.9 m and back, or to 5.2 m and back; only the first may label a law."""
+    system = ip.load_system("cartpole")
+    t = np.arange(0, 5001) * 0.002
+    reach = np.array([[4.9], [5.2]]) * np.sin(np.pi * np.minimum(t, 1.0))[None]
+    q = np.stack([reach, np.zeros_like(reach)], axis=2)
+    v = np.zeros_like(q)
+    traj = Trajectory(t=t, x=np.concatenate([q, v], axis=2), q=q, v=v, u=np.zeros((2, t.size, 1)), diverged=np.zeros(2, bool))
+    np.testing.assert_array_equal(success(traj, system), [True, True])
+    np.testing.assert_array_equal(recovery_module._labels_ok(traj, system), [True, False])
 
 
 def test_worker_processes_change_the_time_of_recover_never_its_plans_fits_or_gate(tiny_run, monkeypatch):

@@ -5,13 +5,16 @@ A plan is a piecewise-constant input over K knots of dt seconds, planned in z = 
 the stage plans with (`System.forward_dynamics`: Pinocchio's pooled ABA with joint damping, or the
 closed form). Each problem minimises
 
-    Σ_k dt (½ q δ_kᵀ Q δ_k + ½ r ‖u_k/ū‖²) + ½ w δ_Kᵀ S_z δ_K,   δ = wrap(z − z*),  z* = (q*, 0),
+    Σ_k dt (½ q δ_kᵀ Q δ_k + ½ r ‖u_k/ū‖² + ½ ρ ‖e(q_k)/h‖²) + ½ w δ_Kᵀ S_z δ_K,   δ = wrap(z − z*),  z* = (q*, 0),
 
 with |u_i| ≤ ū_i, Q = diag(1/s²) (s: the training box's half-widths, the momenta's divided by the
 diagonal of M(q*)) and S_z = Tᵀ S T the Riccati matrix S of LQR at x* in these coordinates
 (T = diag(I, M(q*)), ∂(q, p)/∂(q, v) at rest): what a stabilising feedback pays from the end state
 on. By default q = 0: a plan only has to end where the feedback law after it takes over, and a
-running state cost pulls a swing towards x* too early.
+running state cost pulls a swing towards x* too early. The rail term keeps a cart on its rail: e is
+how far each linear coordinate lies beyond its URDF limits pulled in by `rail_margin` of the range
+(`sim.metrics.rail_limits`; zero inside them, and for angles), h the range's half-width, ρ `rail`;
+it is summed over every knot, the last included.
 
 The map over a knot is RK4 with `substeps` steps on ż = (v, a(q, v, B u)). Its Jacobians come from
 the continuous field's Jacobian at the knot's start, J = ∂ż/∂z and ∂ż/∂u (central differences of the
@@ -35,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.angles import wrap_angles
+from ..sim.metrics import rail_limits
 
 __all__ = ["ILQRSettings", "field_jacobians", "ilqr_plans", "plan_cost", "plan_weights", "rollout"]
 
@@ -55,6 +59,8 @@ class ILQRSettings:
     terminal : weight w of the end state's ½ δᵀS_zδ.
     alphas : step sizes the line search tries, largest first.
     mu0 : initial Levenberg-Marquardt regularisation of the value's Hessian.
+    rail : weight ρ of the rail term (module docstring); 0 leaves it out.
+    rail_margin : share of a rail's range its limits are pulled in by, on each side.
     """
 
     iterations: int = 12
@@ -64,6 +70,8 @@ class ILQRSettings:
     terminal: float = 10.0
     alphas: tuple = (1.0, 0.3, 0.1)
     mu0: float = 1e-3
+    rail: float = 1e3
+    rail_margin: float = 0.1
 
 
 def _accel(system, z, u):
@@ -148,16 +156,39 @@ def plan_weights(system, S: np.ndarray, settings: ILQRSettings, bound: np.ndarra
     return settings.q * np.diag(1.0 / half**2), settings.terminal * (T.T @ np.asarray(S, float) @ T), settings.r / np.maximum(bound, 1e-9) ** 2
 
 
+def _rail(system, settings: ILQRSettings):
+    """(lower (nq,), upper (nq,), ρ/h² (nq,)) of the rail term: the limits pulled in by the margin,
+    and the weight per coordinate (0 where there is no rail, or the term is off)."""
+    lower, upper = rail_limits(system)
+    finite = np.isfinite(lower) & np.isfinite(upper) & (upper > lower)
+    half = np.where(finite, 0.5 * (upper - lower), 1.0)
+    pull = settings.rail_margin * 2 * half
+    weight = np.where(finite, settings.rail / half**2, 0.0)
+    return np.where(finite, lower + pull, -np.inf), np.where(finite, upper - pull, np.inf), weight
+
+
+def _rail_terms(Zq, rail) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rail term at positions Zq (..., nq): its value ½ ρ ‖e/h‖² (...), gradient ρ e/h² and
+    Hessian diagonal (ρ/h² where e ≠ 0), both (..., nq)."""
+    lower, upper, weight = rail
+    e = np.where(weight > 0, np.maximum(Zq - upper, 0.0) + np.minimum(Zq - lower, 0.0), 0.0)
+    grad = weight * e
+    return 0.5 * (e * grad).sum(-1), grad, np.where(e != 0.0, weight, 0.0)
+
+
 def _error(system, Z):
     nq = system.nq
     z_star = np.concatenate([np.asarray(system.x_star, float)[:nq], np.zeros(nq)])
     return wrap_angles(Z - z_star, np.asarray(system.angle_mask, bool))
 
 
-def plan_cost(system, Z: np.ndarray, U: np.ndarray, Q, Sz, r_scaled, dt) -> np.ndarray:
-    """The plans' costs (N,) for states Z (N, K + 1, n) in (q, v) and inputs U (N, K, m) (module docstring)."""
+def plan_cost(system, Z: np.ndarray, U: np.ndarray, Q, Sz, r_scaled, dt, rail=None) -> np.ndarray:
+    """The plans' costs (N,) for states Z (N, K + 1, n) in (q, v) and inputs U (N, K, m) (module
+    docstring); `rail`: `_rail`'s triple, or None for no rail term."""
     d = _error(system, Z)
     run = 0.5 * dt * (np.einsum("nki,ij,nkj->n", d[:, :-1], Q, d[:, :-1]) + np.einsum("nki,i,nki->n", U, r_scaled, U))
+    if rail is not None and rail[2].any():
+        run = run + dt * _rail_terms(Z[..., : system.nq], rail)[0].sum(1)
     cost = run + 0.5 * np.einsum("ni,ij,nj->n", d[:, -1], Sz, d[:, -1])
     return np.where(np.isfinite(cost), cost, np.inf)
 
@@ -178,23 +209,25 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
     N, K, m = U0.shape
     dt = horizon / K
     Q, Sz, r_scaled = plan_weights(system, S, settings, bound)
+    rail = _rail(system, settings)
+    rail = rail if rail[2].any() else None
     q0, v0 = system.split(x0)
     U = np.clip(U0, -bound, bound)
     Z = rollout(system, np.concatenate([q0, v0], axis=1), U, dt, settings.substeps)
     n = Z.shape[2]
-    cost = plan_cost(system, Z, U, Q, Sz, r_scaled, dt)
+    cost = plan_cost(system, Z, U, Q, Sz, r_scaled, dt, rail)
     mu = np.full(N, settings.mu0)
     alphas = np.asarray(settings.alphas)
     L = len(alphas)
     for it in range(settings.iterations + 1):  # the last pass only gives the gains of the final plan
         A, B = _knot_jacobians(system, Z[:, :-1].reshape(-1, n), U.reshape(-1, m), dt)
-        kff, gains, ok = _backward(system, Z, U, A.reshape(N, K, n, n), B.reshape(N, K, n, m), Q, Sz, r_scaled, dt, mu, bound)
+        kff, gains, ok = _backward(system, Z, U, A.reshape(N, K, n, n), B.reshape(N, K, n, m), Q, Sz, r_scaled, dt, mu, bound, rail)
         if it == settings.iterations:
             break
         # batched line search: every problem tries every alpha in one rollout
         rep = lambda a: np.repeat(a[:, None], L, 1).reshape((N * L,) + a.shape[1:])  # noqa: E731
         Zn, Un = _forward(system, rep(Z), rep(U), (alphas[None, :, None, None] * kff[:, None]).reshape(N * L, K, m), rep(gains), bound, dt, settings.substeps)
-        cn = plan_cost(system, Zn, Un, Q, Sz, r_scaled, dt).reshape(N, L)
+        cn = plan_cost(system, Zn, Un, Q, Sz, r_scaled, dt, rail).reshape(N, L)
         best = np.argmin(cn, axis=1)
         better = ok & (cn[np.arange(N), best] < cost)
         idx = (np.arange(N) * L + best)[better]
@@ -203,15 +236,20 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
     return U, Z, gains, cost
 
 
-def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound):
+def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None):
     """The backward pass: feed-forward k (N, K, m), gains (N, K, m, n), and which problems' passes
     stayed positive definite (N,). Inputs whose step lands beyond the limit are clamped there and
-    get no feedback."""
+    get no feedback. `rail`: `_rail`'s triple, or None."""
     N, K, m = U.shape
-    n = Z.shape[2]
+    n, nq = Z.shape[2], system.nq
     d = _error(system, Z)
-    Vx = d[:, -1] @ Sz
-    Vxx = np.broadcast_to(Sz, (N, n, n)).copy()
+    lx = np.zeros((N, K + 1, n))  # the rail term's gradient and Hessian diagonal, × dt
+    lxx = np.zeros((N, K + 1, n))
+    if rail is not None:
+        _, g, h = _rail_terms(Z[..., :nq], rail)
+        lx[..., :nq], lxx[..., :nq] = dt * g, dt * h
+    Vx = d[:, -1] @ Sz + lx[:, -1]
+    Vxx = Sz + lxx[:, -1, :, None] * np.eye(n)
     kff, gains = np.zeros((N, K, m)), np.zeros((N, K, m, n))
     ok = np.ones(N, bool)
     R = np.diag(r_scaled) * dt
@@ -219,9 +257,9 @@ def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound):
     for k in range(K - 1, -1, -1):
         Ak, Bk = A[:, k], B[:, k]
         At, Bt = np.swapaxes(Ak, 1, 2), np.swapaxes(Bk, 1, 2)
-        Qx = dt * d[:, k] @ Q + np.einsum("nij,nj->ni", At, Vx)
+        Qx = dt * d[:, k] @ Q + lx[:, k] + np.einsum("nij,nj->ni", At, Vx)
         Qu = dt * U[:, k] * r_scaled + np.einsum("nij,nj->ni", Bt, Vx)
-        Qxx = dt * Q + At @ Vxx @ Ak
+        Qxx = dt * Q + lxx[:, k, :, None] * np.eye(n) + At @ Vxx @ Ak
         Quu = R + Bt @ (Vxx + reg) @ Bk
         Qux = Bt @ (Vxx + reg) @ Ak
         Quu = 0.5 * (Quu + np.swapaxes(Quu, 1, 2))

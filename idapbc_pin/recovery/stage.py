@@ -10,7 +10,8 @@ The steps (`RecoveryConfig` holds every number):
    then caught by the teacher; or `plans.search_plans`, the cross-entropy search, with
    ``plan.method = "cem"``). An input without an effort limit plans within `plans.plan_bound`,
    LQR's largest demand on the training box (and the fitted law stays within it). Every start that
-   reaches x* gives labels (x(t), u(t)) every 10 ms over its first 6 s. With the run's law as the
+   reaches x* with a cart on its rail throughout (`sim.metrics.on_rail`) gives labels (x(t), u(t))
+   every 10 ms over its first 6 s. With the run's law as the
    teacher the fitted law imitates the IDA-PBC law on the states that law already brings to x*,
    so a trajectory that leaves the inner box meets a law that continues what the IDA-PBC law was
    doing; with LQR it meets LQR's habits, and can lose states near x* that the run's law holds
@@ -64,7 +65,7 @@ from ..errors import IdapbcError
 from ..model.angles import wrap_angles
 from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
 from ..sim.integrate import simulate
-from ..sim.metrics import success
+from ..sim.metrics import on_rail, success
 from ..sim.states import scaled_box, uniform_states
 from .chunks import ChunkStore, chunk_key
 from .config import FORMS, START_BOXES, TEACHERS, RecoveryConfig
@@ -89,6 +90,12 @@ LABEL_CHUNKS = 8
 
 
 # ------------------------------------------------------------------------------------ labels
+def _labels_ok(traj, system) -> np.ndarray:
+    """(N,) bool: the rows whose states may label a law: they reach x* (`success`) and a cart stays
+    on its rail throughout (`on_rail`)."""
+    return success(traj, system) & on_rail(traj, system)
+
+
 def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
     """Worker: (X (K, n), U (K, m), the teacher's successes, plans that reached x*) for one chunk of
     starts (teacher None: saturated LQR)."""
@@ -96,7 +103,7 @@ def _label_chunk(job) -> tuple[np.ndarray, np.ndarray, int, int]:
     torch.set_num_threads(1)
     law = LQRController(system) if teacher is None else teacher
     traj = simulate(system, law, x0, T=T, dt=PLAN_STEP, stop_converged=True, stop_from=LABEL_TIME)
-    ok = success(traj, system)
+    ok = _labels_ok(traj, system)
     X = [traj.x[i, :LABEL_SPAN:LABEL_EVERY] for i in np.flatnonzero(ok)]
     U = [system.saturate(traj.u[i, :LABEL_SPAN:LABEL_EVERY]) for i in np.flatnonzero(ok)]
     lost, bound = np.flatnonzero(~ok), np.asarray(system.effort)
@@ -120,7 +127,7 @@ def _ilqr_labels(system, law, x0, failed_u, ids, plan_seed, bound, settings, T):
     tracker = TrackThenLaw(Uc, Zc, gains, settings.knot_step, law, system)
     t = simulate(system, tracker, starts, T=T, dt=PLAN_STEP, stop_converged=law if tracker.horizon <= LABEL_TIME else False,
                  stop_from=LABEL_TIME)
-    ok = success(t, system).reshape(-1, len(x0))  # (C, S)
+    ok = _labels_ok(t, system).reshape(-1, len(x0))  # (C, S)
     X, U = [], []
     for s in np.flatnonzero(ok.any(0)):
         x, u = _labelled(system, t, int(np.argmax(ok[:, s])) * len(x0) + s)
@@ -141,7 +148,7 @@ def _cem_labels(system, law, x0, failed_u, ids, plan_seed, bound, settings, T):
         for plan, i in zip(plans, group):
             t = simulate(system, PlanThenLaw(plan[None], settings.horizon, law), x0[i : i + 1], T=T, dt=PLAN_STEP,
                          stop_converged=law if settings.horizon <= LABEL_TIME else False, stop_from=LABEL_TIME)
-            if success(t, system)[0]:
+            if _labels_ok(t, system)[0]:
                 x, u = _labelled(system, t, 0)
                 X.append(x), U.append(u)
     return X, U

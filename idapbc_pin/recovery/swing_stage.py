@@ -11,8 +11,9 @@ holds every number.
    law). Where it does not bring a start to x* within `judge_T`, iLQR plans of `horizon` seconds
    within the effort limits are searched from ten warm starts (its own failed inputs first;
    `plans.plan_candidates`), each tracked by its time-varying LQR and then caught by the teacher
-   (`collect_labels`, the same chunks, workers and resumable store as the reach stage's). The labels are the states of the trajectories that reach x*, every 10 ms over their
-   first 6 s, with the inputs applied there; where the run has a recovery law, the recovery stage's
+   (`collect_labels`, the same chunks, workers and resumable store as the reach stage's). The
+   labels are the states of the trajectories that reach x* with a cart on its rail throughout,
+   every 10 ms over their first 6 s, with the inputs applied there; where the run has a recovery law, the recovery stage's
    own labels (``recovery-labels.npz``, at most as many as the swing-up's) join them, so that the
    law also knows the box.
 2. **Fit.** A `SwingUpLaw` MLP (features: sin and cos of every angle, the other components scaled

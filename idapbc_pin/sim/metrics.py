@@ -21,6 +21,7 @@ __all__ = [
     "holds",
     "in_target_box",
     "on_rail",
+    "rail_limits",
     "peak_input",
     "settled",
     "settling_time",
@@ -67,13 +68,20 @@ def success(traj: Trajectory, system, window: float = SUCCESS_WINDOW, tol: float
 HOLD_ANGLE, HOLD_SPEED = 0.1, 0.5
 
 
-def on_rail(traj: Trajectory, system) -> np.ndarray:
-    """(N,) bool: every linear coordinate (a prismatic joint: a cart on its rail) within its URDF
-    position limits [lower, upper] (m) at every sample; angles are never limited here (a swing-up
-    may turn a joint past its URDF range), and a joint without limits always passes."""
+def rail_limits(system) -> tuple[np.ndarray, np.ndarray]:
+    """(lower (nq,), upper (nq,)): the URDF position limits of every linear coordinate (a prismatic
+    joint: a cart on its rail), m; ∓∞ for angles (a swing-up may turn a joint past its URDF range)
+    and for a joint without limits."""
     linear = [not j.is_angle for j in system.joints]
-    lower = np.array([j.lower if lin else -np.inf for j, lin in zip(system.joints, linear)])
-    upper = np.array([j.upper if lin else np.inf for j, lin in zip(system.joints, linear)])
+    lower = np.array([j.lower if lin else -np.inf for j, lin in zip(system.joints, linear)], dtype=np.float64)
+    upper = np.array([j.upper if lin else np.inf for j, lin in zip(system.joints, linear)], dtype=np.float64)
+    return lower, upper
+
+
+def on_rail(traj: Trajectory, system) -> np.ndarray:
+    """(N,) bool: every linear coordinate within its URDF position limits (`rail_limits`) at every
+    sample; a robot without such limits always passes."""
+    lower, upper = rail_limits(system)
     if not (np.isfinite(lower).any() or np.isfinite(upper).any()):
         return np.ones(traj.q.shape[0], bool)
     return ((traj.q >= lower) & (traj.q <= upper)).all(axis=(1, 2))
