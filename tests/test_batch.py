@@ -102,24 +102,25 @@ def test_committed_pipelines_are_valid():
     assert sorted((job.source, job.config["seed"], job.preset) for job in paper_seeds.jobs) == sorted(
         (nm, seed, "fast") for nm in ANALYTIC for seed in (0, 1, 2)
     )
-    for pipeline in (weak, zoo, seeds, smoke):  # committed summaries of the IDA-PBC law alone; a smoke run never plans
+    for pipeline in (weak, seeds, smoke):  # committed summaries of the IDA-PBC law alone; a smoke run never plans
         assert {job.recover for job in pipeline.jobs} == {"never"}, pipeline.path.name
+    assert {job.recover for job in zoo.jobs} == {"auto"}  # the README's zoo table: train's default path
 
 
 def test_smoke_flag_shrinks_every_job_and_changes_its_fingerprint(tmp_path):
-    full = load_pipeline(ROOT / "pipelines" / "zoo.toml")
+    full = load_pipeline(ROOT / "pipelines" / "zoo.toml")  # recover = "auto": a recovery law where saturated LQR leaves room
     small = load_pipeline(ROOT / "pipelines" / "zoo.toml", smoke=True)
     for a, b in zip(full.jobs, small.jobs):
         assert b.config["epochs"] <= 20 and b.config["width"] <= 16 and b.evaluate["n"] <= 12
-        assert b.recover == "never" and a.fingerprint() != b.fingerprint()
-    auto = tmp_path / "zoo.toml"  # the zoo with `recover = "auto"`: a recovery law where saturated LQR leaves room
-    auto.write_text((ROOT / "pipelines" / "zoo.toml").read_text().replace('recover = "never"', 'recover = "auto"'))
-    for a, b in zip(load_pipeline(auto).jobs, load_pipeline(auto, smoke=True).jobs):
         assert a.recover == "auto" and b.recover == "never"  # a smoke run never spends minutes on plans
-    unpinned = tmp_path / "unpinned.toml"  # without the line, each job as `train` runs it: no recovery stage
-    unpinned.write_text((ROOT / "pipelines" / "zoo.toml").read_text().replace('recover = "never"', ""))
+        assert a.fingerprint() != b.fingerprint()
+    text = (ROOT / "pipelines" / "zoo.toml").read_text()
+    never, unpinned = tmp_path / "never.toml", tmp_path / "unpinned.toml"  # without the line: a batch's default, "never"
+    never.write_text(text.replace('recover = "auto"', 'recover = "never"'))
+    unpinned.write_text(text.replace('recover = "auto"', ""))
     assert {job.recover for job in load_pipeline(unpinned).jobs} == {"never"}
-    assert [j.fingerprint() for j in load_pipeline(unpinned).jobs] == [j.fingerprint() for j in full.jobs]
+    assert [j.fingerprint() for j in load_pipeline(unpinned).jobs] == [j.fingerprint() for j in load_pipeline(never).jobs]
+    assert [j.fingerprint() for j in load_pipeline(never).jobs] != [j.fingerprint() for j in full.jobs]
 
 
 BAD_JOBS = [
@@ -272,9 +273,11 @@ def test_smoke_pipeline_on_two_workers_gives_a_complete_summary(smoke_batch):
         assert json.loads((result.path / name / "job.json").read_text())["row"]["status"] == "done"
 
 
-#: A summary a zoo batch wrote (the README's table is generated from it): the table tests read it
-#: rather than wait for a batch of their own.
+#: Summaries zoo batches wrote (the README's tables are generated from them): the table tests read
+#: them rather than wait for a batch of their own. The zoo through train's default path, and the law
+#: alone (recover = "never", the seed table's seed 0).
 ZOO_SUMMARY = ROOT / "pipelines" / "results" / "zoo-summary.csv"
+ZOO_LAW_ALONE = ROOT / "pipelines" / "results" / "zoo-law-alone-summary.csv"
 
 
 def test_zoo_table_renders_from_a_summary():
@@ -287,8 +290,8 @@ def test_zoo_table_renders_from_a_summary():
 
 
 def test_the_zoo_table_names_a_recovery_law_where_a_run_keeps_one(tmp_path):
-    rows = read_summary(ZOO_SUMMARY)
-    assert {r["recovery"] for r in rows} == {"no"}  # the zoo pipeline: recover = "never"
+    rows = read_summary(ZOO_LAW_ALONE)
+    assert {r["recovery"] for r in rows} == {"no"}  # recover = "never"
     before = {r["name"]: r["fallback"] for r in rows}
     rows[0]["recovery"] = "yes"  # as a job whose recover stage kept a law would write it
     path = tmp_path / "summary.csv"

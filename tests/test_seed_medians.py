@@ -79,12 +79,12 @@ def test_the_summary_names_how_the_judge_ran_the_law():
 def test_readme_seed_table_matches_the_committed_summaries():
     readme = (ROOT / "README.md").read_text()
     block = readme_block(readme, SEED_TABLE_START, SEED_TABLE_END)
-    files = [ROOT / "pipelines" / "results" / name for name in ("zoo-summary.csv", "zoo-seeds-summary.csv")]
+    files = [ROOT / "pipelines" / "results" / name for name in ("zoo-law-alone-summary.csv", "zoo-seeds-summary.csv")]
     if block is None or not all(f.is_file() for f in files):
         pytest.skip("README.md has no seed-table block or pipelines/results/zoo-seeds-summary.csv is not committed yet")
     assert block == seed_median_markdown(files).strip(), (
         "README's seed table is out of step with pipelines/results/. Fix: python -c \"from pathlib import Path; "
         "from idapbc_pin.batch import replace_block, seed_median_markdown, SEED_TABLE_START, SEED_TABLE_END; "
         "p = Path('README.md'); r = 'pipelines/results/'; p.write_text(replace_block(p.read_text(), "
-        "seed_median_markdown([r + 'zoo-summary.csv', r + 'zoo-seeds-summary.csv']), SEED_TABLE_START, SEED_TABLE_END))\""
+        "seed_median_markdown([r + 'zoo-law-alone-summary.csv', r + 'zoo-seeds-summary.csv']), SEED_TABLE_START, SEED_TABLE_END))\""
     )

@@ -115,8 +115,7 @@ def seed_median_markdown(summary_csvs) -> str:
     files = ", ".join(f"`{Path(p).name}`" for p in summary_csvs)
     note = (
         f"Generated from {files} by `idapbc_pin.batch.seed_median_markdown`: the zoo trained with seeds 0, 1 and 2, every "
-        "run judged on the same states (as in the zoo table above); per-seed success rates in %, then the median; LQR "
-        "does not depend on the training seed. Radius and settling are medians over the seeds; the certified shares are in "
-        "the zoo table (seed 0)."
+        "run judged on the same states (those of the zoo table above); per-seed success rates in %, then the median; LQR "
+        "does not depend on the training seed. Radius and settling are medians over the seeds."
     )
     return _table(head, body) + "\n\n" + note + "\n"
