@@ -33,6 +33,19 @@ def sample_domain(system, n: int, seed: int = 0) -> np.ndarray:
     return lo + (hi - lo) * np.random.default_rng(seed).random((n, system.n))
 
 
+def cart_out_and_back(reaches, T: float):
+    """A hand-made cart-pole `Trajectory` sampled every 2 ms over T s: the pole upright and still,
+    the cart out to each of `reaches` (m) and back within the first second, then at rest at 0."""
+    from idapbc_pin.sim.trajectory import Trajectory
+
+    t = np.arange(0, int(round(T / 0.002)) + 1) * 0.002
+    reach = np.asarray(reaches, dtype=np.float64)[:, None] * np.sin(np.pi * np.minimum(t, 1.0))[None]
+    q = np.stack([reach, np.zeros_like(reach)], axis=2)
+    v = np.zeros_like(q)
+    N = len(reach)
+    return Trajectory(t=t, x=np.concatenate([q, v], axis=2), q=q, v=v, u=np.zeros((N, t.size, 1)), diverged=np.zeros(N, bool))
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

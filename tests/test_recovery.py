@@ -50,7 +50,6 @@ from idapbc_pin.errors import IdapbcError
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
-from idapbc_pin.sim.trajectory import Trajectory
 from idapbc_pin.sim.states import scaled_box
 from idapbc_pin.sim.states import evaluation_box, uniform_states
 from idapbc_pin.recovery import stage as recovery_module
@@ -63,7 +62,7 @@ from idapbc_pin.run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED
 from idapbc_pin.recovery import trigger as weak_actuators
 from idapbc_pin.recovery.trigger import BIND_POINTS, BIND_STATES, ROOM_POINTS, auto_recover, limits_bind
 
-from .conftest import sample_domain
+from .conftest import cart_out_and_back, sample_domain
 
 
 def random_law(system, inner_scale: float, seed: int = 0, width: int = 16, residual: bool = False) -> RecoveryLaw:
@@ -260,11 +259,7 @@ def test_a_trajectory_that_reaches_the_target_off_the_rail_labels_nothing():
     """The zoo cartpole's rail is ±5 m. Two hand-made trajectories end at rest at x*: the cart goes
     out to 4.9 m and back, or to 5.2 m and back; only the first may label a law."""
     system = ip.load_system("cartpole")
-    t = np.arange(0, 5001) * 0.002
-    reach = np.array([[4.9], [5.2]]) * np.sin(np.pi * np.minimum(t, 1.0))[None]
-    q = np.stack([reach, np.zeros_like(reach)], axis=2)
-    v = np.zeros_like(q)
-    traj = Trajectory(t=t, x=np.concatenate([q, v], axis=2), q=q, v=v, u=np.zeros((2, t.size, 1)), diverged=np.zeros(2, bool))
+    traj = cart_out_and_back([4.9, 5.2], T=10.0)
     np.testing.assert_array_equal(success(traj, system), [True, True])
     np.testing.assert_array_equal(recovery_module._labels_ok(traj, system), [True, False])
 

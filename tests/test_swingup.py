@@ -23,6 +23,8 @@ from idapbc_pin.evaluation.swingup import SwingupResult, evaluate_swingup, judge
 from idapbc_pin.model.resting import resting_configuration, tip_height
 from idapbc_pin.sim.trajectory import Trajectory
 
+from .conftest import cart_out_and_back
+
 URDF = Path(__file__).resolve().parents[1] / "urdf" / "realaigym_double_pendulum.urdf"
 
 # RealAIGym design C.1, model 1.1 (I about the joint axis; no damping)
@@ -198,11 +200,7 @@ def test_a_cart_that_leaves_its_rail_neither_holds_nor_passes_the_tip_test():
     system = ip.load_system("cartpole")
     lower, upper = system.joints[0].lower, system.joints[0].upper
     assert (lower, upper) == (-5.0, 5.0) and system.joints[0].kind == "prismatic"
-    t = np.arange(0, 2501) * 0.002
-    reach = np.array([[4.9], [5.2]]) * np.sin(np.pi * np.minimum(t, 1.0))[None]  # out and back within the first second
-    q = np.stack([reach, np.zeros_like(reach)], axis=2)
-    v = np.zeros_like(q)
-    traj = Trajectory(t=t, x=np.concatenate([q, v], axis=2), q=q, v=v, u=np.zeros((2, t.size, 1)), diverged=np.zeros(2, bool))
+    traj = cart_out_and_back([4.9, 5.2], T=5.0)
     s = judge_swingup(system, traj)
     np.testing.assert_array_equal(s.off_rail, [False, True])
     np.testing.assert_array_equal(s.holds, [True, False])

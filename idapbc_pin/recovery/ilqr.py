@@ -157,10 +157,13 @@ def plan_weights(system, S: np.ndarray, settings: ILQRSettings, bound: np.ndarra
 
 
 def _rail(system, settings: ILQRSettings):
-    """(lower (nq,), upper (nq,), ρ/h² (nq,)) of the rail term: the limits pulled in by the margin,
-    and the weight per coordinate (0 where there is no rail, or the term is off)."""
+    """(lower (nq,), upper (nq,), ρ/h² (nq,)) of the rail term: the limits pulled in by the margin
+    (∓∞ where there is no rail), and the weight per coordinate; None when no coordinate has a rail
+    or the term is off."""
     lower, upper = rail_limits(system)
     finite = np.isfinite(lower) & np.isfinite(upper) & (upper > lower)
+    if settings.rail <= 0 or not finite.any():
+        return None
     half = np.where(finite, 0.5 * (upper - lower), 1.0)
     pull = settings.rail_margin * 2 * half
     weight = np.where(finite, settings.rail / half**2, 0.0)
@@ -171,7 +174,7 @@ def _rail_terms(Zq, rail) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rail term at positions Zq (..., nq): its value ½ ρ ‖e/h‖² (...), gradient ρ e/h² and
     Hessian diagonal (ρ/h² where e ≠ 0), both (..., nq)."""
     lower, upper, weight = rail
-    e = np.where(weight > 0, np.maximum(Zq - upper, 0.0) + np.minimum(Zq - lower, 0.0), 0.0)
+    e = np.maximum(Zq - upper, 0.0) + np.minimum(Zq - lower, 0.0)  # zero where there is no rail (limits ∓∞)
     grad = weight * e
     return 0.5 * (e * grad).sum(-1), grad, np.where(e != 0.0, weight, 0.0)
 
@@ -187,7 +190,7 @@ def plan_cost(system, Z: np.ndarray, U: np.ndarray, Q, Sz, r_scaled, dt, rail=No
     docstring); `rail`: `_rail`'s triple, or None for no rail term."""
     d = _error(system, Z)
     run = 0.5 * dt * (np.einsum("nki,ij,nkj->n", d[:, :-1], Q, d[:, :-1]) + np.einsum("nki,i,nki->n", U, r_scaled, U))
-    if rail is not None and rail[2].any():
+    if rail is not None:
         run = run + dt * _rail_terms(Z[..., : system.nq], rail)[0].sum(1)
     cost = run + 0.5 * np.einsum("ni,ij,nj->n", d[:, -1], Sz, d[:, -1])
     return np.where(np.isfinite(cost), cost, np.inf)
@@ -210,7 +213,6 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
     dt = horizon / K
     Q, Sz, r_scaled = plan_weights(system, S, settings, bound)
     rail = _rail(system, settings)
-    rail = rail if rail[2].any() else None
     q0, v0 = system.split(x0)
     U = np.clip(U0, -bound, bound)
     Z = rollout(system, np.concatenate([q0, v0], axis=1), U, dt, settings.substeps)
@@ -243,13 +245,13 @@ def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None):
     N, K, m = U.shape
     n, nq = Z.shape[2], system.nq
     d = _error(system, Z)
-    lx = np.zeros((N, K + 1, n))  # the rail term's gradient and Hessian diagonal, × dt
-    lxx = np.zeros((N, K + 1, n))
-    if rail is not None:
+    Vx = d[:, -1] @ Sz
+    Vxx = np.broadcast_to(Sz, (N, n, n)).copy()
+    if rail is not None:  # the rail term's gradient and Hessian diagonal (× dt) at every knot, the last included
         _, g, h = _rail_terms(Z[..., :nq], rail)
-        lx[..., :nq], lxx[..., :nq] = dt * g, dt * h
-    Vx = d[:, -1] @ Sz + lx[:, -1]
-    Vxx = Sz + lxx[:, -1, :, None] * np.eye(n)
+        lx, lxx = dt * g, dt * h  # (N, K + 1, nq)
+        Vx[:, :nq] += lx[:, -1]
+        Vxx[:, range(nq), range(nq)] += lxx[:, -1]
     kff, gains = np.zeros((N, K, m)), np.zeros((N, K, m, n))
     ok = np.ones(N, bool)
     R = np.diag(r_scaled) * dt
@@ -257,9 +259,14 @@ def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None):
     for k in range(K - 1, -1, -1):
         Ak, Bk = A[:, k], B[:, k]
         At, Bt = np.swapaxes(Ak, 1, 2), np.swapaxes(Bk, 1, 2)
-        Qx = dt * d[:, k] @ Q + lx[:, k] + np.einsum("nij,nj->ni", At, Vx)
+        Qx, Qxx = dt * d[:, k] @ Q, np.broadcast_to(dt * Q, (N, n, n))
+        if rail is not None:
+            Qxx = Qxx.copy()
+            Qx[:, :nq] += lx[:, k]
+            Qxx[:, range(nq), range(nq)] += lxx[:, k]
+        Qx = Qx + np.einsum("nij,nj->ni", At, Vx)
         Qu = dt * U[:, k] * r_scaled + np.einsum("nij,nj->ni", Bt, Vx)
-        Qxx = dt * Q + lxx[:, k, :, None] * np.eye(n) + At @ Vxx @ Ak
+        Qxx = Qxx + At @ Vxx @ Ak
         Quu = R + Bt @ (Vxx + reg) @ Bk
         Qux = Bt @ (Vxx + reg) @ Ak
         Quu = 0.5 * (Quu + np.swapaxes(Quu, 1, 2))

@@ -13,9 +13,9 @@ holds every number.
    `plans.plan_candidates`), each tracked by its time-varying LQR and then caught by the teacher
    (`collect_labels`, the same chunks, workers and resumable store as the reach stage's). The
    labels are the states of the trajectories that reach x* with a cart on its rail throughout,
-   every 10 ms over their first 6 s, with the inputs applied there; where the run has a recovery law, the recovery stage's
-   own labels (``recovery-labels.npz``, at most as many as the swing-up's) join them, so that the
-   law also knows the box.
+   every 10 ms over their first 6 s, with the inputs applied there; where the run has a recovery
+   law, the recovery stage's own labels (``recovery-labels.npz``, at most as many as the
+   swing-up's) join them, so that the law also knows the box.
 2. **Fit.** A `SwingUpLaw` MLP (features: sin and cos of every angle, the other components scaled
    by the labels' spread) by least squares on u/ū (`fit.fit_mlp`).
 3. **DAgger**, `dagger` rounds: the run's law with the fitted swing-up law (outside the training
