@@ -81,12 +81,6 @@ def _short_fallback_gate():
 
 
 def pytest_collection_modifyitems(config, items):
-    """The end-to-end tests marked slow run first (the order is otherwise the files'): with two
-    workers a test of minutes that starts last leaves the other core idle to the end."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
-
-
-def pytest_collection_modifyitems(config, items):
     """Run the end-to-end tests (marked slow, a minute or two each) first: with two workers a long
     test that starts last leaves the other worker idle until it ends."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)

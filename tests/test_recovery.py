@@ -409,12 +409,47 @@ def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states
 
     monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
     k, gate = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, workers=1))
-    assert gate["fits"] == [60, 80, 70] and gate["used"]
-    assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)  # 10 fewer near x* than the run's law: not eligible
+    # 10 fewer near x* than the run's law: not eligible, and not run from the box states at all
+    assert gate["fits"] == [60, 80 if near_of_the_best == 90 else None, 70] and gate["used"]
+    assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)
     assert [g["with_recovery"] for g in gate["fit_gates"]] == gate["fits"]  # every fit's own gate is kept, not only the chosen one
     assert gate["fit_gates"][1]["candidates_near"][0.25] == near_of_the_best  # the second fit's own near-box count
     none_kept = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, margin=50, workers=1))
-    assert none_kept[0] == 1 and not none_kept[1]["used"]  # none kept: the refused law saved is the one that brought most
+    # none kept: the refused law saved is the one that brought most, among those run from the box states
+    assert none_kept[0] == (1 if near_of_the_best == 90 else 2) and not none_kept[1]["used"]
+
+
+def test_a_candidate_that_loses_the_near_box_is_never_run_from_the_box_states(tiny_run, monkeypatch):
+    """A candidate that brings more than `half_loss` fewer near-box states to x* than the run's law
+    is never eligible, whatever the rest: the gate runs it from the near box only, and its line
+    says so. The rule's verdict is the one the full counts give."""
+    laws = [random_law(tiny_run.system, 0.0, seed=k) for k in range(2)]
+    near = {id(laws[0].weights): 88, id(laws[1].weights): 87}  # the run's law: 90 of 100; half_loss 2
+    config = RecoveryConfig(gate_states=100, near_states=100, inner_scales=(0.5,), levels=(), workers=1)
+    simulated = []
+
+    def fake(job):
+        system, ctrl, x0 = job
+        key = id(ctrl.fallback.weights) if isinstance(ctrl.fallback, RecoveryLaw) else None
+        ok = np.zeros(len(x0), bool)
+        ok[:30], ok[50:80], ok[100 : 100 + near.get(key, 90)] = True, True, True
+        return ok
+
+    compare = _as_compare(fake)
+
+    def counting(system, runs, **kw):
+        runs = list(runs)
+        simulated.extend((id(law.fallback.weights) if isinstance(law.fallback, RecoveryLaw) else None, len(x0)) for law, x0 in runs)
+        yield from compare(system, runs, **kw)
+
+    monkeypatch.setattr(recovery_gate, "compare_laws", counting)
+    k, gate = recovery_gate.choose_fit(tiny_run, laws, config)
+    first, second = (id(law.weights) for law in laws)
+    assert sorted(simulated, key=str) == sorted([(None, 200), (first, 100), (second, 100), (first, 100)], key=str)
+    assert gate["fits"] == [60, None] and k == 0 and not gate["used"]  # as many as the run's law: no margin
+    assert gate["fit_gates"][1]["candidates_near"] == {0.5: 87} and gate["fit_gates"][1]["candidates_half"] == {0.5: None}
+    assert "the 2 fits brought 60, –" in recovery_gate.format_gate(gate, config.margin, config.half_loss)
+    assert "–: too few near x* to be eligible" in recovery_gate.format_gate(gate["fit_gates"][1], config.margin, config.half_loss)
 
 
 @pytest.mark.parametrize("lost", [2, 3])
@@ -510,7 +545,7 @@ def test_levels_of_h_d_are_tried_only_when_no_inner_box_is_kept(tiny_run, tmp_pa
         assert all(c is None or c == np.inf for c in simulated) and "level" not in gate
         return
     assert gate["level"] == levels[1] and gate["inner_scale"] == 0.0 and gate["with_recovery"] == 70
-    assert gate["level_candidates"] == dict(zip(levels, [80, 70, 60]))
+    assert gate["level_candidates"] == dict(zip(levels, [None, 70, 60]))  # the lowest c: screened out near x*
     path = tmp_path / "run"
     shutil.copytree(tiny_run.path, path)
     run = ip.load_run(path)
@@ -761,11 +796,23 @@ def test_regate_without_a_saved_law_says_what_to_run_in_one_line(tiny_run, tmp_p
 
 
 def _as_compare(fake):
-    """A stand-in for `compare_laws` in the gate, from ``fake((system, law, x0)) -> (N,) bool``."""
+    """A stand-in for `compare_laws` in the gate, from ``fake((system, law, x0)) -> (N,) bool`` on the
+    gate's states in their order (half box, training box, near box). The gate's first run is the
+    run's law from all of them; a later run from a part of them (a candidate from the near box first,
+    then from the boxes) gets that part of the fake's answer; other states (the confirmation's) go
+    to the fake as they are."""
+    every = []
 
     def compare(system, runs, **_):
         for law, x0 in runs:
-            yield fake((system, law, x0)), None
+            if not every:
+                every.append(x0)
+            whole = every[0]
+            at = np.flatnonzero((whole == x0[0]).all(axis=1)) if len(x0) < len(whole) else []
+            if len(at) and np.array_equal(whole[at[0] : at[0] + len(x0)], x0):
+                yield fake((system, law, whole))[at[0] : at[0] + len(x0)], None
+            else:
+                yield fake((system, law, x0)), None
 
     return compare
 

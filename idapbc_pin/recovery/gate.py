@@ -3,7 +3,8 @@ that hold the law it judged.
 
 The run's law as it is, and the law with the recovery law outside an inner box of each scale in
 `RecoveryConfig.inner_scales`, run from the gate's states (half from the half box, half from the
-training box, then `near_states` from the near box of scale `NEAR_SCALE`). `gate_choice` applies the
+training box, then `near_states` from the near box of scale `NEAR_SCALE`; each candidate from the
+near box first, and from the others only where it can still be eligible). `gate_choice` applies the
 rule on the success counts; where the run's law brings every half-box gate state to x*, a law the
 rule keeps is checked again on half-box states of their own (`_Confirmation`). When it keeps no inner box, the same rule judges the law acting only
 where H_d(x) > c as well, for the levels c of `energy_levels` (`RecoveryLaw.level`). A kept law is
@@ -53,23 +54,29 @@ def gate_choice(run: tuple[int, int, int], candidates: dict, margin: int, half_l
     half-box states to x*, a candidate must too (a basin the IDA-PBC law holds entirely: on the
     paper cartpole 2 forgiven of 50 became 9 lost of 200 in the evaluation). The eligible one with
     the most half-box and training-box successes wins (ties: the larger r, more IDA-PBC), and is
-    kept when it adds at least `margin` of those. Returns (r or None, kept)."""
+    kept when it adds at least `margin` of those. A candidate screened out near x* (`_counts`: half
+    and training box None) is never eligible. Returns (r or None, kept)."""
     half_floor = run[0] if half_states is not None and run[0] >= half_states else run[0] - half_loss
-    eligible = [r for r, (h, _, near) in candidates.items() if h >= half_floor and near >= run[2] - half_loss]
+    eligible = [r for r, (h, _, near) in candidates.items() if near >= run[2] - half_loss and h is not None and h >= half_floor]
     if not eligible:
         return None, False
     best = _best(candidates, eligible)
     return best, _total(candidates[best]) >= _total(run) + margin
 
 
-def _total(counts: tuple[int, int, int]) -> int:
-    """Half-box plus training-box successes: what the margin counts (the near box only guards)."""
-    return counts[0] + counts[1]
+def _total(counts: tuple) -> int | None:
+    """Half-box plus training-box successes: what the margin counts (the near box only guards);
+    None for a candidate screened out near x* (`_counts`)."""
+    return None if counts[0] is None else counts[0] + counts[1]
 
 
 def _best(candidates: dict, scales) -> float:
-    """The r of `scales` with the most `_total` successes (ties: the larger r, more IDA-PBC)."""
-    return max(scales, key=lambda r: (_total(candidates[r]), r))
+    """The r of `scales` with the most `_total` successes (ties: the larger r, more IDA-PBC); where
+    none ran from the box states (every one screened out near x*), the most near-box successes."""
+    ran = [r for r in scales if candidates[r][0] is not None]
+    if ran:
+        return max(ran, key=lambda r: (_total(candidates[r]), r))
+    return max(scales, key=lambda r: (candidates[r][2], r))
 
 
 def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig, progress: bool = False) -> dict:
@@ -85,7 +92,9 @@ def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig, progress: bool =
 
 def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) -> tuple[int, dict]:
     """`choose_inner` for each of several fitted `laws` on the same gate states (the run's law
-    simulated once, every law in `config.workers` processes or Ray tasks, `config.ray`; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
+    simulated once, every law in `config.workers` processes or Ray tasks, `config.ray`; each
+    candidate from the near-box states first, and from the others only where it can still be
+    eligible, `_counts`; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
     (ties: the first), or when it keeps none the one with the most successes at its best candidate
     (the law ``recovery-refused.npz`` then holds, so that `regate` judges the most promising fit). With more than one law the gate also holds
     "fits": each law's successes at its own chosen r, "fit": k, and "fit_gates": every law's own gate
@@ -109,7 +118,8 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
         confirm(gates, lambda i: ctrl.with_fallback(laws[i].with_inner(gates[i]["inner_scale"])))
     if config.levels and not any(g["used"] for g in gates):
         levels = energy_levels(run, config.levels)
-        counts = _counts(system, [ctrl.with_fallback(law.with_inner(0.0).with_level(c)) for law in laws for c in levels], x0, half, n, config, progress)
+        counts = _counts(system, [ctrl.with_fallback(law.with_inner(0.0).with_level(c)) for law in laws for c in levels], x0, half, n, config, progress,
+                         base=base)
         for i in range(len(laws)):
             by_level = _gate(base, dict(zip(levels, counts[i * len(levels) : (i + 1) * len(levels)])), n, config)
             gates[i] |= {"level_candidates": by_level["candidates"], "level_candidates_near": by_level["candidates_near"]}
@@ -118,7 +128,7 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
         if confirm:
             confirm(gates, lambda i: ctrl.with_fallback(laws[i].with_inner(0.0).with_level(gates[i]["level"])))
     kept = [k for k, g in enumerate(gates) if g["used"]]
-    k = max(kept or range(len(gates)), key=lambda i: (gates[i]["with_recovery"], -i))  # none kept: the best refused (for --regate)
+    k = max(kept or range(len(gates)), key=lambda i: (_ranked(gates[i]), -i))  # none kept: the best refused (for --regate)
     if len(laws) > 1:
         gates[k] |= {"fits": [g["with_recovery"] for g in gates], "fit": k, "fit_gates": [dict(g) for g in gates]}
     return k, gates[k]
@@ -155,14 +165,50 @@ class _Confirmation:
             gates[i]["used"] = got >= self.run - self.config.half_loss
 
 
-def _counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, config, progress: bool) -> list[tuple[int, int, int]]:
-    """(half box, training box, near box) successes of each law of `ctrls` from the gate's states x0."""
-    counts = []
-    with tqdm(total=len(ctrls), desc=f"recovery: gate ({len(x0)} states)", unit="law", disable=not progress, dynamic_ncols=True, file=sys.stderr) as bar:
-        for ok, _ in compare_laws(system, [(c, x0) for c in ctrls], T=GATE_HORIZON, dt=PLAN_STEP, workers=config.workers, ray=config.ray):
-            counts.append((int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())))
+def _counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, config, progress: bool, base: tuple | None = None) -> list[tuple]:
+    """(half box, training box, near box) successes of each law of `ctrls` from the gate's states x0
+    (the first `n` from the half and training boxes, the rest from the near box).
+
+    The first law is the run's own (its counts are `base`'s where given, and it is not simulated):
+    it runs from every state. Each other law runs from the near-box states first, and from the
+    others only where it brings at least the run's near-box successes less `half_loss` to x*: a law
+    that loses more there is never eligible (`gate_choice`), whatever the rest, and gets (None, None,
+    near). A law that fails runs its whole horizon, so this spares the box states' rollouts of laws
+    the rule refuses anyway. Without a near box, every law runs from every state."""
+    screen = config.near_states > 0 and len(x0) > n
+    first = [] if base is not None else [(ctrls[0], x0)]
+    others = ctrls if base is not None else ctrls[1:]
+    with tqdm(total=len(first) + len(others), desc=f"recovery: gate ({len(x0)} states)", unit="law", disable=not progress, dynamic_ncols=True,
+              file=sys.stderr) as bar:
+        runs = first + [(c, x0[n:] if screen else x0) for c in others]
+        results = []
+        for ok, _ in compare_laws(system, runs, T=GATE_HORIZON, dt=PLAN_STEP, workers=config.workers, ray=config.ray):
+            results.append(ok)
             bar.update(1)
-    return counts
+        if base is None:
+            ok = results.pop(0)
+            base = (int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum()))
+        if not screen:
+            return ([base] if first else []) + [(int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())) for ok in results]
+        near = [int(ok.sum()) for ok in results]
+        go_on = [i for i, k in enumerate(near) if k >= base[2] - config.half_loss]
+        bar.total += len(go_on)
+        box = {}
+        for i, (ok, _) in zip(go_on, compare_laws(system, [(others[i], x0[:n]) for i in go_on], T=GATE_HORIZON, dt=PLAN_STEP,
+                                                    workers=config.workers, ray=config.ray)):
+            box[i] = (int(ok[:half].sum()), int(ok[half:].sum()))
+            bar.update(1)
+    counts = [(*box.get(i, (None, None)), near[i]) for i in range(len(others))]
+    return ([base] if first else []) + counts
+
+
+def _ranked(gate: dict) -> tuple[int, int]:
+    """A gate's rank among fits: its successes at its chosen candidate, after those of every gate
+    that ran a candidate from the box states, its near-box successes where all were screened out
+    near x* (`_counts`)."""
+    if gate["with_recovery"] is None:
+        return 0, gate["candidates_near"][gate["inner_scale"]]
+    return 1, gate["with_recovery"]
 
 
 def _gate(base: tuple[int, int, int], candidates: dict, n: int, config) -> dict:
@@ -231,8 +277,8 @@ def read_labels(run_dir, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
 
 def format_gate(gate: dict, margin: int, half_loss: int) -> str:
     """The gate's figures and verdict in one line (``gate["used"]`` the verdict of the rule)."""
-    cands = ", ".join(f"r = {r:g}: {s}" for r, s in gate["candidates"].items())
-    halves, nears = (", ".join(map(str, gate[k].values())) for k in ("candidates_half", "candidates_near"))
+    cands = ", ".join(f"r = {r:g}: {_shown(s)}" for r, s in gate["candidates"].items())
+    halves, nears = (", ".join(map(_shown, gate[k].values())) for k in ("candidates_half", "candidates_near"))
     kept_as = f"the IDA-PBC law keeping H_d ≤ {gate['level']:.3g}" if gate.get("level") is not None else f"inner box r = {gate['inner_scale']:g}"
     checked = _format_confirm(gate.get("confirm", []))
     verdict = (f"kept, {kept_as}" if gate["used"]
@@ -241,11 +287,18 @@ def format_gate(gate: dict, margin: int, half_loss: int) -> str:
     levels = ""
     if "level_candidates" in gate:  # no inner box was kept: the levels of H_d were tried
         levels = "; or only where also H_d > " + ", ".join(
-            f"c = {c:.3g}: {t} ({gate['level_candidates_near'][c]} near x*)" for c, t in gate["level_candidates"].items())
-    fits = f"; the {len(gate['fits'])} fits brought {', '.join(map(str, gate['fits']))}: fit {gate['fit'] + 1}" if "fits" in gate else ""
+            f"c = {c:.3g}: {_shown(t)} ({gate['level_candidates_near'][c]} near x*)" for c, t in gate["level_candidates"].items())
+    fits = f"; the {len(gate['fits'])} fits brought {', '.join(map(_shown, gate['fits']))}: fit {gate['fit'] + 1}" if "fits" in gate else ""
+    screened = any(v is None for v in [*gate["candidates"].values(), *gate.get("level_candidates", {}).values()])
+    fits += "; –: too few near x* to be eligible, not run from the box states" if screened else ""
     return (f"gate: {gate['states']} states, the run's law brings {gate['run']} to x* ({gate['run_half']} of the {gate['states'] // 2} "
             f"half-box ones; {gate['run_near']} of {gate['near_states']} near x*), with the recovery law {cands} (half box {halves}; "
             f"near x* {nears}){levels}{fits}{checked}: {verdict}")
+
+
+def _shown(count) -> str:
+    """A success count of the gate's line: "–" for a candidate screened out near x* (`_counts`)."""
+    return "–" if count is None else str(count)
 
 
 def _format_confirm(confirm: list) -> str:
