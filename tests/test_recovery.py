@@ -409,46 +409,47 @@ def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states
 
     monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
     k, gate = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, workers=1))
-    # 10 fewer near x* than the run's law: not eligible, and not run from the box states at all
-    assert gate["fits"] == [60, 80 if near_of_the_best == 90 else None, 70] and gate["used"]
-    assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)
+    assert gate["fits"] == [60, 80, 70] and gate["used"]
+    assert k == gate["fit"] == (1 if near_of_the_best == 90 else 2)  # 10 fewer near x* than the run's law: not eligible
     assert [g["with_recovery"] for g in gate["fit_gates"]] == gate["fits"]  # every fit's own gate is kept, not only the chosen one
     assert gate["fit_gates"][1]["candidates_near"][0.25] == near_of_the_best  # the second fit's own near-box count
     none_kept = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, margin=50, workers=1))
-    # none kept: the refused law saved is the one that brought most, among those run from the box states
-    assert none_kept[0] == (1 if near_of_the_best == 90 else 2) and not none_kept[1]["used"]
+    assert none_kept[0] == 1 and not none_kept[1]["used"]  # none kept: the refused law saved is the one that brought most
 
 
-def test_a_candidate_that_loses_the_near_box_is_never_run_from_the_box_states(tiny_run, monkeypatch):
-    """A candidate that brings more than `half_loss` fewer near-box states to x* than the run's law
-    is never eligible, whatever the rest: the gate runs it from the near box only, and its line
-    says so. The rule's verdict is the one the full counts give."""
+def test_a_level_that_loses_the_near_box_is_never_run_from_the_box_states(tiny_run, monkeypatch):
+    """A level of H_d whose law brings more than `half_loss` fewer near-box states to x* than the
+    run's law is never eligible, whatever the rest: the gate runs it from the near box only, and its
+    line says so. The inner boxes run from every state in one batch, as before."""
     laws = [random_law(tiny_run.system, 0.0, seed=k) for k in range(2)]
-    near = {id(laws[0].weights): 88, id(laws[1].weights): 87}  # the run's law: 90 of 100; half_loss 2
-    config = RecoveryConfig(gate_states=100, near_states=100, inner_scales=(0.5,), levels=(), workers=1)
+    near = {id(laws[0].weights): 88, id(laws[1].weights): 87}  # each law's level; the run's law: 90 of 100, half_loss 2
+    config = RecoveryConfig(gate_states=100, near_states=100, inner_scales=(0.5,), levels=(0.25,), workers=1)
     simulated = []
 
     def fake(job):
         system, ctrl, x0 = job
-        key = id(ctrl.fallback.weights) if isinstance(ctrl.fallback, RecoveryLaw) else None
+        fb = ctrl.fallback
+        key = id(fb.weights) if isinstance(fb, RecoveryLaw) else None
         ok = np.zeros(len(x0), bool)
-        ok[:30], ok[50:80], ok[100 : 100 + near.get(key, 90)] = True, True, True
+        ok[:30], ok[50:80], ok[100 : 100 + (near[key] if key and fb.uses_level else 90)] = True, True, True  # every box as the run's law
         return ok
 
     compare = _as_compare(fake)
 
     def counting(system, runs, **kw):
         runs = list(runs)
-        simulated.extend((id(law.fallback.weights) if isinstance(law.fallback, RecoveryLaw) else None, len(x0)) for law, x0 in runs)
+        simulated.extend((id(law.fallback.weights), law.fallback.uses_level, len(x0)) if isinstance(law.fallback, RecoveryLaw) else (None, len(x0))
+                         for law, x0 in runs)
         yield from compare(system, runs, **kw)
 
     monkeypatch.setattr(recovery_gate, "compare_laws", counting)
     k, gate = recovery_gate.choose_fit(tiny_run, laws, config)
     first, second = (id(law.weights) for law in laws)
-    assert sorted(simulated, key=str) == sorted([(None, 200), (first, 100), (second, 100), (first, 100)], key=str)
-    assert gate["fits"] == [60, None] and k == 0 and not gate["used"]  # as many as the run's law: no margin
-    assert gate["fit_gates"][1]["candidates_near"] == {0.5: 87} and gate["fit_gates"][1]["candidates_half"] == {0.5: None}
-    assert "the 2 fits brought 60, –" in recovery_gate.format_gate(gate, config.margin, config.half_loss)
+    expected = [(None, 200), (first, False, 200), (second, False, 200), (first, True, 100), (second, True, 100), (first, True, 100)]
+    assert sorted(simulated, key=str) == sorted(expected, key=str)  # the second law's level: from the near box only
+    assert gate["fits"] == [60, 60] and k == 0 and not gate["used"]  # as many as the run's law: no margin
+    level_gates = [(g["level_candidates"], g["level_candidates_near"]) for g in gate["fit_gates"]]
+    assert [list(c.values()) for c, _ in level_gates] == [[60], [None]] and [list(c.values()) for _, c in level_gates] == [[88], [87]]
     assert "–: too few near x* to be eligible" in recovery_gate.format_gate(gate["fit_gates"][1], config.margin, config.half_loss)
 
 

@@ -149,8 +149,30 @@ def swung_run(tiny_swing_run, tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(swing_stage, "collect_labels", labels)
         mp.setattr(swing_stage, "GATE_HORIZON", 1.0)  # the box part of the gate: its counts, not their values, are checked here
-        entry = swing_up(path, SwingUpConfig(**TINY), progress=False)
+        entry = swing_up(path, SwingUpConfig(**TINY, stop_when_lost=False), progress=False)  # a DAgger round whatever the first fit holds
     return ip.load_run(path), entry
+
+
+def test_dagger_ends_before_labelling_where_the_first_fit_holds_none_of_its_starts(tiny_swing_run, tmp_path, monkeypatch):
+    """`stop_when_lost`: a first fit that holds none of the first DAgger round's starts ends the
+    rounds there; no plans run for them, and the gate judges that fit alone."""
+    from idapbc_pin.recovery import swing_stage
+
+    calls = []
+
+    def labels(system, x0, seed, config, progress, teacher, store, step):  # labels no law can hold with: u = 0 everywhere
+        calls.append(step)
+        rng = np.random.default_rng(seed)
+        q = rng.uniform(-math.pi, math.pi, (200, system.nq))
+        return system.state_from(q, rng.uniform(-2, 2, (200, system.nq))), np.zeros((200, system.m)), 0, len(x0)
+
+    path = tmp_path / "run"
+    shutil.copytree(tiny_swing_run.path, path)
+    monkeypatch.setattr(swing_stage, "collect_labels", labels)
+    monkeypatch.setattr(swing_stage, "GATE_HORIZON", 1.0)
+    entry = swing_up(path, SwingUpConfig(**(TINY | {"dagger": 2})), progress=False)
+    assert calls == ["swing-labels"] and entry["dagger"] == [{"failed": TINY["dagger_starts"] + round(TINY["circle"] * TINY["dagger_starts"]), "stopped": True}]
+    assert all(len(held) == 1 for held in entry["gate"]["candidates"].values()) and entry["fit"] == 0
 
 
 def test_the_stage_writes_its_law_and_entry_and_the_run_applies_a_kept_one(swung_run, tmp_path):

@@ -136,6 +136,9 @@ class SwingUpConfig(Settings):
     ilqr_iterations : iterations of each iLQR solve.
     dagger : DAgger rounds after the first fit.
     dagger_starts : near-resting starts of the fitted law per DAgger round.
+    stop_when_lost : end the DAgger rounds, before labelling, when the first fit holds none of the
+        first round's starts (the gate then judges that law): on the zoo acrobot, where the plans
+        reach x* from few starts, the rounds cost three minutes and the gate kept no law.
     width, steps, batch, fit_seed : the MLP's width, and the fit's Adam steps, minibatch and seed.
     circle : beside each set of near-resting starts (the labels', each DAgger round's, the gate's),
         round(circle × its count) more states at rest with every angle from the full circle
@@ -161,6 +164,7 @@ class SwingUpConfig(Settings):
     ilqr_iterations: int = 12
     dagger: int = 2
     dagger_starts: int = 30
+    stop_when_lost: bool = True
     circle: float = 0.0
     width: int = 128
     steps: int = 4500

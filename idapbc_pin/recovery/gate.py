@@ -3,11 +3,11 @@ that hold the law it judged.
 
 The run's law as it is, and the law with the recovery law outside an inner box of each scale in
 `RecoveryConfig.inner_scales`, run from the gate's states (half from the half box, half from the
-training box, then `near_states` from the near box of scale `NEAR_SCALE`; each candidate from the
-near box first, and from the others only where it can still be eligible). `gate_choice` applies the
+training box, then `near_states` from the near box of scale `NEAR_SCALE`). `gate_choice` applies the
 rule on the success counts; where the run's law brings every half-box gate state to x*, a law the
 rule keeps is checked again on half-box states of their own (`_Confirmation`). When it keeps no inner box, the same rule judges the law acting only
-where H_d(x) > c as well, for the levels c of `energy_levels` (`RecoveryLaw.level`). A kept law is
+where H_d(x) > c as well, for the levels c of `energy_levels` (`RecoveryLaw.level`), each level
+from the near box first, and from the others only where it can still be eligible. A kept law is
 written as ``recovery.npz`` and applied by every command on the run; a refused one as
 ``recovery-refused.npz``, never applied, so that `regate` (``idapbc-pin recover RUN --regate``)
 judges it again with another rule, or keeps it, without fitting it again. The labels the law was
@@ -92,9 +92,9 @@ def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig, progress: bool =
 
 def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) -> tuple[int, dict]:
     """`choose_inner` for each of several fitted `laws` on the same gate states (the run's law
-    simulated once, every law in `config.workers` processes or Ray tasks, `config.ray`; each
-    candidate from the near-box states first, and from the others only where it can still be
-    eligible, `_counts`; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
+    simulated once, every law in `config.workers` processes or Ray tasks, `config.ray`; each level
+    of H_d from the near-box states first, and from the others only where it can still be eligible,
+    `_counts`; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
     (ties: the first), or when it keeps none the one with the most successes at its best candidate
     (the law ``recovery-refused.npz`` then holds, so that `regate` judges the most promising fit). With more than one law the gate also holds
     "fits": each law's successes at its own chosen r, "fit": k, and "fit_gates": every law's own gate
@@ -111,7 +111,8 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     ])  # fmt: skip
     ctrl = run.own_controller  # without any recovery law the run already has
     scales = [float(r) for r in config.inner_scales]
-    base, *rest = _counts(system, [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales], x0, half, n, config, progress)
+    base, *rest = _counts(system, [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales], x0, half, n, config, progress,
+                          screen=False)
     gates = [_gate(base, dict(zip(scales, rest[i * len(scales) : (i + 1) * len(scales)])), n, config) for i in range(len(laws))]
     confirm = _Confirmation(system, ctrl, seed + 4, config, progress) if base[0] >= half and config.confirm_states else None
     if confirm:
@@ -165,17 +166,20 @@ class _Confirmation:
             gates[i]["used"] = got >= self.run - self.config.half_loss
 
 
-def _counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, config, progress: bool, base: tuple | None = None) -> list[tuple]:
+def _counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, config, progress: bool, base: tuple | None = None,
+            screen: bool = True) -> list[tuple]:
     """(half box, training box, near box) successes of each law of `ctrls` from the gate's states x0
     (the first `n` from the half and training boxes, the rest from the near box).
 
     The first law is the run's own (its counts are `base`'s where given, and it is not simulated):
-    it runs from every state. Each other law runs from the near-box states first, and from the
-    others only where it brings at least the run's near-box successes less `half_loss` to x*: a law
-    that loses more there is never eligible (`gate_choice`), whatever the rest, and gets (None, None,
-    near). A law that fails runs its whole horizon, so this spares the box states' rollouts of laws
-    the rule refuses anyway. Without a near box, every law runs from every state."""
-    screen = config.near_states > 0 and len(x0) > n
+    it runs from every state. With `screen`, each other law runs from the near-box states first, and
+    from the others only where it brings at least the run's near-box successes less `half_loss` to
+    x*: a law that loses more there is never eligible (`gate_choice`), whatever the rest, and gets
+    (None, None, near). A failing rollout runs its whole horizon, so this spares the box states'
+    rollouts of laws the rule refuses anyway, at the price of a second batch for those it does not;
+    the gate screens the levels of H_d, which run only where every inner box was refused. Without
+    `screen` or a near box, every law runs from every state in one batch."""
+    screen = screen and config.near_states > 0 and len(x0) > n
     first = [] if base is not None else [(ctrls[0], x0)]
     others = ctrls if base is not None else ctrls[1:]
     with tqdm(total=len(first) + len(others), desc=f"recovery: gate ({len(x0)} states)", unit="law", disable=not progress, dynamic_ncols=True,

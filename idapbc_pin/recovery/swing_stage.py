@@ -22,7 +22,8 @@ holds every number.
    box's angles) runs from `dagger_starts` new near-resting starts (and `circle` times as many from
    the circle); the states its failures visit at 1, 2.5 and 4 s are labelled as in step 1, with
    that law as the teacher (its own rollouts label the states it brings to x*, and its failed
-   inputs warm-start the plans of the others), and a fresh law is fitted on all labels.
+   inputs warm-start the plans of the others), and a fresh law is fitted on all labels. Where the
+   first fit holds none of the first round's starts, the rounds end there (`stop_when_lost`).
 4. **Gate.** The run's law as it is and with each fitted swing-up law (the first fit's and each
    DAgger round's) outside each candidate kept box (the training box's angles alone, and r·s for r
    in `inner_scales`, none by default), judged from `gate_states` near-resting states of their own
@@ -186,8 +187,11 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
     first_mse, laws, rounds = mse, [law], []
     for r in range(config.dagger):
         law, X, U, info = _dagger_round(system, teacher, law, X, U, r, config, store, progress, start)
-        laws.append(law)
         rounds.append(info)
+        if info.get("stopped"):
+            law = laws[-1]
+            break
+        laws.append(law)
     (k, box), gate = swing_gate(run, laws, config, progress)
     law = laws[k].with_box(kept_boxes(system, config)[box])
     entry = {"used": gate["used"], "gate": gate, "fit": k, "labels": int(len(X)), "teacher_starts": int(taught), "plan_starts": int(planned), "first_fit_mse": first_mse,
@@ -202,11 +206,18 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
 def _dagger_round(system, teacher, law: SwingUpLaw, X: np.ndarray, U: np.ndarray, r: int, config: SwingUpConfig, store, progress: bool, start: float):
     """DAgger round r: the run's law with `law` from `dagger_starts` near-resting starts (seed
     plan_seed + 300 + r); the states its failures visit at `DAGGER_TIMES` are labelled with that law
-    as the teacher, and a fresh law is fitted on all labels. Returns (law, X, U, the round's counts)."""
+    as the teacher, and a fresh law is fitted on all labels. Returns (law, X, U, the round's counts);
+    where the first round's law holds none of its starts and `stop_when_lost`, nothing is labelled
+    and the counts say "stopped"."""
     xd = swing_starts(system, config.dagger_starts, config.circle, config.plan_seed + 300 + r)
     ctrl = teacher.with_fallback(law.with_inner(teacher.fallback))  # its kept box: the training box's angles
     traj = simulate(system, ctrl, xd, T=config.judge_T, dt=PLAN_STEP)
     failed = np.flatnonzero(~holds(traj, system))
+    if r == 0 and config.stop_when_lost and failed.size == len(xd):
+        if progress:
+            print(f"swing-up DAgger round 1/{config.dagger}: the first fit holds none of {len(xd)} starts: the rounds end here "
+                  f"(stop_when_lost), the gate judges the first fit  [{time.perf_counter() - start:.0f} s]", flush=True)
+        return law, X, U, {"failed": int(failed.size), "stopped": True}
     ticks = sorted({min(round(t / PLAN_STEP), traj.x.shape[1] - 1) for t in DAGGER_TIMES})  # a short judge_T: its last sample
     visited = np.concatenate([traj.x[failed, k] for k in ticks]) if failed.size else xd[:0]
     # the law itself labels the visited states it brings to x*, and its own failed inputs are the
