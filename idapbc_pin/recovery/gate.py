@@ -54,8 +54,8 @@ def gate_choice(run: tuple[int, int, int], candidates: dict, margin: int, half_l
     half-box states to x*, a candidate must too (a basin the IDA-PBC law holds entirely: on the
     paper cartpole 2 forgiven of 50 became 9 lost of 200 in the evaluation). The eligible one with
     the most half-box and training-box successes wins (ties: the larger r, more IDA-PBC), and is
-    kept when it adds at least `margin` of those. A candidate screened out near x* (`_counts`: half
-    and training box None) is never eligible. Returns (r or None, kept)."""
+    kept when it adds at least `margin` of those. A candidate screened out near x*
+    (`_screened_counts`: half and training box None) is never eligible. Returns (r or None, kept)."""
     half_floor = run[0] if half_states is not None and run[0] >= half_states else run[0] - half_loss
     eligible = [r for r, (h, _, near) in candidates.items() if near >= run[2] - half_loss and h is not None and h >= half_floor]
     if not eligible:
@@ -66,7 +66,7 @@ def gate_choice(run: tuple[int, int, int], candidates: dict, margin: int, half_l
 
 def _total(counts: tuple) -> int | None:
     """Half-box plus training-box successes: what the margin counts (the near box only guards);
-    None for a candidate screened out near x* (`_counts`)."""
+    None for a candidate screened out near x* (`_screened_counts`)."""
     return None if counts[0] is None else counts[0] + counts[1]
 
 
@@ -94,7 +94,7 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     """`choose_inner` for each of several fitted `laws` on the same gate states (the run's law
     simulated once, every law in `config.workers` processes or Ray tasks, `config.ray`; each level
     of H_d from the near-box states first, and from the others only where it can still be eligible,
-    `_counts`; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
+    `_screened_counts`; `progress` prints each): returns (k, gate of laws[k]), k the law the gate keeps with the most successes
     (ties: the first), or when it keeps none the one with the most successes at its best candidate
     (the law ``recovery-refused.npz`` then holds, so that `regate` judges the most promising fit). With more than one law the gate also holds
     "fits": each law's successes at its own chosen r, "fit": k, and "fit_gates": every law's own gate
@@ -111,16 +111,15 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     ])  # fmt: skip
     ctrl = run.own_controller  # without any recovery law the run already has
     scales = [float(r) for r in config.inner_scales]
-    base, *rest = _counts(system, [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales], x0, half, n, config, progress,
-                          screen=False)
+    base, *rest = _counts(system, [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales], x0, half, n, config, progress)
     gates = [_gate(base, dict(zip(scales, rest[i * len(scales) : (i + 1) * len(scales)])), n, config) for i in range(len(laws))]
     confirm = _Confirmation(system, ctrl, seed + 4, config, progress) if base[0] >= half and config.confirm_states else None
     if confirm:
         confirm(gates, lambda i: ctrl.with_fallback(laws[i].with_inner(gates[i]["inner_scale"])))
     if config.levels and not any(g["used"] for g in gates):
         levels = energy_levels(run, config.levels)
-        counts = _counts(system, [ctrl.with_fallback(law.with_inner(0.0).with_level(c)) for law in laws for c in levels], x0, half, n, config, progress,
-                         base=base)
+        counts = _screened_counts(system, [ctrl.with_fallback(law.with_inner(0.0).with_level(c)) for law in laws for c in levels], x0, half, n, base,
+                                  config, progress)
         for i in range(len(laws)):
             by_level = _gate(base, dict(zip(levels, counts[i * len(levels) : (i + 1) * len(levels)])), n, config)
             gates[i] |= {"level_candidates": by_level["candidates"], "level_candidates_near": by_level["candidates_near"]}
@@ -166,50 +165,45 @@ class _Confirmation:
             gates[i]["used"] = got >= self.run - self.config.half_loss
 
 
-def _counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, config, progress: bool, base: tuple | None = None,
-            screen: bool = True) -> list[tuple]:
-    """(half box, training box, near box) successes of each law of `ctrls` from the gate's states x0
-    (the first `n` from the half and training boxes, the rest from the near box).
+def _judged(system, runs: list, config, bar):
+    """Success (N,) bool of each (law, x0) of `runs` over `GATE_HORIZON`, in order, the bar moved on as each comes in."""
+    for ok, _ in compare_laws(system, runs, T=GATE_HORIZON, dt=PLAN_STEP, workers=config.workers, ray=config.ray):
+        bar.update(1)
+        yield ok
 
-    The first law is the run's own (its counts are `base`'s where given, and it is not simulated):
-    it runs from every state. With `screen`, each other law runs from the near-box states first, and
-    from the others only where it brings at least the run's near-box successes less `half_loss` to
-    x*: a law that loses more there is never eligible (`gate_choice`), whatever the rest, and gets
-    (None, None, near). A failing rollout runs its whole horizon, so this spares the box states'
-    rollouts of laws the rule refuses anyway, at the price of a second batch for those it does not;
-    the gate screens the levels of H_d, which run only where every inner box was refused. Without
-    `screen` or a near box, every law runs from every state in one batch."""
-    screen = screen and config.near_states > 0 and len(x0) > n
-    first = [] if base is not None else [(ctrls[0], x0)]
-    others = ctrls if base is not None else ctrls[1:]
-    with tqdm(total=len(first) + len(others), desc=f"recovery: gate ({len(x0)} states)", unit="law", disable=not progress, dynamic_ncols=True,
-              file=sys.stderr) as bar:
-        runs = first + [(c, x0[n:] if screen else x0) for c in others]
-        results = []
-        for ok, _ in compare_laws(system, runs, T=GATE_HORIZON, dt=PLAN_STEP, workers=config.workers, ray=config.ray):
-            results.append(ok)
-            bar.update(1)
-        if base is None:
-            ok = results.pop(0)
-            base = (int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum()))
-        if not screen:
-            return ([base] if first else []) + [(int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())) for ok in results]
-        near = [int(ok.sum()) for ok in results]
+
+def _bar(total: int, states: int, progress: bool):
+    """The gate's progress bar, one step per law simulated."""
+    return tqdm(total=total, desc=f"recovery: gate ({states} states)", unit="law", disable=not progress, dynamic_ncols=True, file=sys.stderr)
+
+
+def _counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, config, progress: bool) -> list[tuple[int, int, int]]:
+    """(half box, training box, near box) successes of each law of `ctrls` from the gate's states x0."""
+    with _bar(len(ctrls), len(x0), progress) as bar:
+        return [(int(ok[:half].sum()), int(ok[half:n].sum()), int(ok[n:].sum())) for ok in _judged(system, [(c, x0) for c in ctrls], config, bar)]
+
+
+def _screened_counts(system, ctrls: list, x0: np.ndarray, half: int, n: int, base: tuple[int, int, int], config, progress: bool) -> list[tuple]:
+    """`_counts` of `ctrls` beside the run's law's counts `base`, each law from the near-box states
+    first, and from the others only where it brings at least the run's near-box successes less
+    `half_loss` to x*: a law that loses more there is never eligible (`gate_choice`), whatever the
+    rest, and gets (None, None, near). A failing rollout runs its whole horizon, so this spares the
+    box states' rollouts of laws the rule refuses anyway, at the price of a second batch for those it
+    does not: the gate screens the levels of H_d, which run only where every inner box was refused."""
+    if not config.near_states:
+        return _counts(system, ctrls, x0, half, n, config, progress)
+    with _bar(len(ctrls), len(x0), progress) as bar:
+        near = [int(ok.sum()) for ok in _judged(system, [(c, x0[n:]) for c in ctrls], config, bar)]
         go_on = [i for i, k in enumerate(near) if k >= base[2] - config.half_loss]
         bar.total += len(go_on)
-        box = {}
-        for i, (ok, _) in zip(go_on, compare_laws(system, [(others[i], x0[:n]) for i in go_on], T=GATE_HORIZON, dt=PLAN_STEP,
-                                                    workers=config.workers, ray=config.ray)):
-            box[i] = (int(ok[:half].sum()), int(ok[half:].sum()))
-            bar.update(1)
-    counts = [(*box.get(i, (None, None)), near[i]) for i in range(len(others))]
-    return ([base] if first else []) + counts
+        box = {i: (int(ok[:half].sum()), int(ok[half:].sum())) for i, ok in zip(go_on, _judged(system, [(ctrls[i], x0[:n]) for i in go_on], config, bar))}
+    return [(*box.get(i, (None, None)), near[i]) for i in range(len(ctrls))]
 
 
 def _ranked(gate: dict) -> tuple[int, int]:
     """A gate's rank among fits: its successes at its chosen candidate, after those of every gate
     that ran a candidate from the box states, its near-box successes where all were screened out
-    near x* (`_counts`)."""
+    near x* (`_screened_counts`)."""
     if gate["with_recovery"] is None:
         return 0, gate["candidates_near"][gate["inner_scale"]]
     return 1, gate["with_recovery"]
@@ -301,7 +295,7 @@ def format_gate(gate: dict, margin: int, half_loss: int) -> str:
 
 
 def _shown(count) -> str:
-    """A success count of the gate's line: "–" for a candidate screened out near x* (`_counts`)."""
+    """A success count of the gate's line: "–" for a candidate screened out near x* (`_screened_counts`)."""
     return "–" if count is None else str(count)
 
 

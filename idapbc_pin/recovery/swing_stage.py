@@ -189,7 +189,6 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
         law, X, U, info = _dagger_round(system, teacher, law, X, U, r, config, store, progress, start)
         rounds.append(info)
         if info.get("stopped"):
-            law = laws[-1]
             break
         laws.append(law)
     (k, box), gate = swing_gate(run, laws, config, progress)
