@@ -70,23 +70,28 @@ def train_command(name: str, out: str, seed: int) -> list[str]:
 
 
 def trained_run(name: str, out: str, seed: int):
-    """Train `name` through the default path with --swing-up; -> (its `Run`, wall time s, the stage's gate line)."""
+    """Train `name` through the default path with --swing-up; -> (its `Run`, wall time s, the stage's gate and manoeuvre lines)."""
     t0 = time.perf_counter()
     done = subprocess.run(train_command(name, out, seed), capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if done.returncode != 0:
         raise SystemExit(f"training {name} failed:\n{done.stderr[-2000:]}")
-    gate = next((line for line in done.stdout.splitlines() if line.startswith("swing-up gate")), "swing-up gate: none")
+    lines = done.stdout.splitlines()
+    gate = "; ".join(next((line for line in lines if line.startswith(head)), f"{head}: none") for head in ("swing-up gate", "swing-up manoeuvre"))
     (path,) = [p for p in Path(out).iterdir() if p.is_dir()]
     return ip.load_run(path), wall, gate
 
 
-def report(title: str, system, controllers: dict, args, published: str | None = None) -> None:
-    """Evaluate and print one table per start set of `--starts`."""
+def report(title: str, system, controllers: dict, args, published: str | None = None, run=None) -> None:
+    """Evaluate and print one table per start set of `--starts`; from near hanging also the
+    swing-up manoeuvre `run` keeps, if any (a fresh one per table: it counts its own time)."""
     limit = ", ".join(f"{j}={e:g}" for j, e in zip(system.actuated, system.effort))
     for starts in args.starts:
         t0 = time.perf_counter()
-        result = evaluate_swingup(system, controllers, n=args.n, T=args.T, seed=args.seed, workers=args.workers, starts=starts)
+        laws = dict(controllers)
+        if run is not None and run.manoeuvre is not None and starts == "hanging":
+            laws["NIDA-PBC manoeuvre (then the run's law)"] = run.manoeuvre.law(run.controller)
+        result = evaluate_swingup(system, laws, n=args.n, T=args.T, seed=args.seed, workers=args.workers, starts=starts)
         where = "near hanging" if starts == "hanging" else "at rest, angles from the full circle"
         print(f"\n### {title}, from {where} (actuated {limit}; {time.perf_counter() - t0:.1f} s)\n")
         print(result.table())
@@ -120,14 +125,14 @@ def main() -> None:
                 run, wall, gate = trained_run(name, out, args.train_seed)
                 ctrls["NIDA-PBC (train --fast --swing-up)"] = run.controller
                 print(f"\n{name}: `idapbc-pin train --fast --swing-up` took {wall:.0f} s; {gate}")
-                report(name, run.system, ctrls, args, PUBLISHED.get(name))
+                report(name, run.system, ctrls, args, PUBLISHED.get(name), run)
             continue
         report(name, system, ctrls, args, PUBLISHED.get(name))
     for path in args.run:
         run = ip.load_run(path)
         system = run.system
         ctrls = {"LQR (saturated)": LQRController(system), "energy pump + LQR": EnergyPumpLaw(system), f"run {Path(path).name}": run.controller}
-        report(f"run {path} ({system.name})", system, ctrls, args)
+        report(f"run {path} ({system.name})", system, ctrls, args, run=run)
 
 
 if __name__ == "__main__":

@@ -35,6 +35,8 @@ CHECKOUT = str(Path(ip.__file__).resolve().parents[1])
 
 #: Runs in a fresh interpreter (-I: no PYTHON* variables, no user site, no script folder on sys.path)
 #: with idapbc_pin and torch made unimportable: argv = export dir, states .npz, output .npz.
+#: Times (s) after its command at which the standalone `swing_up_torque` is called.
+MANOEUVRE_TIMES = (0.0, 0.013, 0.5, 100.0)
 STANDALONE = f"""
 import importlib.abc, runpy, sys
 class Block(importlib.abc.MetaPathFinder):
@@ -49,8 +51,10 @@ import numpy as np
 import controller
 data = np.load(states)
 q, v = data["q"], data["v"]
+MANOEUVRE_TIMES = {MANOEUVRE_TIMES!r}
 single = np.array([controller.torque(qk, vk) for qk, vk in zip(q, v)])
-np.savez(result, batched=controller.torque(q, v), single=single, effort=controller.EFFORT)
+manoeuvre = np.stack([controller.swing_up_torque(q, v, t) for t in MANOEUVRE_TIMES])
+np.savez(result, batched=controller.torque(q, v), single=single, effort=controller.EFFORT, manoeuvre=manoeuvre)
 runpy.run_path(folder + "/controller.py", run_name="__main__")
 assert not any(m.partition(".")[0] in ("idapbc_pin", "torch") for m in sys.modules)
 """
@@ -145,6 +149,8 @@ def test_standalone_torque_equals_the_saturated_law(limited_pendubot, tmp_path):
     _close(out["single"], expected, 1e-9)
     _close(out["batched"], run.controller.torque(q, v), 1e-9)  # the library's own saturated torque
     assert np.abs(out["batched"]).max() <= system.effort[0] * (1 + 1e-12)
+    for tau in out["manoeuvre"]:  # a run without a swing-up manoeuvre: its torque at any time
+        np.testing.assert_array_equal(tau, out["batched"])
 
 
 @pytest.mark.parametrize("inside_gain, inside_ramp", [(1.0, [0.0, 0.0]), (3.0, [0.0, 0.0]), (3.0, [0.2, 0.5])])

@@ -339,3 +339,69 @@ def test_swing_up_starts_are_near_resting_then_at_rest_from_the_full_circle():
     q, v = system.split(x[8:])
     assert (v == 0).all() and (np.abs(wrap_angles(q - system.x_star[:2], np.ones(2, bool))) > 0.2).any(axis=1).all()
     np.testing.assert_array_equal(swing_starts(system, 8, 0.0, seed=3), x[:8])
+
+
+def test_the_stage_judges_tracking_laws_and_a_manoeuvre_from_its_nominals_and_a_kept_one_ships(tiny_swing_run, tmp_path, monkeypatch):
+    """With a nominal plan from rest (here a short random one: real ones take a minute), the stage
+    judges its tracking laws beside the fits in the gate and its manoeuvre against the run's law; a
+    refused manoeuvre is written aside and never applied. Kept by hand, `simulate --from hanging`
+    judges it in its own row, and the standalone export runs it as the library does."""
+    from tests.test_export import MANOEUVRE_TIMES, _close, _run_standalone
+
+    from idapbc_pin.evaluation.swingup import MANOEUVRE_ROW, evaluate_run_swingup
+    from idapbc_pin.recovery import swing_stage
+    from idapbc_pin.recovery.ilqr import rollout
+    from idapbc_pin.recovery.manoeuvre import SwingManoeuvre
+    from idapbc_pin.recovery.swing_tracks import KNOT, tvlqr_gains
+    from idapbc_pin.run import MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE
+
+    def labels(system, x0, seed, config, progress, teacher, store, step):
+        rng = np.random.default_rng(seed)
+        q = rng.uniform(-math.pi, math.pi, (200, system.nq))
+        return system.state_from(q, rng.uniform(-2, 2, (200, system.nq))), system.effort * np.tanh(np.sin(q[:, :1])), 0, len(x0)
+
+    def nominals(system, catch, config, count):
+        rng = np.random.default_rng(0)
+        U = rng.uniform(-1, 1, (25, system.m)) * system.effort / 2
+        q0, v0 = system.split(resting_states(system, 1))
+        Z = rollout(system, np.concatenate([q0, v0], axis=1), U[None], KNOT, 1)[0]
+        return [(U, Z, tvlqr_gains(system, U, Z))]
+
+    path = tmp_path / "run"
+    shutil.copytree(tiny_swing_run.path, path)
+    monkeypatch.setattr(swing_stage, "collect_labels", labels)
+    monkeypatch.setattr(swing_stage, "nominals", nominals)
+    monkeypatch.setattr(swing_stage, "GATE_HORIZON", 1.0)
+    entry = swing_up(path, SwingUpConfig(**TINY, stop_when_lost=False), progress=False)
+    fits = 1 + TINY["dagger"]
+    assert entry["tracks"]["nominals"] == 1 and len(entry["tracks"]["held"]) == 3  # one nominal, three speed weights
+    assert entry["gate"]["fitted"] == fits and all(len(held) == fits + 2 for held in entry["gate"]["candidates"].values())
+    run = ip.load_run(path)
+    judged = run.summary["swing_manoeuvre"]
+    assert judged["states"] == TINY["gate_states"] and len(judged["picked"]) == 1 and judged["choice"] == 0
+    assert judged["used"] == (judged["held"] >= judged["run"] + SwingUpConfig().margin)
+    if not judged["used"]:
+        assert run.manoeuvre is None and (path / MANOEUVRE_REFUSED_FILE).is_file() and not (path / MANOEUVRE_FILE).exists()
+        (path / MANOEUVRE_REFUSED_FILE).rename(path / MANOEUVRE_FILE)
+        (path / "summary.json").write_text(json.dumps(run.summary | {"swing_manoeuvre": judged | {"used": True, "law_file": MANOEUVRE_FILE}}))
+    kept = ip.load_run(path)
+    manoeuvre = kept.manoeuvre
+    assert isinstance(manoeuvre, SwingManoeuvre) and manoeuvre.duration == pytest.approx(25 * KNOT)
+    result = evaluate_run_swingup(kept, n=2, T=1.0)
+    assert list(result.scores)[:2] == ["NIDA-PBC", MANOEUVRE_ROW]
+    from idapbc_pin.viewer.replay import _rollouts_to_show, _system_and_controller
+
+    system, ctrl, shown = _system_and_controller(str(path))
+    traj, note = _rollouts_to_show(system, ctrl, None, None, 2, "hanging", 0.2, None, 0, True, shown)  # `view RUN` replays the manoeuvre
+    np.testing.assert_allclose(traj.u[:, 0], system.saturate(manoeuvre.inputs(resting_states(system, 2, 0), 0.0)), atol=1e-12)
+    assert "manoeuvre" in note
+    folder = ip.export(kept, tmp_path / "export", onnx=False)
+    assert json.loads((folder / "controller.json").read_text())["manoeuvre"]["knot"] == KNOT
+    assert "swing_up_torque" in (folder / "README.md").read_text()
+    rng = np.random.default_rng(1)
+    q, v = rng.uniform(-math.pi, math.pi, (50, 2)), rng.uniform(-3, 3, (50, 2))
+    out = _run_standalone(folder, q, v, tmp_path)
+    x = kept.system.state_from(q, v)
+    for t, tau in zip(MANOEUVRE_TIMES, out["manoeuvre"]):
+        u = manoeuvre.inputs(x, t) if t < manoeuvre.duration else kept.controller(x)
+        _close(tau, kept.system.saturate(u) @ kept.system.B.T, 1e-9)

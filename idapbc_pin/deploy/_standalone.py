@@ -3,6 +3,7 @@
     import controller                       # this folder on sys.path (or load the file by its path)
     tau = controller.torque(q, v)           # (nv,) -> (nv,) or (N, nv) -> (N, nv); N·m or N per joint
     controller.EFFORT                       # (m,) limit of each actuated input, inf where none
+    tau = controller.swing_up_torque(q, v, t)   # the swing-up manoeuvre from rest, t s after its command
     controller.JOINTS, controller.ACTUATED  # order of q, v and tau; order of u and EFFORT
 
 q holds one coordinate per joint in JOINTS order (rad or m; a continuous joint's angle itself, not
@@ -25,8 +26,15 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
     u ← ū tanh(MLP(φ(δ)))  where some |δ_i| > box_i        (last, if the "fallback" has kind "swing_up":
                   the run's swing-up law outside its kept box (a null half-width is not read),
                   around the fallback it "wraps", above; φ(δ) = (sin δ_a, cos δ_a, δ_o / s_o): the
-                  angles' sines and cosines, then the other components scaled)
+                  angles' sines and cosines, then the other components scaled; where it has a
+                  nominal trajectory "X" instead, u ← clip(U_k + K_k e_k, ±ū) with e_k = wrap(x − X_k)
+                  at the k that minimises ‖weight ⊙ e_k‖: a tracking law)
     u ← clip(u, −EFFORT, EFFORT);   τ = B u
+
+`swing_up_torque(q, v, t)` (when controller.json has a "manoeuvre"; the swing-up stage's manoeuvre
+from rest): during knot k = ⌊t / knot⌋ of its nominal plan, u = clip(U_k + K_k wrap(x − X(t)), ±ū)
+with X(t) = X_k + (t / knot − k)(X_{k+1} − X_k) ("end" after the last knot), t counted from the
+command at rest near the hanging posture; after the plan, `torque(q, v)`.
 
 f̃_d = (J_d − R_d)∇H_d comes from desired_flow.py with weights.npz (the same function as
 desired_flow.onnx); D is the URDF's joint damping. The folder's controller.json holds the rest.
@@ -82,6 +90,7 @@ class ExportedController:
         if fallback is not None and fallback.get("kind") == "swing_up":
             self.swing, fallback = _arrays(fallback), fallback.get("wraps")
         self.fallback = None if fallback is None else _arrays(fallback)
+        self.manoeuvre = None if meta.get("manoeuvre") is None else _arrays(meta["manoeuvre"])
         self.recovery = fallback is not None and fallback.get("kind") == "recovery"
         self.flow = _load_sibling(directory, "desired_flow").load_flow(directory / meta["weights"])
         self.model = pin.buildModelFromUrdf(str(directory / meta["urdf"]))
@@ -166,14 +175,22 @@ class ExportedController:
         return fb["effort"] * np.tanh(z)
 
     def swing_up(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """On the rows of x (N, n) outside the swing-up law's kept box, that law ū tanh(MLP(φ(δ)));
-        u (N, m) elsewhere."""
+        """On the rows of x (N, n) outside the swing-up law's kept box, that law (ū tanh(MLP(φ(δ))), or
+        the tracking law at the nearest nominal point); u (N, m) elsewhere."""
         sw = self.swing
         mask = sw["angle_mask"]
         d = x - sw["x_star"]
         d[:, mask] = np.pi - np.mod(np.pi - d[:, mask], 2 * np.pi)  # wrap to (−π, π]
         out = (np.abs(d) > sw["box"]).any(axis=1)  # an unread component's null reads as nan: never outside
         if not out.any():
+            return u
+        if "X" in sw:  # a tracking law: the nominal point nearest to x, and its gains
+            e = x[out][:, None, :] - sw["X"][None]
+            e[..., mask] = np.pi - np.mod(np.pi - e[..., mask], 2 * np.pi)
+            k = np.argmin(((e * sw["weight"]) ** 2).sum(axis=-1), axis=1)
+            e = e[np.arange(len(k)), k]
+            u = u.copy()
+            u[out] = np.clip(sw["U"][k] + np.einsum("nij,nj->ni", sw["K"][k], e), -sw["effort"], sw["effort"])
             return u
         z = np.concatenate([np.sin(d[out][:, mask]), np.cos(d[out][:, mask]), d[out][:, ~mask] / sw["scale"][~mask]], axis=1)
         depth = sum(1 for k in sw if k.startswith("W"))
@@ -195,6 +212,26 @@ class ExportedController:
         return tau[0] if single else tau
 
 
+    def swing_up_torque(self, q, v, t: float) -> np.ndarray:
+        """τ of the swing-up manoeuvre t s after its command (`torque(q, v)` after its plan, or
+        without one): (N, nv) ×2 -> (N, nv), or (nv,) ×2 -> (nv,)."""
+        mv = self.manoeuvre
+        if mv is None or t >= len(mv["X"]) * float(mv["knot"]) - 1e-12:
+            return self.torque(q, v)
+        q, v = np.asarray(q, dtype=np.float64), np.asarray(v, dtype=np.float64)
+        single = q.ndim == 1
+        q, v = (q[None], v[None]) if single else (q, v)
+        M = np.stack([pin.crba(self.model, self.data, qc) for qc in self.configuration(q)])
+        k = min(int(np.floor(t / float(mv["knot"]) + 1e-9)), len(mv["X"]) - 1)
+        after = mv["X"][k + 1] if k + 1 < len(mv["X"]) else mv["end"]
+        nominal = mv["X"][k] + min(max(t / float(mv["knot"]) - k, 0.0), 1.0) * (after - mv["X"][k])  # between the knots
+        e = np.concatenate([q, np.einsum("nij,nj->ni", M, v)], axis=1) - nominal
+        e[:, mv["angle_mask"]] = np.pi - np.mod(np.pi - e[:, mv["angle_mask"]], 2 * np.pi)
+        u = np.clip(mv["U"][k] + e @ mv["K"][k].T, -mv["effort"], mv["effort"])
+        tau = np.minimum(np.maximum(u, -self.effort), self.effort) @ self.B.T
+        return tau[0] if single else tau
+
+
 def _arrays(fallback: dict) -> dict:
     """controller.json's "fallback" (or the one a swing-up law "wraps") as arrays by name (angle_mask boolean)."""
     return {k: np.array(v, dtype=bool if k == "angle_mask" else np.float64) for k, v in fallback.items() if k not in ("kind", "wraps")}
@@ -203,6 +240,7 @@ def _arrays(fallback: dict) -> dict:
 _CONTROLLER = ExportedController(HERE)
 JOINTS, ACTUATED, EFFORT = _CONTROLLER.joints, _CONTROLLER.actuated, _CONTROLLER.effort
 torque = _CONTROLLER.torque
+swing_up_torque = _CONTROLLER.swing_up_torque
 
 
 if __name__ == "__main__":

@@ -77,6 +77,7 @@ def _controller_record(run, flow, onnx: bool) -> dict:
         "x_star": system.x_star,
         "wrap": None if run.nets.angle_mask is None else run.nets.angle_mask.cpu().numpy().tolist(),  # angles wrapped to within π of x*
         "fallback": None if run.fallback is None else run.fallback.to_json(),  # the linear law outside the training box
+        "manoeuvre": None if run.manoeuvre is None else run.manoeuvre.to_json(),  # the swing-up manoeuvre from rest
         "state_names": list(system.state_names),
         "dtype": str(flow.dtype),
         "urdf": "robot.urdf",

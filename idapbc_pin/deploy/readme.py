@@ -133,13 +133,26 @@ def deploy_readme(record: dict) -> str:
     swing = fallback if fallback is not None and fallback.get("kind") == "swing_up" else None
     fallback = fallback.get("wraps") if swing is not None else fallback
     line, text = _fallback_text(fallback)
-    if swing is not None:
+    if swing is not None and "X" in swing:
+        line += "    u    ← clip(U_k + K_k e_k, ±ū), e_k = wrap(x − X_k) nearest   where some |δ_i| > box_i  (the swing-up law)\n"
+        text += ("\nOutside a box around x* (controller.json's \"fallback\" → \"box\"; null: a component not read) the run uses its swing-up law, a "
+                 "torque plan from the resting posture to x* (nominal states \"X\" in (q, p), inputs \"U\") tracked by the gains \"K\" of a "
+                 "time-varying LQR, read at the nominal point nearest to the state (distance weighted by \"weight\"; `idapbc-pin train "
+                 "--swing-up`), around the law it \"wraps\", above (`controller.py` applies it). It was kept because it brought more "
+                 "simulated near-resting states to x* under the effort limits; no certificate covers it.\n")
+    elif swing is not None:
         line += "    u    ← ū tanh(MLP(φ(δ)))  where some |δ_i| > box_i                        (the swing-up law)\n"
         text += ("\nOutside a box around x* (controller.json's \"fallback\" → \"box\"; null: a component not read) the run uses its swing-up law, a small "
                  "MLP fitted to torque plans from the resting posture (`idapbc-pin train --swing-up`); it sees the sines and cosines of "
                  "the angles and the other components scaled. Its weights are controller.json's \"fallback\", around the law it \"wraps\", "
                  "above (`controller.py` applies it). It was kept because it brought more simulated near-resting states to x* under the "
                  "effort limits; no certificate covers it.\n")
+    if record.get("manoeuvre") is not None:
+        text += ("\nFrom rest near the hanging posture, `controller.swing_up_torque(q, v, t)` runs the run's swing-up manoeuvre, t seconds "
+                 "after its command: a nominal plan from rest (controller.json's \"manoeuvre\": states \"X\" in (q, p), inputs \"U\", one knot "
+                 "of \"knot\" s each) tracked in time by the gains \"K\" of a time-varying LQR, then `torque(q, v)` after its end. It was kept "
+                 "because it brought more simulated near-resting states to x* under the effort limits than the law alone; start it from rest, "
+                 "and fall back to `torque(q, v)` if the robot is far from its nominal.\n")
     body = _BODY.format(dtype=record["dtype"], n=2 * nv, nv=nv, x_star=x_star, joints=_joint_table(record), onnx_row=onnx_row,
                         fallback_line=line, fallback_text=text)
     return title + body

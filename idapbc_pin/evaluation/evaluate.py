@@ -20,7 +20,7 @@ from .._io import finite_or_none, write_json
 from .._parallel import JobPool
 from ..control.baseline import LQRController
 from ..recovery.law import RecoveryLaw
-from ..recovery.swing_law import SwingUpLaw
+from ..recovery.swing_law import KeptBoxLaw
 from ..run import Run
 from ..sim.limits import input_limits
 from ..sim.step import judge_step
@@ -127,7 +127,7 @@ def evaluate_run(
     record = evaluation.record()
     record["rho"] = ctrl.rho
     law = getattr(ctrl, "fallback", None)
-    record["swing_up"] = isinstance(law, SwingUpLaw)  # NIDA-PBC used a swing-up law where the posture left the training box
+    record["swing_up"] = isinstance(law, KeptBoxLaw)  # NIDA-PBC used a swing-up law where the posture left the training box
     law = law.inner if record["swing_up"] else law
     record["recovery"] = isinstance(law, RecoveryLaw)  # NIDA-PBC used a recovery law outside an inner box (`idapbc-pin recover`)
     record["fallback"] = law is not None and not record["recovery"]  # NIDA-PBC used the anchor's linear law outside the training box

@@ -12,8 +12,10 @@ sees it help.
   labels), `gate` (keep it or not), `chunks` (finished chunks of plans a killed stage reads back),
   `stage` (`recover`, `refit`, `regate`), `trigger` (`limits_bind`, `auto_recover`: `train`'s default).
 * Swing-up, the same machinery from the resting posture: `swing_law` (`SwingUpLaw`, acting where the
-  posture leaves the training box, around the run's own outer law), `swing_stage` (`swing_up`, its
-  labels, fit, DAgger rounds and gate; `SwingUpConfig` in `config`).
+  posture leaves the training box, around the run's own outer law), `swing_tracks` (nominal plans
+  from rest and their time-varying LQR) with `tracking_law` (`TrackingLaw`: a nominal read at the
+  nearest point) and `manoeuvre` (`SwingManoeuvre`: a nominal read by time, from a command at rest),
+  `swing_stage` (`swing_up`, its labels, fit, DAgger rounds and gate; `SwingUpConfig` in `config`).
 
 The law modules import nothing of this package's stage, so the run directory can load them.
 """
@@ -21,10 +23,12 @@ The law modules import nothing of this package's stage, so the run directory can
 from .box_law import BoxFallback
 from .config import RecoveryConfig, SwingUpConfig
 from .law import RecoveryLaw
+from .manoeuvre import SwingManoeuvre
 from .stage import recover, refit, regate
 from .swing_law import SwingUpLaw
 from .swing_stage import swing_up
+from .tracking_law import TrackingLaw
 from .trigger import auto_recover, limits_bind
 
-__all__ = ["BoxFallback", "RecoveryConfig", "RecoveryLaw", "SwingUpConfig", "SwingUpLaw", "auto_recover", "limits_bind", "recover", "refit", "regate",
-           "swing_up"]
+__all__ = ["BoxFallback", "RecoveryConfig", "RecoveryLaw", "SwingManoeuvre", "SwingUpConfig", "SwingUpLaw", "TrackingLaw", "auto_recover", "limits_bind",
+           "recover", "refit", "regate", "swing_up"]

@@ -153,6 +153,13 @@ class SwingUpConfig(Settings):
         alone (`swing_stage.kept_boxes`); none by default: a law acting through the box's postures
         at speed held fewer swing-ups than one that leaves every posture of the box to the run's law.
     judge_T : horizon of every swing-up rollout (the teacher's, the plans', DAgger's, the gate's), s.
+    tracks : tracking laws (`recovery.swing_tracks`: nominal plans from the exact resting posture,
+        each tracked from the nearest point by a time-varying LQR) the gate judges beside the fits; 0:
+        none.
+    track_iterations : iterations of the iLQR solves of those nominals.
+    track_share : share of the effort limits the nominals use (the rest is the feedback's).
+    manoeuvre : also judge each nominal as a manoeuvre from rest, tracked in time
+        (`recovery.manoeuvre`), and keep the best where it holds `margin` more than the run's law.
     workers, ray : as `RecoveryConfig`'s: processes (0: one per core) or Ray tasks; the time only.
     """
 
@@ -176,13 +183,18 @@ class SwingUpConfig(Settings):
     box_loss: int = 2
     inner_scales: tuple = ()
     judge_T: float = 10.0
+    tracks: int = 2
+    track_iterations: int = 30
+    track_share: float = 0.8
+    manoeuvre: bool = True
     workers: int = 0
     ray: str | None = None
 
     def __post_init__(self):
-        ok = (all(0 < r <= 1 for r in self.inner_scales) and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations) >= 1
-              and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed) >= 0
+        ok = (all(0 < r <= 1 for r in self.inner_scales) and 0 < self.track_share <= 1
+              and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations) >= 1
+              and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks) >= 0
               and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10)
         if not ok:
-            raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch and ilqr_iterations must be ≥ 1, "
-                              "the other counts and seeds ≥ 0, inner_scales in (0, 1], circle in [0, 10], horizon > 0 and judge_T ≥ horizon + 2 s. Fix: pass valid values.")
+            raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch, ilqr_iterations and track_iterations "
+                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales and track_share in (0, 1], circle in [0, 10], horizon > 0 and judge_T ≥ horizon + 2 s. Fix: pass valid values.")

@@ -23,13 +23,13 @@ as any outer law; the switch is discontinuous on the kept box's faces.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..model.angles import wrap_angles
+from ._kept_box import KeptBoxLaw
 
-__all__ = ["SwingUpLaw", "swing_features"]
+__all__ = ["KeptBoxLaw", "SwingUpLaw", "swing_features", "swing_law_from_arrays"]
 
 
 def swing_features(delta: np.ndarray, angle_mask: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -41,7 +41,7 @@ def swing_features(delta: np.ndarray, angle_mask: np.ndarray, scale: np.ndarray)
 
 
 @dataclass(frozen=True, eq=False)
-class SwingUpLaw:
+class SwingUpLaw(KeptBoxLaw):
     """The fitted swing-up law and the postures where the run's law keeps control.
 
     Attributes
@@ -67,10 +67,6 @@ class SwingUpLaw:
     box: np.ndarray
     inner: object = None
 
-    def delta(self, x) -> np.ndarray:
-        """δ = wrap(x − x*): (..., n) -> (..., n)."""
-        return wrap_angles(np.asarray(x, dtype=np.float64) - self.x_star, self.angle_mask)
-
     def law(self, x) -> np.ndarray:
         """The swing-up law alone: (N, n) -> (N, m), within ±ū."""
         z = swing_features(self.delta(np.atleast_2d(x)), self.angle_mask, self.scale)
@@ -78,40 +74,11 @@ class SwingUpLaw:
             z = np.tanh(z @ W.T + b)
         return self.effort * np.tanh(z @ self.weights[-1].T + self.biases[-1])
 
-    def outside(self, x) -> np.ndarray:
-        """(..., n) -> (...) bool: True outside the kept box (the swing-up law acts)."""
-        return (np.abs(self.delta(x)) > self.box).any(axis=-1)
-
-    def apply(self, x, u, energy=None) -> np.ndarray:
-        """The run's law (u after `inner`, given `energy` if it needs H_d) in the kept box, the swing-up
-        law elsewhere: (N, n), (N, m) -> (N, m) (a new array)."""
-        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-        u = np.array(u, dtype=np.float64, copy=True).reshape(len(x), -1)
-        if self.inner is not None:
-            u = self.inner.apply(x, u, energy=energy)
-        out = self.outside(x)
-        if out.any():
-            u[out] = self.law(x[out])
-        return u
-
-    def with_box(self, box) -> "SwingUpLaw":
-        """The same law with another kept box (n,) (∞: a component not read)."""
-        return replace(self, box=np.asarray(box, dtype=np.float64))
-
-    def with_inner(self, inner) -> "SwingUpLaw":
-        """The same law around another outer law of the run (None: the networks alone)."""
-        return replace(self, inner=inner)
-
     def arrays(self) -> dict:
         """The law as named arrays (swingup.npz of a run, without `inner`, which the run supplies):
         W0, b0, W1, b1, …, x_star, scale, effort, angle_mask, box."""
         out = {f"W{k}": W for k, W in enumerate(self.weights)} | {f"b{k}": b for k, b in enumerate(self.biases)}
         return out | {k: np.asarray(getattr(self, k)) for k in ("x_star", "scale", "effort", "angle_mask", "box")}
-
-    @property
-    def gain_at_target(self) -> float:
-        """The inner law's factor on the networks' part of the linearisation at x* (1 without one)."""
-        return float(getattr(self.inner, "gain_at_target", 1.0))
 
     @classmethod
     def from_arrays(cls, arrays, inner=None) -> "SwingUpLaw":
@@ -140,3 +107,11 @@ class SwingUpLaw:
         out["box"] = [float(b) if np.isfinite(b) else None for b in self.box]
         return {"kind": "swing_up"} | out | {"wraps": inner}
 
+
+
+def swing_law_from_arrays(arrays, inner=None):
+    """A run's swing-up law from its arrays (a dict or an open .npz): a `TrackingLaw` where they hold
+    a nominal trajectory ("X"), else a `SwingUpLaw`, around `inner`; raises ValueError as theirs do."""
+    from .tracking_law import TrackingLaw
+
+    return (TrackingLaw if "X" in arrays else SwingUpLaw).from_arrays(arrays, inner)

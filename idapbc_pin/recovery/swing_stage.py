@@ -25,7 +25,8 @@ holds every number.
    inputs warm-start the plans of the others), and a fresh law is fitted on all labels. Where the
    first fit holds none of the first round's starts, the rounds end there (`stop_when_lost`).
 4. **Gate.** The run's law as it is and with each fitted swing-up law (the first fit's and each
-   DAgger round's) outside each candidate kept box (the training box's angles alone, and r·s for r
+   DAgger round's, then the `tracks` best tracking laws of `swing_tracks`: nominal plans from the
+   exact resting posture read at the nearest point) outside each candidate kept box (the training box's angles alone, and r·s for r
    in `inner_scales`, none by default), judged from `gate_states` near-resting states of their own
    and `circle` times as many from the circle ("holds" over `judge_T`, `sim.metrics.holds`), and
    from `box_states` states of the half box and the training box (success over 20 s). Among the
@@ -33,6 +34,11 @@ holds every number.
    them, where none does), the one that holds the most swing-up states is chosen (ties: the later
    fit, the larger box); it is kept when it holds at least `margin` more than the run's law and
    keeps the box.
+
+5. **Manoeuvre.** Each nominal plan as a manoeuvre from a command at rest (`manoeuvre`: tracked in
+   time, then the run's law as the gate leaves it); the one that holds the most near-resting
+   starts of its own is kept when it holds `margin` more of the gate's near-resting states than the
+   run's law (``swingup-manoeuvre.npz``, summary.json → "swing_manoeuvre").
 
 The law goes to ``swingup.npz`` when kept (every command on the run then applies it), else to
 ``swingup-refused.npz``, and the entry to summary.json → "swing_up"; each write atomic.
@@ -51,7 +57,7 @@ from .._io import write_json
 from .._parallel import process_map
 from ..control.energy_pump import EnergyPumpLaw
 from ..model.angles import wrap_angles
-from ..run import SWINGUP_FILE, SWINGUP_REFUSED_FILE, resolve_run
+from ..run import MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE, SWINGUP_FILE, SWINGUP_REFUSED_FILE, resolve_run
 from ..sim.compare import compare_laws
 from ..sim.integrate import simulate
 from ..sim.metrics import holds
@@ -63,6 +69,8 @@ from .gate import GATE_HORIZON, RECOVERY_GATE_SEED, read_labels, write_law
 from .plans import PLAN_STEP, PlanSettings, planning_system
 from .stage import collect_labels
 from .swing_law import SwingUpLaw, swing_features
+from .manoeuvre import MANOEUVRE_NOMINALS, SwingManoeuvre, choose_manoeuvre
+from .swing_tracks import KNOT, NOMINALS, nominals, tracking_law, tracking_laws
 
 __all__ = ["SWING_GATE_SEED", "fit_swing_law", "kept_boxes", "swing_gate", "swing_starts", "swing_up"]
 
@@ -171,34 +179,68 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
         print(f"swing-up labels: energy pumping with the run's law in the box brings {taught} of {len(x0)}{circle} starts to x*, "
               f"plans {planned} more; "
               f"{len(X)} labels, and {len(Xb)} of the recovery stage's  [{time.perf_counter() - start:.0f} s]", flush=True)
-    if not len(X):
+    plans = nominals(system, PumpThenRun(system, teacher), config, max(NOMINALS, MANOEUVRE_NOMINALS if config.manoeuvre else 0)) \
+        if config.tracks or config.manoeuvre else []
+    tracks, track_info = tracking_laws(system, teacher, plans, kept_boxes(system, config)["posture"], config, progress) if config.tracks and plans else ([], {})
+    if not len(X) and not tracks:
         reason = (f"no plan from the resting posture reached x* within {config.horizon:g} s: nothing to fit a swing-up law to "
                   "(a longer horizon in the swing-up config may find some)")
         if progress:
             print(f"swing-up: {reason}; the run keeps its law as it is", flush=True)
-        entry = {"used": False, "reason": reason, "teacher_starts": int(taught), "plan_starts": 0, "seconds": round(time.perf_counter() - start, 1),
-                 "config": asdict(config)}
+        entry = {"used": False, "reason": reason, "teacher_starts": int(taught), "plan_starts": 0, "tracks": track_info,
+                 "seconds": round(time.perf_counter() - start, 1), "config": asdict(config)}
         write_json(run.path / "summary.json", dict(run.summary) | {"swing_up": entry})
         run.summary = dict(run.summary) | {"swing_up": entry}
-        store.clear()
-        return entry
-    X, U = np.concatenate([X, Xb]), np.concatenate([U, Ub])
-    law, mse = fit_swing_law(system, X, U, config, progress="swing-up: fit" if progress else None)
-    first_mse, laws, rounds = mse, [law], []
-    for r in range(config.dagger):
-        law, X, U, info = _dagger_round(system, teacher, law, X, U, r, config, store, progress, start)
-        rounds.append(info)
-        if info.get("stopped"):
-            break
-        laws.append(law)
-    (k, box), gate = swing_gate(run, laws, config, progress)
-    law = laws[k].with_box(kept_boxes(system, config)[box])
-    entry = {"used": gate["used"], "gate": gate, "fit": k, "labels": int(len(X)), "teacher_starts": int(taught), "plan_starts": int(planned), "first_fit_mse": first_mse,
-             "dagger": rounds, "seconds": round(time.perf_counter() - start, 1), "config": asdict(config)}
-    save_swing_up(run, law, entry)
+    else:
+        entry = _fit_and_gate(run, system, teacher, (X, U), (Xb, Ub), tracks, config, store, progress, start)
+        entry |= {"teacher_starts": int(taught), "plan_starts": int(planned), "tracks": track_info}
+        save_swing_up(run, entry.pop("_law"), entry)
+        if progress:
+            print(f"{format_swing_gate(entry['gate'], config)}  [{time.perf_counter() - start:.0f} s]", flush=True)
     store.clear()
+    if config.manoeuvre and plans:
+        _manoeuvre(run, system, plans, config, progress, start)
+    return entry
+
+
+def _fit_and_gate(run, system, teacher, labels: tuple, box_labels: tuple, tracks: list, config: SwingUpConfig, store, progress: bool, start: float) -> dict:
+    """Steps 2–4 of the module docstring: the fits on `labels` (X, U) and the recovery stage's
+    `box_labels`, the DAgger rounds, and the gate of the fits and the tracking laws `tracks`; returns
+    the summary entry, with the judged law under "_law"."""
+    (X, U), (Xb, Ub) = labels, box_labels
+    laws, rounds, first_mse = [], [], None
+    if len(X):
+        X, U = np.concatenate([X, Xb]), np.concatenate([U, Ub])
+        law, first_mse = fit_swing_law(system, X, U, config, progress="swing-up: fit" if progress else None)
+        laws.append(law)
+        for r in range(config.dagger):
+            law, X, U, info = _dagger_round(system, teacher, law, X, U, r, config, store, progress, start)
+            rounds.append(info)
+            if info.get("stopped"):
+                break
+            laws.append(law)
+    (k, box), gate = swing_gate(run, laws + tracks, config, progress, fitted=len(laws))
+    return {"used": gate["used"], "gate": gate, "fit": k, "law": "fitted" if k < len(laws) else "tracking", "labels": int(len(X)),
+            "first_fit_mse": first_mse, "dagger": rounds, "seconds": round(time.perf_counter() - start, 1), "config": asdict(config),
+            "_law": (laws + tracks)[k].with_box(kept_boxes(system, config)[box])}
+
+
+def _manoeuvre(run, system, plans: list, config: SwingUpConfig, progress: bool, start: float) -> dict:
+    """Step 5 of the module docstring: the manoeuvre of each nominal plan judged against the run's law
+    as the stage leaves it; written to summary.json → "swing_manoeuvre" and its file."""
+    run = resolve_run(run.path)  # with the swing-up law the stage kept, if any
+    box = kept_boxes(system, config)["posture"]
+    manoeuvres = [SwingManoeuvre(tracking_law(system, U, Z, G, 1.0, box), system.state_from(Z[-1:, : system.nq], Z[-1:, system.nq :])[0], KNOT)
+                  for U, Z, G in plans]
+    x_pick = resting_states(system, config.gate_states, config.plan_seed + 600)
+    x_gate = swing_starts(system, config.gate_states, 0.0, SWING_GATE_SEED + run.config.seed)
+    best, entry = choose_manoeuvre(system, run.controller, manoeuvres, x_pick, x_gate, config)
+    write_law(run, manoeuvres[entry["choice"]].arrays(), "swing_manoeuvre", entry, (MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE))
     if progress:
-        print(f"{format_swing_gate(gate, config)}  [{time.perf_counter() - start:.0f} s]", flush=True)
+        verdict = "kept" if entry["used"] else f"not kept (needs {config.margin} more held than the run's law)"
+        print(f"swing-up manoeuvre (a nominal plan tracked in time from the command, then the run's law): the {len(manoeuvres)} nominals hold "
+              f"{', '.join(map(str, entry['picked']))} of {len(x_pick)} near-resting starts; of the gate's {entry['states']}, the run's law holds "
+              f"{entry['run']}, manoeuvre {entry['choice'] + 1} {entry['held']}: {verdict}  [{time.perf_counter() - start:.0f} s]", flush=True)
     return entry
 
 
@@ -240,12 +282,13 @@ def _holds_job(job) -> np.ndarray:
     return holds(simulate(system, law, x0, T=T, dt=PLAN_STEP), system)
 
 
-def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False) -> tuple[tuple[int, str], dict]:
+def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, fitted: int | None = None) -> tuple[tuple[int, str], dict]:
     """The run's law with and without each of `laws` (around the run's own outer law) outside each
     candidate kept box (`kept_boxes`), from the gate's states: ((k, box name) of the candidate judged,
     {"states", "run", "law": near-resting starts each holds, "candidates": {box name: holds of each
     law}; "box_states", "run_box", "law_box": box states the run's law and the candidate bring to x*;
-    "fit", "box", "used": the verdict}) (see the module docstring)."""
+    "fit", "box", "used": the verdict; "fitted": how many of `laws` are fitted laws, the others
+    tracking laws}) (see the module docstring)."""
     system, seed = run.system, SWING_GATE_SEED + run.config.seed
     ctrl = run.box_controller
     boxes = kept_boxes(system, config)
@@ -273,7 +316,8 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False) -
     candidates = {name: [held[i] for i, (_, b) in enumerate(cands) if b == name] for name in boxes}
     candidates_box = {name: [boxed[i] for i, (_, b) in enumerate(cands) if b == name] for name in boxes}
     return cands[best], {"states": len(x_swing), "near_resting": config.gate_states, "run": run_holds, "law": held[best], "candidates": candidates, "candidates_box": candidates_box, "fit": cands[best][0],
-                         "box": cands[best][1], "box_states": config.box_states, "run_box": box[0], "law_box": box[1], "used": bool(used)}
+                         "box": cands[best][1], "box_states": config.box_states, "run_box": box[0], "law_box": box[1], "used": bool(used),
+                         "fitted": len(laws) if fitted is None else int(fitted)}
 
 
 def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
@@ -285,8 +329,10 @@ def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
                       for name, held in gate["candidates"].items())
     near = gate.get("near_resting", gate["states"])
     where = "near-resting states" if near == gate["states"] else f"states ({near} near-resting, {gate['states'] - near} at rest from the full circle)"
+    fitted = gate.get("fitted", len(next(iter(gate["candidates"].values()))))
+    which = f"fit {gate['fit'] + 1}" if gate["fit"] < fitted else f"tracking law {gate['fit'] - fitted + 1}"
     return (f"swing-up gate: of {gate['states']} {where} the run's law holds {gate['run']} at x*, with the swing-up law "
-            f"{gate['law']} (fit {gate['fit'] + 1}, kept box {gate['box']}; each fit: {cands}); of {gate['box_states']} box states it brings {gate['run_box']} to x*, with the swing-up law {gate['law_box']}: {verdict}")
+            f"{gate['law']} ({which}, kept box {gate['box']}; each fit, then each tracking law: {cands}); of {gate['box_states']} box states it brings {gate['run_box']} to x*, with the swing-up law {gate['law_box']}: {verdict}")
 
 
 def save_swing_up(run, law: SwingUpLaw, entry: dict) -> None:

@@ -25,15 +25,18 @@ _STYLES = ("-", "--", ":", "-.")
 
 def draw_swingup(axes, run, result) -> None:
     """Draw the three panels (a) wrap(q − q*), b) u(t), c) H(t)) into `axes` (3 matplotlib axes):
-    the rollouts of the run's law, saturated LQR and the energy-pumping law from the first start of
-    `result` (a `SwingupResult`), over its horizon and step, with the effort limits."""
+    the rollouts of the run's law (and of its manoeuvre from rest, where it keeps one), saturated LQR
+    and the energy-pumping law from the first start of `result` (a `SwingupResult`), over its
+    horizon and step, with the effort limits."""
     system = run.system
     laws = {"LQR": LQRController(system), "energy pump + LQR": EnergyPumpLaw(system), "NIDA-PBC": run.controller}  # the run's law drawn on top
+    if getattr(run, "manoeuvre", None) is not None:  # and its manoeuvre from rest, on top of it
+        laws["NIDA-PBC manoeuvre"] = run.manoeuvre.law(run.controller, dt=result.dt)
     x0 = result.states[:1]
     nq, mask = system.nq, np.asarray(system.angle_mask, bool)[: system.nq]
     for c, (name, law) in enumerate(laws.items()):
         tr = simulate(system, law, x0, T=result.T, dt=result.dt, record_every=5)
-        colour, lw = ("tab:blue", 1.8) if name == "NIDA-PBC" else (("tab:orange", "tab:green")[c % 2], 0.8)
+        colour, lw = {"NIDA-PBC": ("tab:blue", 1.8), "NIDA-PBC manoeuvre": ("tab:purple", 1.8)}.get(name, (("tab:orange", "tab:green")[c % 2], 0.8))
         dq = wrap_angles(tr.q[0] - np.asarray(system.x_star)[:nq], mask)
         for i in range(nq):
             axes[0].plot(tr.t, dq[:, i], _STYLES[i % 4], color=colour, lw=lw, label=f"{name}: {system.coordinate_names[i]}")

@@ -33,7 +33,7 @@ from ..model import System
 from .checkpoints import CHECKPOINTS, DEFAULT_CHECKPOINT, checkpoint_problem, load_weights, read_checkpoint
 from .record import load_run_system, read_config
 
-__all__ = ["RECOVERY_FILE", "RECOVERY_LABELS_FILE", "RECOVERY_REFUSED_FILE", "Run", "SWINGUP_FILE", "SWINGUP_REFUSED_FILE", "load_run", "read_recovery",
+__all__ = ["MANOEUVRE_FILE", "MANOEUVRE_REFUSED_FILE", "RECOVERY_FILE", "RECOVERY_LABELS_FILE", "RECOVERY_REFUSED_FILE", "Run", "SWINGUP_FILE", "SWINGUP_REFUSED_FILE", "load_run", "read_recovery",
            "read_swing_up", "resolve_run"]
 
 #: The recovery law of a run, beside its IDA-PBC law (`idapbc_pin.recovery.recover`).
@@ -47,6 +47,8 @@ RECOVERY_LABELS_FILE = "recovery-labels.npz"
 #: The swing-up law of a run, around its own law (`idapbc_pin.recovery.swing_up`), and the one the
 #: swing-up stage's gate refused (kept aside, never applied).
 SWINGUP_FILE, SWINGUP_REFUSED_FILE = "swingup.npz", "swingup-refused.npz"
+#: The swing-up manoeuvre from rest the stage kept (`idapbc_pin.recovery.manoeuvre`), and a refused one.
+MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE = "swingup-manoeuvre.npz", "swingup-manoeuvre-refused.npz"
 
 
 @dataclass
@@ -128,6 +130,20 @@ class Run:
         """True when the swing-up stage kept a swing-up law (summary.json → swing_up → used)."""
         return bool((self.summary.get("swing_up") or {}).get("used", False))
 
+    @property
+    def manoeuvre(self):
+        """The swing-up manoeuvre from rest the swing-up stage kept (`recovery.manoeuvre.SwingManoeuvre`;
+        summary.json → swing_manoeuvre → used), or None; ``run.manoeuvre.law(run.controller)`` runs it."""
+        if not (self.summary.get("swing_manoeuvre") or {}).get("used", False):
+            return None
+        path = self.path / MANOEUVRE_FILE
+        fix = "run `idapbc-pin train --resume RUN --swing-up` again (or delete summary.json's \"swing_manoeuvre\" entry to drop it)"
+        if not path.is_file():
+            raise DamagedFileError(f"'{path}' is missing, but summary.json says the run uses a swing-up manoeuvre. Fix: {fix}.")
+        from ..recovery.manoeuvre import SwingManoeuvre  # the recovery package's stage opens runs through this module
+
+        return read_npz(path, SwingManoeuvre.from_arrays, fix=fix)
+
     def _box_fallback(self) -> OuterLaw | None:
         """The recovery law outside its inner box when the run has one, else the linear law outside
         the training box when the run uses it, else None."""
@@ -165,9 +181,9 @@ def read_swing_up(run_dir, name: str = SWINGUP_FILE, inner: OuterLaw | None = No
     fix = "run `idapbc-pin train --resume RUN --swing-up` again (or delete summary.json's \"swing_up\" entry to drop the law)"
     if not path.is_file():
         raise DamagedFileError(f"'{path}' is missing, but summary.json says the run uses a swing-up law. Fix: {fix}.")
-    from ..recovery.swing_law import SwingUpLaw  # the recovery package's stage opens runs through this module
+    from ..recovery.swing_law import swing_law_from_arrays  # the recovery package's stage opens runs through this module
 
-    return read_npz(path, lambda arrays: SwingUpLaw.from_arrays(arrays, inner), fix=fix)
+    return read_npz(path, lambda arrays: swing_law_from_arrays(arrays, inner), fix=fix)
 
 
 def load_run(path, checkpoint: str | None = None, *, device: str = "cpu") -> Run:

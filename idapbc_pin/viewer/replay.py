@@ -20,7 +20,7 @@ import numpy as np
 from ..control.baseline import LQRController
 from ..errors import IdapbcError
 from ..model import load_system
-from ..recovery.swing_law import SwingUpLaw
+from ..recovery.swing_law import KeptBoxLaw
 from ..run import resolve_run
 from ..sim.integrate import simulate
 from ..sim.metrics import success
@@ -53,9 +53,10 @@ def _interactive() -> bool:
 
 
 def _system_and_controller(run_or_system, checkpoint: str | None = None):
-    """-> (system, controller or None): a run directory or a Run (anything with ``system`` and
-    ``controller``) gives its controller; a System, or a system source, gives None (LQR baseline).
-    `checkpoint` picks the checkpoint of a run directory (see `load_run`)."""
+    """-> (system, controller or None, swing-up manoeuvre or None): a run directory or a Run (anything
+    with ``system`` and ``controller``) gives its controller and the manoeuvre it keeps; a System, or
+    a system source, gives None (LQR baseline). `checkpoint` picks the checkpoint of a run directory
+    (see `load_run`)."""
     if isinstance(run_or_system, (str, Path)):
         p = Path(run_or_system)
         if p.is_dir() and (p / "config.json").is_file():
@@ -64,15 +65,15 @@ def _system_and_controller(run_or_system, checkpoint: str | None = None):
             raise IdapbcError(f"checkpoint= applies to a run directory, and '{run_or_system}' is not one. Fix: drop it, or pass a run directory.")
         else:
             try:
-                return load_system(str(run_or_system)), None
+                return load_system(str(run_or_system)), None, None
             except IdapbcError:
                 if p.is_dir():  # meant as a run: say what it lacks
                     resolve_run(p)
                 raise
     if hasattr(run_or_system, "controller") and hasattr(run_or_system, "system"):
-        return run_or_system.system, run_or_system.controller
+        return run_or_system.system, run_or_system.controller, getattr(run_or_system, "manoeuvre", None)
     if hasattr(run_or_system, "nq") and hasattr(run_or_system, "plant"):
-        return run_or_system, None
+        return run_or_system, None, None
     raise IdapbcError(f"cannot view {type(run_or_system).__name__}. Fix: pass a Run, a System, a run directory or a system source.")
 
 
@@ -101,14 +102,19 @@ def _pick_successes(system, controller, n: int, T: float, dt: float, seed: int, 
     return picked, int(ok[order].sum()), len(candidates)
 
 
-def _rollouts_to_show(system, controller, trajectories, x0, n: int, pick: str, T: float, dt: float, seed: int, limits: bool = True):
-    """-> (trajectories, a note saying which rollouts they are)."""
+def _rollouts_to_show(system, controller, trajectories, x0, n: int, pick: str, T: float, dt: float, seed: int, limits: bool = True, manoeuvre=None):
+    """-> (trajectories, a note saying which rollouts they are); `manoeuvre`: the run's swing-up manoeuvre from rest, if
+    it keeps one (the swing-ups from hanging then run it)."""
     if pick not in PICKS:
         raise IdapbcError(f"pick must be one of {', '.join(PICKS)}, got {pick!r}.")
     if trajectories is not None:
         return trajectories, "given trajectories"
     if x0 is None and pick == "hanging":
         start = resting_states(system, n, seed)
+        if manoeuvre is not None:  # the run's manoeuvre from rest, then its law (at the judge's 2 ms step)
+            steps = max(1, int(round(T / 0.002)))
+            note = f"{len(start)} swing-ups by the run's manoeuvre from near the resting posture (the first exactly at rest)"
+            return simulate(system, manoeuvre.law(controller, dt=0.002), start, T=steps * 0.002, dt=0.002, limits=limits), note
         return _simulate(system, controller, start, T, dt, limits), f"{len(start)} swing-ups from near the resting posture (the first exactly at rest)"
     if x0 is None and pick == "success":
         if n < 1:
@@ -186,10 +192,10 @@ def view(
     -------
     Viewer (``.url``, ``.write_html(path)``, ``.close()``; shows inline in a notebook).
     """
-    system, controller = _system_and_controller(run_or_system, checkpoint)
-    if pick == "auto":  # a run with a swing-up law is shown swinging up
-        pick = "hanging" if isinstance(getattr(controller, "fallback", None), SwingUpLaw) else "random"
-    trajectories, note = _rollouts_to_show(system, controller, trajectories, x0, n, pick, T, dt, seed, limits)
+    system, controller, manoeuvre = _system_and_controller(run_or_system, checkpoint)
+    if pick == "auto":  # a run with a swing-up law or manoeuvre is shown swinging up
+        pick = "hanging" if isinstance(getattr(controller, "fallback", None), KeptBoxLaw) or manoeuvre is not None else "random"
+    trajectories, note = _rollouts_to_show(system, controller, trajectories, x0, n, pick, T, dt, seed, limits, manoeuvre)
     viewer = Viewer(system, trajectories, layout=layout, trace=trace, trace_link=trace_link, fps=fps, loop=loop, style=style, grid=grid)
     viewer.note = note
     if html is not None:

@@ -1,0 +1,131 @@
+"""A swing-up manoeuvre from rest: a nominal plan tracked in time, then the run's law
+(`SwingManoeuvre`, `ManoeuvreLaw`, `choose_manoeuvre`).
+
+The run's swing-up law is a state feedback (`SwingUpLaw`, `TrackingLaw`): it needs no clock, but
+where a nominal swing-up passes close to itself it cannot tell the swings apart. A manoeuvre is the
+other answer, the one a robot runs on command from rest: during knot k of a nominal plan from the
+resting posture (t ∈ [k·knot, (k + 1)·knot), t counted from the command),
+
+    u(x, t) = clip(U_k + K_k wrap(x − X(t)), ±ū),    X(t) = X_k + (t/knot − k)(X_{k+1} − X_k),
+
+the time-varying LQR along the plan (`swing_tracks.tvlqr_gains`, in x = (q, p)) against the nominal
+state interpolated between its knots (the law is sampled every 2 ms, the plan's knots are 20 ms:
+against X_k alone, the nominal itself would read as an error within each knot); after the plan's
+end the run's own law (its networks, and its swing-up or recovery law where it keeps one) catches.
+The swing-up stage picks, among the nominals (`swing_tracks.nominals`, at most `MANOEUVRE_NOMINALS`),
+the manoeuvre that holds the most of near-resting states of its own, and keeps it when it holds
+`SwingUpConfig.margin` more of its gate's near-resting states than the run's law does
+(``swingup-manoeuvre.npz``); `simulate --from hanging` judges it beside the run's law.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .._parallel import process_map
+from ..sim.integrate import simulate
+from ..sim.metrics import holds
+from .plans import PLAN_STEP
+from .tracking_law import TrackingLaw
+
+__all__ = ["MANOEUVRE_NOMINALS", "ManoeuvreLaw", "SwingManoeuvre", "choose_manoeuvre"]
+
+#: Nominal plans (those that hold from rest, cheapest first) whose manoeuvres are tried: which nominal
+#: tracks well from near rest does not follow from its cost.
+MANOEUVRE_NOMINALS = 8
+
+
+@dataclass(frozen=True, eq=False)
+class SwingManoeuvre:
+    """A nominal plan from rest and its tracking gains, read by time.
+
+    Attributes
+    ----------
+    track : the plan as a `TrackingLaw` (X (P, n) in (q, p), U (P, m), K (P, m, n), limits); its
+        kept box and distance weights are not read here.
+    end : (n,) the plan's end state X_P in (q, p).
+    knot : length of a knot, s; the manoeuvre lasts P·knot.
+    """
+
+    track: TrackingLaw
+    end: np.ndarray
+    knot: float
+
+    @property
+    def duration(self) -> float:
+        """Length of the plan, s."""
+        return len(self.track.X) * self.knot
+
+    def inputs(self, x, t: float) -> np.ndarray:
+        """u(x, t) during the plan (0 ≤ t < `duration`): (N, n) -> (N, m), within ±ū."""
+        tr = self.track
+        k = min(int(np.floor(t / self.knot + 1e-9)), len(tr.X) - 1)
+        after = tr.X[k + 1] if k + 1 < len(tr.X) else self.end
+        d = np.atleast_2d(np.asarray(x, dtype=np.float64)) - (tr.X[k] + min(max(t / self.knot - k, 0.0), 1.0) * (after - tr.X[k]))
+        d[:, tr.angle_mask] = np.pi - np.mod(np.pi - d[:, tr.angle_mask], 2 * np.pi)
+        return np.clip(tr.U[k] + d @ tr.K[k].T, -tr.effort, tr.effort)
+
+    def law(self, after, dt: float = PLAN_STEP) -> "ManoeuvreLaw":
+        """A fresh `ManoeuvreLaw`: this manoeuvre from the first call on, then `after`."""
+        return ManoeuvreLaw(self, after, dt)
+
+    def arrays(self) -> dict:
+        """The manoeuvre as named arrays (swingup-manoeuvre.npz): the tracking law's, "end" and "knot"."""
+        return self.track.arrays() | {"end": np.asarray(self.end), "knot": np.asarray(self.knot)}
+
+    @classmethod
+    def from_arrays(cls, arrays) -> "SwingManoeuvre":
+        """Inverse of `arrays`; raises ValueError when a piece is missing, misshapen or not finite."""
+        if "knot" not in arrays or not (np.isfinite(float(arrays["knot"])) and float(arrays["knot"]) > 0):
+            raise ValueError("the manoeuvre has no positive knot length")
+        track = TrackingLaw.from_arrays(arrays)
+        end = np.asarray(arrays["end"], dtype=np.float64) if "end" in arrays else np.full(0, np.nan)
+        if end.shape != track.x_star.shape or not np.isfinite(end).all():
+            raise ValueError("the manoeuvre has no finite end state of the right size")
+        return cls(track, end, float(arrays["knot"]))
+
+    def to_json(self) -> dict:
+        """controller.json's "manoeuvre" of an export: X, U, K, x_star, effort, angle_mask, end and knot as lists."""
+        keep = ("X", "U", "K", "x_star", "effort", "angle_mask")
+        return {k: np.asarray(v).tolist() for k, v in self.track.arrays().items() if k in keep} | {"end": self.end.tolist(), "knot": float(self.knot)}
+
+
+class ManoeuvreLaw:
+    """The manoeuvre in closed loop: (N, n) -> (N, m). Each call is one tick of `dt` seconds (as
+    `simulate` calls a law held over its steps, its default), the first at t = 0; after the plan,
+    `after` (the run's controller). Use a fresh instance per simulation; picklable."""
+
+    def __init__(self, manoeuvre: SwingManoeuvre, after, dt: float = PLAN_STEP):
+        self.manoeuvre, self.after, self.dt, self.tick = manoeuvre, after, float(dt), 0
+
+    def __call__(self, x):
+        t = self.tick * self.dt
+        self.tick += 1
+        if t < self.manoeuvre.duration - 1e-12:
+            return self.manoeuvre.inputs(x, t)
+        return self.after(x)
+
+
+def _holds_job(job) -> int:
+    """Worker: (system, law, x0, T) -> how many starts it holds."""
+    system, law, x0, T = job
+    torch.set_num_threads(1)
+    return int(holds(simulate(system, law, x0, T=T, dt=PLAN_STEP), system).sum())
+
+
+def choose_manoeuvre(system, after, manoeuvres: list, x_pick: np.ndarray, x_gate: np.ndarray, config) -> tuple[int | None, dict]:
+    """The manoeuvre of `manoeuvres` (each then `after`, the run's controller) that holds the most of
+    the near-resting states x_pick, judged with `after` alone from the gate's states x_gate, over
+    `config.judge_T`: (its index where it holds `config.margin` more of x_gate than `after`, else None;
+    {"picked": holds of each from x_pick, "choice", "states", "run", "held": from x_gate, "used"})."""
+    jobs = [(system, m.law(after), x_pick, config.judge_T) for m in manoeuvres]
+    picked = list(process_map(_holds_job, jobs, config.workers, config.ray))
+    best = max(range(len(picked)), key=lambda i: picked[i])
+    run, held = process_map(_holds_job, [(system, after, x_gate, config.judge_T), (system, manoeuvres[best].law(after), x_gate, config.judge_T)],
+                            config.workers, config.ray)
+    used = held >= run + config.margin
+    return (best if used else None), {"picked": [int(h) for h in picked], "choice": int(best), "states": int(len(x_gate)), "run": int(run),
+                                      "held": int(held), "used": bool(used)}

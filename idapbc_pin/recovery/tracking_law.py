@@ -1,0 +1,96 @@
+"""A swing-up law that tracks a planned trajectory from the state alone: `TrackingLaw`.
+
+A torque plan from the resting posture to x* (`recovery.swing_tracks`) is a nominal trajectory of
+states X_k and inputs U_k, k = 0 … P − 1, with the gains K_k of a time-varying LQR along it. Tracked
+in time, it needs a clock started at the swing-up's beginning. This law needs none: it reads the
+nominal point nearest to the state,
+
+    k(x) = argmin_k ‖W wrap(x − X_k)‖²,      u(x) = clip(U_k + K_k wrap(x − X_k), ±ū)   (k = k(x)),
+
+with W = diag(weight), and the run's law inside the kept box, as `SwingUpLaw` (`_kept_box`). Every
+array is in the run's coordinates x = (q, p), so the law needs no model of the robot. It is a state
+feedback like the others: `Controller`, `simulate` and `export` treat it as any outer law. Where the
+nominal passes close to itself at different times the nearest point may be the wrong one: the stage
+keeps such a law only where its gate says it holds swing-ups.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._kept_box import KeptBoxLaw
+
+__all__ = ["TrackingLaw"]
+
+_FIELDS = ("X", "U", "K", "weight", "x_star", "effort", "angle_mask", "box")
+
+
+@dataclass(frozen=True, eq=False)
+class TrackingLaw(KeptBoxLaw):
+    """A nominal trajectory with its feedback gains, read at the nearest point.
+
+    Attributes
+    ----------
+    X : (P, n) nominal states (q, p).
+    U : (P, m) nominal inputs, N·m or N.
+    K : (P, m, n) feedback gains on wrap(x − X_k).
+    weight : (n,) weights of the distance that picks the nearest point (1/rad, 1/m, 1/(kg·m²/s), …).
+    x_star : (n,) target state. effort : (m,) ū, the effort limits (finite).
+    angle_mask : (n,) bool, components wrapped to within π (angles of q).
+    box : (n,) half-widths of the kept box, where the run's law keeps control (∞: not read).
+    inner : the run's own outer law applied first, or None.
+    """
+
+    X: np.ndarray
+    U: np.ndarray
+    K: np.ndarray
+    weight: np.ndarray
+    x_star: np.ndarray
+    effort: np.ndarray
+    angle_mask: np.ndarray
+    box: np.ndarray
+    inner: object = None
+
+    def nearest(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """(k (N,) the index of the nearest nominal point, wrap(x − X_k) (N, n)) for states x (N, n)."""
+        d = np.atleast_2d(np.asarray(x, dtype=np.float64))[:, None, :] - self.X[None]
+        d[..., self.angle_mask] = np.pi - np.mod(np.pi - d[..., self.angle_mask], 2 * np.pi)
+        k = np.argmin(((d * self.weight) ** 2).sum(axis=-1), axis=1)
+        return k, d[np.arange(len(k)), k]
+
+    def law(self, x) -> np.ndarray:
+        """The tracking law alone: (N, n) -> (N, m), within ±ū."""
+        k, d = self.nearest(x)
+        return np.clip(self.U[k] + np.einsum("nij,nj->ni", self.K[k], d), -self.effort, self.effort)
+
+    def arrays(self) -> dict:
+        """The law as named arrays (swingup.npz of a run, without `inner`): X, U, K, weight, x_star,
+        effort, angle_mask, box."""
+        return {k: np.asarray(getattr(self, k)) for k in _FIELDS}
+
+    @classmethod
+    def from_arrays(cls, arrays, inner=None) -> "TrackingLaw":
+        """Inverse of `arrays` (a dict or an open .npz) around `inner`; raises ValueError when a piece is
+        missing, misshapen or not finite."""
+        try:
+            X, U, K, weight, x_star, effort, box = (np.asarray(arrays[k], dtype=np.float64) for k in ("X", "U", "K", "weight", "x_star", "effort", "box"))
+            mask = np.asarray(arrays["angle_mask"], dtype=bool)
+        except KeyError as err:
+            raise ValueError(f"the tracking law has no {err.args[0]!r}") from None
+        P, n = X.shape if X.ndim == 2 else (0, 0)
+        m = len(effort)
+        if P < 1 or U.shape != (P, m) or K.shape != (P, m, n) or any(a.shape != (n,) for a in (weight, x_star, mask, box)):
+            raise ValueError("the tracking law's arrays do not fit together")
+        if not all(np.isfinite(a).all() for a in (X, U, K, weight, x_star, effort)) or not (box >= 0).all() or not (weight >= 0).all():
+            raise ValueError("the tracking law has non-finite arrays, or negative weights or box half-widths")
+        return cls(X, U, K, weight, x_star, effort, mask, box, inner)
+
+    def to_json(self) -> dict:
+        """controller.json's "fallback" of an export (kind "swing_up", with the nominal "X"): every
+        array as lists (an unread component of the kept box as null), and the run's own outer law it
+        wraps as "wraps" (None: the networks alone)."""
+        out = {k: np.asarray(v).tolist() for k, v in self.arrays().items()}
+        out["box"] = [float(b) if np.isfinite(b) else None for b in self.box]
+        return {"kind": "swing_up"} | out | {"wraps": None if self.inner is None else self.inner.to_json()}

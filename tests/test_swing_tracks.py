@@ -1,0 +1,119 @@
+"""Tracking laws from the resting posture (`recovery.swing_tracks`, `recovery.tracking_law`): the
+time-varying LQR is the discrete LQR where the plan rests at x*, the law reproduces its plan and
+gains to first order in the run's coordinates (q, p), and it acts only outside its kept box."""
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+import idapbc_pin as ip
+from idapbc_pin.recovery.ilqr import _knot_jacobians, rollout
+from idapbc_pin.recovery.swing_law import swing_law_from_arrays
+from idapbc_pin.recovery.swing_tracks import KNOT, TRACK_Q, TRACK_R, tracking_law, tvlqr_gains
+from idapbc_pin.recovery.tracking_law import TrackingLaw
+
+
+@pytest.fixture(scope="module")
+def pendubot():
+    return ip.load_system("pendubot", effort={"shoulder": 8.0})
+
+
+def _plan(system, K: int = 12, seed: int = 0, substeps: int = 1):
+    """A short plan: random inputs within a third of the limit from a state near x*, its rollout (RK4,
+    `substeps` steps per knot) and random gains: (U (K, m), Z (K + 1, n) in (q, v), G (K, m, n))."""
+    rng = np.random.default_rng(seed)
+    nq = system.nq
+    U = rng.uniform(-1, 1, (K, system.m)) * system.effort / 3
+    z0 = np.r_[np.asarray(system.x_star[:nq]) + rng.uniform(-1, 1, nq), rng.uniform(-1, 1, nq)]
+    Z = rollout(system, z0[None], U[None], KNOT, substeps)[0]
+    return U, Z, rng.normal(size=(K, system.m, 2 * nq))
+
+
+def test_the_tracking_gains_where_the_plan_rests_at_x_star_are_the_discrete_lqr_gains(pendubot):
+    """Far from its end, the time-varying LQR along a plan that stays at x* with u = u* converges to
+    the stationary gain of the discrete Riccati equation (scipy's solver, an independent reference)."""
+    system, nq = pendubot, pendubot.nq
+    K = 600
+    z_star = np.r_[np.asarray(system.x_star[:nq]), np.zeros(nq)]
+    U, Z = np.zeros((K, system.m)), np.tile(z_star, (K + 1, 1))
+    G = tvlqr_gains(system, U, Z)
+    A, B = (a[0] for a in _knot_jacobians(system, z_star[None], U[:1], KNOT))
+    Q = np.diag(np.r_[np.full(nq, TRACK_Q), np.full(nq, 0.1 * TRACK_Q)]) * KNOT
+    R = TRACK_R * KNOT * np.eye(system.m)
+    P = scipy.linalg.solve_discrete_are(A, B, Q, R)
+    gain = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
+    np.testing.assert_allclose(G[0], -gain, rtol=1e-6, atol=1e-9)
+    assert np.abs(np.linalg.eigvals(A + B @ G[0])).max() < 1  # the loop it closes is stable
+
+
+def test_the_tracking_law_follows_its_plan_and_gains_to_first_order_in_q_and_p(pendubot):
+    system, nq = pendubot, pendubot.nq
+    U, Z, G = _plan(system)
+    law = tracking_law(system, U, Z, G, 0.3, np.zeros(system.n))  # a null kept box: it acts everywhere
+    x_nominal = system.state_from(Z[:-1, :nq], Z[:-1, nq:])
+    np.testing.assert_allclose(law.X, x_nominal, atol=1e-12)
+    np.testing.assert_allclose(law.apply(x_nominal, np.zeros((len(U), system.m))), U, atol=1e-12)  # on the plan: its inputs
+    rng = np.random.default_rng(1)
+    k = 5
+    e = rng.normal(size=2 * nq)
+    errors = []
+    for eps in (1e-3, 5e-4):
+        z = Z[k] + eps * e
+        x = system.state_from(z[None, :nq], z[None, nq:])
+        assert law.nearest(x)[0][0] == k
+        errors.append(np.abs(law.law(x)[0] - (U[k] + G[k] @ (eps * e))).max())
+    assert errors[0] < 1e-3 * np.abs(G[k] @ e).max()  # second order: small against the first-order term
+    assert 3.0 < errors[0] / errors[1] < 5.0  # and it quarters as the step halves
+
+
+def test_a_tracking_law_acts_outside_its_kept_box_within_the_limits_and_round_trips(pendubot):
+    system = pendubot
+    U, Z, G = _plan(system, seed=2)
+    lo, hi = system.domain
+    box = np.where(system.angle_mask, (hi - lo) / 2, np.inf)
+    law = tracking_law(system, U, 50.0 * Z, 50.0 * G, 1.0, box)  # large gains and states: it saturates somewhere
+    rng = np.random.default_rng(3)
+    x = system.x_star + rng.uniform(-1, 1, (500, system.n)) * np.r_[np.full(system.nq, 3.0), np.full(system.nq, 5.0)]
+    u = law.apply(x, np.full((len(x), system.m), 123.0))
+    out = law.outside(x)
+    assert 0 < out.sum() < len(x)
+    np.testing.assert_array_equal(u[~out], 123.0)
+    assert np.abs(u[out]).max() <= system.effort.max() * (1 + 1e-12) and (np.abs(u[out]) >= system.effort * (1 - 1e-12)).any()
+    back = swing_law_from_arrays(law.arrays())
+    assert isinstance(back, TrackingLaw)
+    np.testing.assert_array_equal(back.apply(x, u), law.apply(x, u))
+    bad = law.arrays() | {"K": law.K[:, :, :-1]}
+    with pytest.raises(ValueError, match="do not fit together"):
+        TrackingLaw.from_arrays(bad)
+
+
+def test_a_manoeuvre_from_its_own_start_follows_its_plan_then_hands_over(pendubot):
+    """Tracked in time from the plan's first state by its own time-varying LQR, the manoeuvre stays on
+    its nominal (the law sampled every 2 ms against the nominal interpolated between the 20 ms knots;
+    the plan and the judge both integrate by RK4 at 2 ms); after the plan the law it hands over to
+    acts; a fresh law starts again at t = 0."""
+    from idapbc_pin.recovery.manoeuvre import SwingManoeuvre
+    from idapbc_pin.sim.integrate import simulate
+
+    system, nq = pendubot, pendubot.nq
+    U, Z, _ = _plan(system, K=40, seed=4, substeps=int(round(KNOT / 0.002)))
+    G = tvlqr_gains(system, U, Z)
+    end = system.state_from(Z[-1:, :nq], Z[-1:, nq:])[0]
+    manoeuvre = SwingManoeuvre(tracking_law(system, U, Z, G, 1.0, np.zeros(system.n)), end, KNOT)
+    after = lambda x: np.full((len(np.atleast_2d(x)), system.m), 0.25)  # noqa: E731
+    x0 = system.state_from(Z[:1, :nq], Z[:1, nq:])
+    traj = simulate(system, manoeuvre.law(after), x0, T=manoeuvre.duration + 0.1, dt=0.002, limits=False, stop_settled=False)
+    per = int(round(KNOT / 0.002))
+    q_knots = traj.q[0, : len(U) * per + 1 : per]
+    excursion = np.abs(Z[:, :nq] - Z[0, :nq]).max()
+    assert excursion > 1.0  # the nominal moves by more than a radian; the loop stays within 0.3 % of that
+    np.testing.assert_allclose(q_knots, Z[:, :nq], atol=3e-3 * excursion)
+    # its inputs are the plan's, but for the last knots, where the gains pull towards x* (the end cost)
+    np.testing.assert_allclose(traj.u[0, : 30 * per : per], U[:30], atol=0.05 * float(system.effort[0]))
+    np.testing.assert_allclose(traj.u[0, len(U) * per + 1 :], 0.25)  # then the law after it
+    law = manoeuvre.law(after)
+    np.testing.assert_allclose(law(x0), U[:1], atol=1e-9)  # at its first state: its first input
+    back = SwingManoeuvre.from_arrays(manoeuvre.arrays())
+    assert back.knot == KNOT and np.array_equal(back.track.K, manoeuvre.track.K) and np.array_equal(back.end, end)
+    with pytest.raises(ValueError, match="knot"):
+        SwingManoeuvre.from_arrays(manoeuvre.track.arrays())
