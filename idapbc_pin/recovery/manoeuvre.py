@@ -23,11 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
-from .._parallel import process_map
-from ..sim.integrate import simulate
-from ..sim.metrics import holds
+from ._holds import count_holds
 from .plans import PLAN_STEP
 from .tracking_law import TrackingLaw
 
@@ -109,23 +106,14 @@ class ManoeuvreLaw:
         return self.after(x)
 
 
-def _holds_job(job) -> int:
-    """Worker: (system, law, x0, T) -> how many starts it holds."""
-    system, law, x0, T = job
-    torch.set_num_threads(1)
-    return int(holds(simulate(system, law, x0, T=T, dt=PLAN_STEP), system).sum())
-
-
 def choose_manoeuvre(system, after, manoeuvres: list, x_pick: np.ndarray, x_gate: np.ndarray, config) -> tuple[int | None, dict]:
     """The manoeuvre of `manoeuvres` (each then `after`, the run's controller) that holds the most of
     the near-resting states x_pick, judged with `after` alone from the gate's states x_gate, over
     `config.judge_T`: (its index where it holds `config.margin` more of x_gate than `after`, else None;
     {"picked": holds of each from x_pick, "choice", "states", "run", "held": from x_gate, "used"})."""
-    jobs = [(system, m.law(after), x_pick, config.judge_T) for m in manoeuvres]
-    picked = list(process_map(_holds_job, jobs, config.workers, config.ray))
+    picked = count_holds(system, [m.law(after) for m in manoeuvres], x_pick, config)
     best = max(range(len(picked)), key=lambda i: picked[i])
-    run, held = process_map(_holds_job, [(system, after, x_gate, config.judge_T), (system, manoeuvres[best].law(after), x_gate, config.judge_T)],
-                            config.workers, config.ray)
+    run, held = count_holds(system, [after, manoeuvres[best].law(after)], x_gate, config)
     used = held >= run + config.margin
     return (best if used else None), {"picked": [int(h) for h in picked], "choice": int(best), "states": int(len(x_gate)), "run": int(run),
                                       "held": int(held), "used": bool(used)}

@@ -31,8 +31,8 @@ holds every number.
    and `circle` times as many from the circle ("holds" over `judge_T`, `sim.metrics.holds`), and
    from `box_states` states of the half box and the training box (success over 20 s). Among the
    candidates that lose at most `box_loss` of the box states the run's law brings to x* (all of
-   them, where none does), the one that holds the most swing-up states is chosen (ties: the later
-   fit, the larger box); it is kept when it holds at least `margin` more than the run's law and
+   them, where none does), the one that holds the most swing-up states is chosen (ties: a fit before
+   a tracking law, the later fit, the larger box); it is kept when it holds at least `margin` more than the run's law and
    keeps the box.
 
 5. **Manoeuvre.** Each nominal plan as a manoeuvre from a command at rest (`manoeuvre`: tracked in
@@ -54,7 +54,6 @@ import numpy as np
 import torch
 
 from .._io import write_json
-from .._parallel import process_map
 from ..control.energy_pump import EnergyPumpLaw
 from ..model.angles import wrap_angles
 from ..run import MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE, SWINGUP_FILE, SWINGUP_REFUSED_FILE, resolve_run
@@ -62,6 +61,7 @@ from ..sim.compare import compare_laws
 from ..sim.integrate import simulate
 from ..sim.metrics import holds
 from ..sim.states import circle_states, resting_states, uniform_states
+from ._holds import count_holds
 from .chunks import ChunkStore
 from .config import RecoveryConfig, SwingUpConfig
 from .fit import fit_mlp
@@ -275,13 +275,6 @@ def _dagger_round(system, teacher, law: SwingUpLaw, X: np.ndarray, U: np.ndarray
     return law, X, U, {"failed": int(failed.size), "visited": int(len(visited)), "plans": int(planned), "labels": int(len(X)), "mse": mse}
 
 
-def _holds_job(job) -> np.ndarray:
-    """Worker: (system, law, x0, T) -> (N,) bool, "holds" of each start."""
-    system, law, x0, T = job
-    torch.set_num_threads(1)
-    return holds(simulate(system, law, x0, T=T, dt=PLAN_STEP), system)
-
-
 def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, fitted: int | None = None) -> tuple[tuple[int, str], dict]:
     """The run's law with and without each of `laws` (around the run's own outer law) outside each
     candidate kept box (`kept_boxes`), from the gate's states: ((k, box name) of the candidate judged,
@@ -295,8 +288,7 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
     cands = [(k, name) for name in boxes for k in range(len(laws))]
     with_laws = [ctrl.with_fallback(laws[k].with_box(boxes[name]).with_inner(ctrl.fallback)) for k, name in cands]
     x_swing = swing_starts(system, config.gate_states, config.circle, seed)
-    jobs = [(system, c, x_swing, config.judge_T) for c in [ctrl, *with_laws]]
-    run_holds, *held = (int(h.sum()) for h in process_map(_holds_job, jobs, config.workers, config.ray))
+    run_holds, *held = count_holds(system, [ctrl, *with_laws], x_swing, config)
     order = list(boxes)
     half = config.box_states // 2
     run_box, boxed = 0, [0] * len(cands)
@@ -307,7 +299,8 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
     keeps_box = [b >= run_box - config.box_loss for b in boxed]
     # the candidate that holds the most among those that keep the box (all of them where none does)
     pool = [i for i in range(len(cands)) if keeps_box[i]] or list(range(len(cands)))
-    best = max(pool, key=lambda i: (held[i], cands[i][0], -order.index(cands[i][1])))
+    fitted = len(laws) if fitted is None else int(fitted)  # ties: a fit (the later one) before a tracking law, the larger box first
+    best = max(pool, key=lambda i: (held[i], cands[i][0] < fitted, cands[i][0], -order.index(cands[i][1])))
     box = run_box, boxed[best]
     used = held[best] >= run_holds + config.margin and keeps_box[best]
     if progress:
@@ -317,7 +310,7 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
     candidates_box = {name: [boxed[i] for i, (_, b) in enumerate(cands) if b == name] for name in boxes}
     return cands[best], {"states": len(x_swing), "near_resting": config.gate_states, "run": run_holds, "law": held[best], "candidates": candidates, "candidates_box": candidates_box, "fit": cands[best][0],
                          "box": cands[best][1], "box_states": config.box_states, "run_box": box[0], "law_box": box[1], "used": bool(used),
-                         "fitted": len(laws) if fitted is None else int(fitted)}
+                         "fitted": fitted}
 
 
 def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:

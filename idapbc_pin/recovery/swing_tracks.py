@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._parallel import process_map
 from ..control.baseline import LQRController
 from ..sim.integrate import simulate
 from ..sim.metrics import holds
 from ..sim.states import resting_states
+from ._holds import count_holds
 from .ilqr import ILQRSettings, _knot_jacobians, ilqr_plans, plan_weights
 from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
@@ -112,20 +112,6 @@ def tracking_law(system, U: np.ndarray, Z: np.ndarray, G: np.ndarray, speed_weig
                        np.asarray(system.effort, dtype=np.float64), np.asarray(system.angle_mask, dtype=bool), np.asarray(box, dtype=np.float64))
 
 
-def _holds_job(job) -> int:
-    """Worker: (system, law, x0, T) -> how many starts it holds."""
-    system, law, x0, T = job
-    return int(holds(simulate(system, law, x0, T=T, dt=PLAN_STEP), system).sum())
-
-
-def nominals(system, catch, config, count: int = NOMINALS) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Steps 1 and 2 of the module docstring: the first `count` plans from the exact resting posture
-    that `catch` (the stage's `PumpThenRun`) turns into a hold at x*, cheapest first, each as
-    (U (K, m), Z (K + 1, n) in (q, v), its tracking gains G (K, m, n) on z − Z_k)."""
-    found = nominal_plans(system, catch, resting_states(system, 1)[0], config)[:count]
-    return [(U, Z, tvlqr_gains(system, U, Z)) for U, Z, _ in found]
-
-
 def tracking_laws(system, teacher, plans: list, box: np.ndarray, config, progress: bool = False) -> tuple[list[TrackingLaw], dict]:
     """Step 3 of the module docstring for `system` (the plans' plant), the run's law `teacher` (its
     outer law wrapped by each tracking law) and the first `NOMINALS` of the `nominals` `plans`, with
@@ -135,7 +121,7 @@ def tracking_laws(system, teacher, plans: list, box: np.ndarray, config, progres
     plans = plans[:NOMINALS]
     laws = [tracking_law(system, U, Z, G, w, box).with_inner(teacher.fallback) for U, Z, G in plans for w in SPEED_WEIGHTS]
     x0 = resting_states(system, config.gate_states, config.plan_seed + 500)
-    held = list(process_map(_holds_job, [(system, teacher.with_fallback(law), x0, config.judge_T) for law in laws], config.workers, config.ray))
+    held = count_holds(system, [teacher.with_fallback(law) for law in laws], x0, config)
     best = sorted(range(len(laws)), key=lambda i: -held[i])[: config.tracks]
     info = {"nominals": len(plans), "held": held, "states": len(x0)}
     if progress:
