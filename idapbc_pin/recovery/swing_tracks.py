@@ -112,6 +112,14 @@ def tracking_law(system, U: np.ndarray, Z: np.ndarray, G: np.ndarray, speed_weig
                        np.asarray(system.effort, dtype=np.float64), np.asarray(system.angle_mask, dtype=bool), np.asarray(box, dtype=np.float64))
 
 
+def nominals(system, catch, config, count: int = NOMINALS) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Steps 1 and 2 of the module docstring: the first `count` plans from the exact resting posture
+    that `catch` (the stage's `PumpThenRun`) turns into a hold at x*, cheapest first, each as
+    (U (K, m), Z (K + 1, n) in (q, v), its tracking gains G (K, m, n) on z − Z_k)."""
+    found = nominal_plans(system, catch, resting_states(system, 1)[0], config)[:count]
+    return [(U, Z, tvlqr_gains(system, U, Z)) for U, Z, _ in found]
+
+
 def tracking_laws(system, teacher, plans: list, box: np.ndarray, config, progress: bool = False) -> tuple[list[TrackingLaw], dict]:
     """Step 3 of the module docstring for `system` (the plans' plant), the run's law `teacher` (its
     outer law wrapped by each tracking law) and the first `NOMINALS` of the `nominals` `plans`, with
