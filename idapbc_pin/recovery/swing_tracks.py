@@ -123,9 +123,8 @@ def nominals(system, catch, config, count: int = NOMINALS) -> list[tuple[np.ndar
 def tracking_laws(system, teacher, plans: list, box: np.ndarray, config, progress: bool = False) -> tuple[list[TrackingLaw], dict]:
     """Step 3 of the module docstring for `system` (the plans' plant), the run's law `teacher` (its
     outer law wrapped by each tracking law) and the first `NOMINALS` of the `nominals` `plans`, with
-    the kept `box` (n,):
-    (the `config.tracks` laws that hold the most, most first; {"nominals": how many plans, "held":
-    holds of each law tried (nominal, speed weight), "states"})."""
+    the kept `box` (n,): (the `config.tracks` laws that hold the most, most first; {"nominals": how
+    many plans were tried, "held": holds of each law tried (nominal, speed weight), "states"})."""
     plans = plans[:NOMINALS]
     laws = [tracking_law(system, U, Z, G, w, box).with_inner(teacher.fallback) for U, Z, G in plans for w in SPEED_WEIGHTS]
     x0 = resting_states(system, config.gate_states, config.plan_seed + 500)
@@ -133,6 +132,6 @@ def tracking_laws(system, teacher, plans: list, box: np.ndarray, config, progres
     best = sorted(range(len(laws)), key=lambda i: -held[i])[: config.tracks]
     info = {"nominals": len(plans), "held": held, "states": len(x0)}
     if progress:
-        print(f"swing-up tracking laws: {len(plans)} nominal plans from rest hold at x*; tracked from the nearest point they hold "
-              f"{', '.join(map(str, held)) or 'none'} of {len(x0)} near-resting starts", flush=True)
+        print(f"swing-up tracking laws: the first {len(plans)} nominal plans from rest, each tracked from the nearest point with "
+              f"{len(SPEED_WEIGHTS)} speed weights, hold {', '.join(map(str, held)) or 'none'} of {len(x0)} near-resting starts", flush=True)
     return [laws[i].with_inner(None) for i in best], info
