@@ -31,6 +31,7 @@ from ..model.resting import resting_configuration, tip_height
 from ..sim.integrate import simulate
 from ..sim.metrics import HOLD_ANGLE, HOLD_SPEED, SUCCESS_WINDOW, holds as holds_verdict, on_rail
 from ..sim.states import RESTING_SPREAD, circle_states, resting_states
+from ..sim.step import DEFAULT_STEP
 from .leaderboard_score import LeaderboardScore, leaderboard_score
 
 __all__ = [
@@ -61,7 +62,7 @@ START_SPREAD = RESTING_SPREAD
 #: The start sets: "hanging" (near the resting posture) and "circle" (at rest, angles from the full circle).
 STARTS = ("hanging", "circle")
 #: The judge's step (s): the law held at 500 Hz. The row of a run's swing-up manoeuvre from rest.
-DT = 0.002
+DT = DEFAULT_STEP
 MANOEUVRE_ROW = "NIDA-PBC manoeuvre"
 
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..model.angles import wrap_angles
 from ._holds import count_holds
 from .plans import PLAN_STEP
 from .tracking_law import TrackingLaw
@@ -61,8 +62,8 @@ class SwingManoeuvre:
         tr = self.track
         k = min(int(np.floor(t / self.knot + 1e-9)), len(tr.X) - 1)
         after = tr.X[k + 1] if k + 1 < len(tr.X) else self.end
-        d = np.atleast_2d(np.asarray(x, dtype=np.float64)) - (tr.X[k] + min(max(t / self.knot - k, 0.0), 1.0) * (after - tr.X[k]))
-        d[:, tr.angle_mask] = np.pi - np.mod(np.pi - d[:, tr.angle_mask], 2 * np.pi)
+        nominal = tr.X[k] + min(max(t / self.knot - k, 0.0), 1.0) * (after - tr.X[k])  # between the knots
+        d = wrap_angles(np.atleast_2d(np.asarray(x, dtype=np.float64)) - nominal, tr.angle_mask)
         return np.clip(tr.U[k] + d @ tr.K[k].T, -tr.effort, tr.effort)
 
     def law(self, after, dt: float = PLAN_STEP) -> "ManoeuvreLaw":

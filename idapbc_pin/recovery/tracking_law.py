@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..model.angles import wrap_angles
 from ._kept_box import KeptBoxLaw
 
 __all__ = ["TrackingLaw"]
@@ -55,8 +56,7 @@ class TrackingLaw(KeptBoxLaw):
 
     def nearest(self, x) -> tuple[np.ndarray, np.ndarray]:
         """(k (N,) the index of the nearest nominal point, wrap(x − X_k) (N, n)) for states x (N, n)."""
-        d = np.atleast_2d(np.asarray(x, dtype=np.float64))[:, None, :] - self.X[None]
-        d[..., self.angle_mask] = np.pi - np.mod(np.pi - d[..., self.angle_mask], 2 * np.pi)
+        d = wrap_angles(np.atleast_2d(np.asarray(x, dtype=np.float64))[:, None, :] - self.X[None], self.angle_mask)
         k = np.argmin(((d * self.weight) ** 2).sum(axis=-1), axis=1)
         return k, d[np.arange(len(k)), k]
 

@@ -25,7 +25,7 @@ from ..run import resolve_run
 from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import initial_states, resting_states
-from ..sim.step import judge_step
+from ..sim.step import DEFAULT_STEP, judge_step
 from .animation import DEFAULT_FPS
 from .viewer import Viewer
 
@@ -111,10 +111,9 @@ def _rollouts_to_show(system, controller, trajectories, x0, n: int, pick: str, T
         return trajectories, "given trajectories"
     if x0 is None and pick == "hanging":
         start = resting_states(system, n, seed)
-        if manoeuvre is not None:  # the run's manoeuvre from rest, then its law (at the judge's 2 ms step)
-            steps = max(1, int(round(T / 0.002)))
+        if manoeuvre is not None:  # the run's manoeuvre from rest, then its law, at the judge's step: the manoeuvre counts its ticks
             note = f"{len(start)} swing-ups by the run's manoeuvre from near the resting posture (the first exactly at rest)"
-            return simulate(system, manoeuvre.law(controller, dt=0.002), start, T=steps * 0.002, dt=0.002, limits=limits), note
+            return _simulate(system, manoeuvre.law(controller, dt=DEFAULT_STEP), start, T, DEFAULT_STEP, limits), note
         return _simulate(system, controller, start, T, dt, limits), f"{len(start)} swing-ups from near the resting posture (the first exactly at rest)"
     if x0 is None and pick == "success":
         if n < 1:
