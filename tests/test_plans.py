@@ -6,6 +6,8 @@ Claims:
   (their exponential over a knot) are close to central differences of the plant's rollout;
 * iLQR plans stay within the limits, never cost more than their warm start, and bring the plant's
   end state closer to x*; each problem's plan is the one it gets when solved alone;
+* the settled end cost is paid per second over the plan's last seconds only, and a plan solved
+  with it lies closer to x* over those seconds than one with the plain end cost;
 * the rail term keeps a cart that starts fast toward the end of its rail on the rail, where a plan
   without it runs off; its gradient is that of its value;
 * tracked iLQR candidates bring a pendubot with an 8 N·m shoulder to x* from half-box states saturated
@@ -24,9 +26,11 @@ import pytest
 
 import idapbc_pin as ip
 from idapbc_pin.control.baseline import LQRController
+from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.recovery import stage as stage_module
 from idapbc_pin.recovery.chunks import CHUNKS_DIR, ChunkStore, chunk_key
-from idapbc_pin.recovery.ilqr import ILQRSettings, _knot_jacobians, _rail, _rail_terms, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout
+from idapbc_pin.recovery.ilqr import (ILQRSettings, _knot_jacobians, _rail, _rail_terms, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout,
+                                      settle_weights)
 from idapbc_pin.recovery.plans import PERIODS, PLAN_STEP, PlanSettings, TrackThenLaw, plan_candidates
 from idapbc_pin.recovery.stage import RecoveryConfig, collect_labels
 from idapbc_pin.sim.integrate import simulate
@@ -104,6 +108,28 @@ def test_ilqr_plans_stay_within_the_limits_and_improve_on_their_warm_start(weak_
     assert np.all(cost <= start) and np.any(cost < 0.5 * start)
     alone = ilqr_plans(system, x0[1:2], U0[1:2], bound, H, S, settings)[0]
     np.testing.assert_allclose(alone, U[1:2], atol=1e-9)
+
+
+def test_a_settled_plan_rests_nearer_x_star_over_its_last_seconds_than_a_plain_one(weak_pendubot, lost):
+    system = weak_pendubot
+    x0, _ = lost
+    K, H, settle = 50, 1.0, 0.3
+    sigma = settle_weights(K, H / K, settle)
+    assert np.count_nonzero(sigma) == 15 and np.all(sigma[-15:] == 1.0 / settle) and not settle_weights(K, H / K, 0.0).any()
+    S, bound, U0 = LQRController(system).S, np.array([8.0]), np.zeros((len(x0), K, 1))
+    terms = {"q": 1.0, "end_box": 100.0}
+    plain = ilqr_plans(system, x0, U0, bound, H, S, ILQRSettings(iterations=10, **terms))
+    settled = ilqr_plans(system, x0, U0, bound, H, S, ILQRSettings(iterations=10, settle=settle, **terms))
+    Q, E, r = plan_weights(system, S, ILQRSettings(**terms), bound)
+    z_star = np.r_[system.x_star[: system.nq], np.zeros(system.nq)]
+    # the cost the solver reports is the running cost plus σ-weighted end cost at each knot
+    d = wrap_angles(settled[1] - z_star, np.asarray(system.angle_mask, bool))
+    by_hand = 0.5 * (H / K) * (np.einsum("nki,ij,nkj->n", d[:, :-1], Q, d[:, :-1]) + np.einsum("k,nki,ij,nkj->n", sigma, d[:, :-1], E, d[:, :-1])
+                               + np.einsum("nki,i,nki->n", settled[0], r, settled[0])) + 0.5 * np.einsum("ni,ij,nj->n", d[:, -1], E, d[:, -1])
+    np.testing.assert_allclose(plan_cost(system, settled[1], settled[0], Q, E, r, H / K, sigma=sigma), by_hand, rtol=1e-12)
+    np.testing.assert_allclose(settled[3], by_hand, rtol=1e-9)
+    tail = lambda Z: np.abs(wrap_angles(Z[:, -16:] - z_star, np.asarray(system.angle_mask, bool))).max(axis=(1, 2))  # noqa: E731
+    assert np.median(tail(settled[1])) < np.median(tail(plain[1]))
 
 
 def test_the_rail_term_keeps_a_plan_on_the_rail_where_a_plan_without_it_runs_off():

@@ -1,6 +1,8 @@
 """Tracking laws from the resting posture (`recovery.swing_tracks`, `recovery.tracking_law`): the
 time-varying LQR is the discrete LQR where the plan rests at x*, the law reproduces its plan and
-gains to first order in the run's coordinates (q, p), and it acts only outside its kept box."""
+gains to first order in the run's coordinates (q, p), and it acts only outside its kept box. The
+manoeuvre (`recovery.manoeuvre`) interpolates the plan's inputs between the knots' midpoints without a
+step, follows its plan from its own start, then hands over."""
 
 import numpy as np
 import pytest
@@ -87,6 +89,27 @@ def test_a_tracking_law_acts_outside_its_kept_box_within_the_limits_and_round_tr
         TrackingLaw.from_arrays(bad)
 
 
+def test_on_its_nominal_a_manoeuvre_interpolates_the_plan_s_inputs_without_a_step_at_a_knot(pendubot):
+    """At the nominal state interpolated between two knots, the manoeuvre's input is the plan's
+    inputs interpolated between the knots' midpoints (the feedback reads no error): continuous
+    through a knot, U_0 over the first half knot and the last input over the last half knot."""
+    from idapbc_pin.recovery.manoeuvre import SwingManoeuvre
+
+    system, nq = pendubot, pendubot.nq
+    U, Z, _ = _plan(system, K=20, seed=4)
+    G = tvlqr_gains(system, U, Z)
+    end = system.state_from(Z[-1:, :nq], Z[-1:, nq:])[0]
+    manoeuvre = SwingManoeuvre(tracking_law(system, U, Z, G, 1.0, np.zeros(system.n)), end, KNOT)
+    X = manoeuvre.track.X
+    effort = float(system.effort[0])
+    on = lambda k, a: X[k] + a * ((X[k + 1] if k + 1 < len(X) else end) - X[k])  # noqa: E731
+    for k, a, expected in ((3, 0.5, U[3]), (3, 0.8, 0.7 * U[3] + 0.3 * U[4]), (7, 0.25, 0.25 * U[6] + 0.75 * U[7]), (0, 0.2, U[0]), (19, 0.9, U[19])):
+        np.testing.assert_allclose(manoeuvre.inputs(on(k, a), (k + a) * KNOT), np.clip(expected, -effort, effort)[None], atol=1e-9)
+    eps = 1e-7
+    before, after = manoeuvre.inputs(X[10], 10 * KNOT - eps), manoeuvre.inputs(X[10], 10 * KNOT)
+    assert np.abs(before - after).max() < 1e-4 * max(1.0, np.abs(U).max())
+
+
 def test_a_manoeuvre_from_its_own_start_follows_its_plan_then_hands_over(pendubot):
     """Tracked in time from the plan's first state by its own time-varying LQR, the manoeuvre stays on
     its nominal (the law sampled every 2 ms against the nominal interpolated between the 20 ms knots;
@@ -108,11 +131,11 @@ def test_a_manoeuvre_from_its_own_start_follows_its_plan_then_hands_over(pendubo
     excursion = np.abs(Z[:, :nq] - Z[0, :nq]).max()
     assert excursion > 1.0  # the nominal moves by more than a radian; the loop stays within 0.3 % of that
     np.testing.assert_allclose(q_knots, Z[:, :nq], atol=3e-3 * excursion)
-    # its inputs are the plan's, but for the last knots, where the gains pull towards x* (the end cost)
-    np.testing.assert_allclose(traj.u[0, : 30 * per : per], U[:30], atol=0.05 * float(system.effort[0]))
+    # at each knot's midpoint its inputs are the plan's, but for the last knots, where the gains pull towards x* (the end cost)
+    np.testing.assert_allclose(traj.u[0, per // 2 : 30 * per : per], U[:30], atol=0.05 * float(system.effort[0]))
     np.testing.assert_allclose(traj.u[0, len(U) * per + 1 :], 0.25)  # then the law after it
     law = manoeuvre.law(after)
-    np.testing.assert_allclose(law(x0), U[:1], atol=1e-9)  # at its first state: its first input
+    np.testing.assert_allclose(law(x0), U[:1], atol=1e-9)  # at its first state: its first input (held over the first half knot)
     back = SwingManoeuvre.from_arrays(manoeuvre.arrays())
     assert back.knot == KNOT and np.array_equal(back.track.K, manoeuvre.track.K) and np.array_equal(back.end, end)
     with pytest.raises(ValueError, match="knot"):

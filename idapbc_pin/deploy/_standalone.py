@@ -32,9 +32,10 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
     u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
 `swing_up_torque(q, v, t)` (when controller.json has a "manoeuvre"; the swing-up stage's manoeuvre
-from rest): during knot k = ⌊t / knot⌋ of its nominal plan, u = clip(U_k + K_k wrap(x − X(t)), ±ū)
-with X(t) = X_k + (t / knot − k)(X_{k+1} − X_k) ("end" after the last knot), t counted from the
-command at rest near the hanging posture; after the plan, `torque(q, v)`.
+from rest): during knot k = ⌊t / knot⌋ of its nominal plan, u = clip(U(t) + K_k wrap(x − X(t)), ±ū)
+with X(t) = X_k + (t / knot − k)(X_{k+1} − X_k) ("end" after the last knot) and U(t) the inputs
+interpolated linearly between the knots' midpoints (U_0 before the first, the last after it), t
+counted from the command at rest near the hanging posture; after the plan, `torque(q, v)`.
 
 f̃_d = (J_d − R_d)∇H_d comes from desired_flow.py with weights.npz (the same function as
 desired_flow.onnx); D is the URDF's joint damping. The folder's controller.json holds the rest.
@@ -225,9 +226,13 @@ class ExportedController:
         k = min(int(np.floor(t / float(mv["knot"]) + 1e-9)), len(mv["X"]) - 1)
         after = mv["X"][k + 1] if k + 1 < len(mv["X"]) else mv["end"]
         nominal = mv["X"][k] + min(max(t / float(mv["knot"]) - k, 0.0), 1.0) * (after - mv["X"][k])  # between the knots
+        P = len(mv["U"])
+        mid = min(max(t / float(mv["knot"]) - 0.5, 0.0), P - 1.0)  # the inputs between the knots' midpoints
+        j = min(int(np.floor(mid)), P - 2) if P > 1 else 0
+        feed = mv["U"][j] if P == 1 else mv["U"][j] + (mid - j) * (mv["U"][j + 1] - mv["U"][j])
         e = np.concatenate([q, np.einsum("nij,nj->ni", M, v)], axis=1) - nominal
         e[:, mv["angle_mask"]] = np.pi - np.mod(np.pi - e[:, mv["angle_mask"]], 2 * np.pi)
-        u = np.clip(mv["U"][k] + e @ mv["K"][k].T, -mv["effort"], mv["effort"])
+        u = np.clip(feed + e @ mv["K"][k].T, -mv["effort"], mv["effort"])
         tau = np.minimum(np.maximum(u, -self.effort), self.effort) @ self.B.T
         return tau[0] if single else tau
 

@@ -159,7 +159,8 @@ class SwingUpConfig(Settings):
     track_iterations : iterations of the iLQR solves of those nominals.
     track_share : share of the effort limits the nominals use (the rest is the feedback's).
     manoeuvre : also judge each nominal as a manoeuvre from rest, tracked in time
-        (`recovery.manoeuvre`), and keep the best where it holds `margin` more than the run's law.
+        (`recovery.manoeuvre`), and keep the best where it holds `margin` more than the run's law, or
+        as many and reaches x* sooner from the exact resting state.
     workers, ray : as `RecoveryConfig`'s: processes (0: one per core) or Ray tasks; the time only.
     """
 
@@ -184,7 +185,7 @@ class SwingUpConfig(Settings):
     inner_scales: tuple = ()
     judge_T: float = 10.0
     tracks: int = 2
-    track_iterations: int = 30
+    track_iterations: int = 80
     track_share: float = 0.8
     manoeuvre: bool = True
     workers: int = 0

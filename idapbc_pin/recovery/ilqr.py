@@ -5,13 +5,17 @@ A plan is a piecewise-constant input over K knots of dt seconds, planned in z = 
 the stage plans with (`System.forward_dynamics`: Pinocchio's pooled ABA with joint damping, or the
 closed form). Each problem minimises
 
-    Σ_k dt (½ q δ_kᵀ Q δ_k + ½ r ‖u_k/ū‖² + ½ ρ ‖e(q_k)/h‖²) + ½ w δ_Kᵀ S_z δ_K,   δ = wrap(z − z*),  z* = (q*, 0),
+    Σ_k dt (½ q δ_kᵀ Q δ_k + ½ σ_k δ_kᵀ E δ_k + ½ r ‖u_k/ū‖² + ½ ρ ‖e(q_k)/h‖²) + ½ δ_Kᵀ E δ_K,   δ = wrap(z − z*),  z* = (q*, 0),
 
 with |u_i| ≤ ū_i, Q = diag(1/s²) (s: the training box's half-widths, the momenta's divided by the
-diagonal of M(q*)) and S_z = Tᵀ S T the Riccati matrix S of LQR at x* in these coordinates
-(T = diag(I, M(q*)), ∂(q, p)/∂(q, v) at rest): what a stabilising feedback pays from the end state
-on. By default q = 0: a plan only has to end where the feedback law after it takes over, and a
-running state cost pulls a swing towards x* too early. The rail term keeps a cart on its rail: e is
+diagonal of M(q*)) and the end cost E = w S_z + b Q: S_z = Tᵀ S T is the Riccati matrix S of LQR at
+x* in these coordinates (T = diag(I, M(q*)), ∂(q, p)/∂(q, v) at rest), what a stabilising feedback
+pays from the end state on, and b Q (`end_box`) pins every coordinate, the speeds too, which S_z
+weighs little. By default q = 0: a plan only has to end where the feedback law after it takes over,
+and a running state cost pulls a swing towards x* too early. σ_k = 1/`settle` over the plan's last
+`settle` seconds (0 before them, and by default): the end cost is then paid per second there too, so
+that the plan arrives early and rests at x* with inputs near zero, and the law after it takes over
+without a jump. The rail term keeps a cart on its rail: e is
 how far each linear coordinate lies beyond its URDF limits pulled in by `rail_margin` of the range
 (`sim.metrics.rail_limits`; zero inside them, and for angles), h the range's half-width, ρ `rail`;
 it is summed over every knot, the last included.
@@ -61,6 +65,8 @@ class ILQRSettings:
     mu0 : initial Levenberg-Marquardt regularisation of the value's Hessian.
     rail : weight ρ of the rail term (module docstring); 0 leaves it out.
     rail_margin : share of a rail's range its limits are pulled in by, on each side.
+    end_box : weight b of the end cost's b Q term (module docstring).
+    settle : seconds at the plan's end over which the end cost is also paid per second; 0: none.
     """
 
     iterations: int = 12
@@ -72,6 +78,8 @@ class ILQRSettings:
     mu0: float = 1e-3
     rail: float = 1e3
     rail_margin: float = 0.1
+    end_box: float = 0.0
+    settle: float = 0.0
 
 
 def _accel(system, z, u):
@@ -145,7 +153,7 @@ def _knot_jacobians(system, z, u, dt):
 
 
 def plan_weights(system, S: np.ndarray, settings: ILQRSettings, bound: np.ndarray):
-    """(Q (n, n), S_z (n, n) with the terminal weight, r/ū² (m,)) of the cost in z = (q, v)."""
+    """(q Q (n, n), the end cost E (n, n), r/ū² (m,)) of the cost in z = (q, v) (module docstring)."""
     nq = system.nq
     lo, hi = (np.asarray(b, float) for b in system.domain)
     M_star = np.asarray(system.mass_matrix(np.asarray(system.x_star, float)[:nq][None]), float)[0]
@@ -153,7 +161,16 @@ def plan_weights(system, S: np.ndarray, settings: ILQRSettings, bound: np.ndarra
     half[nq:] = half[nq:] / np.maximum(np.diag(M_star), 1e-12)
     T = np.eye(2 * nq)
     T[nq:, nq:] = M_star
-    return settings.q * np.diag(1.0 / half**2), settings.terminal * (T.T @ np.asarray(S, float) @ T), settings.r / np.maximum(bound, 1e-9) ** 2
+    Q = np.diag(1.0 / half**2)
+    return settings.q * Q, settings.terminal * (T.T @ np.asarray(S, float) @ T) + settings.end_box * Q, settings.r / np.maximum(bound, 1e-9) ** 2
+
+
+def settle_weights(K: int, dt: float, settle: float) -> np.ndarray:
+    """σ_k (K,) of the module docstring: 1/settle on the knots that start within the last `settle`
+    seconds of K knots of dt s, 0 before them (all 0 when settle is 0)."""
+    if settle <= 0:
+        return np.zeros(K)
+    return np.where(np.arange(K) * dt >= K * dt - settle - 1e-9, 1.0 / settle, 0.0)
 
 
 def _rail(system, settings: ILQRSettings):
@@ -185,11 +202,14 @@ def _error(system, Z):
     return wrap_angles(Z - z_star, np.asarray(system.angle_mask, bool))
 
 
-def plan_cost(system, Z: np.ndarray, U: np.ndarray, Q, Sz, r_scaled, dt, rail=None) -> np.ndarray:
+def plan_cost(system, Z: np.ndarray, U: np.ndarray, Q, Sz, r_scaled, dt, rail=None, sigma=None) -> np.ndarray:
     """The plans' costs (N,) for states Z (N, K + 1, n) in (q, v) and inputs U (N, K, m) (module
-    docstring); `rail`: `_rail`'s triple, or None for no rail term."""
+    docstring; Sz: the end cost E); `rail`: `_rail`'s triple, or None for no rail term; `sigma`: the
+    `settle_weights` (K,), or None for none."""
     d = _error(system, Z)
     run = 0.5 * dt * (np.einsum("nki,ij,nkj->n", d[:, :-1], Q, d[:, :-1]) + np.einsum("nki,i,nki->n", U, r_scaled, U))
+    if sigma is not None and np.any(sigma):
+        run = run + 0.5 * dt * np.einsum("k,nki,ij,nkj->n", sigma, d[:, :-1], Sz, d[:, :-1])
     if rail is not None:
         run = run + dt * _rail_terms(Z[..., : system.nq], rail)[0].sum(1)
     cost = run + 0.5 * np.einsum("ni,ij,nj->n", d[:, -1], Sz, d[:, -1])
@@ -213,23 +233,24 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
     dt = horizon / K
     Q, Sz, r_scaled = plan_weights(system, S, settings, bound)
     rail = _rail(system, settings)
+    sigma = settle_weights(K, dt, settings.settle)
     q0, v0 = system.split(x0)
     U = np.clip(U0, -bound, bound)
     Z = rollout(system, np.concatenate([q0, v0], axis=1), U, dt, settings.substeps)
     n = Z.shape[2]
-    cost = plan_cost(system, Z, U, Q, Sz, r_scaled, dt, rail)
+    cost = plan_cost(system, Z, U, Q, Sz, r_scaled, dt, rail, sigma)
     mu = np.full(N, settings.mu0)
     alphas = np.asarray(settings.alphas)
     L = len(alphas)
     for it in range(settings.iterations + 1):  # the last pass only gives the gains of the final plan
         A, B = _knot_jacobians(system, Z[:, :-1].reshape(-1, n), U.reshape(-1, m), dt)
-        kff, gains, ok = _backward(system, Z, U, A.reshape(N, K, n, n), B.reshape(N, K, n, m), Q, Sz, r_scaled, dt, mu, bound, rail)
+        kff, gains, ok = _backward(system, Z, U, A.reshape(N, K, n, n), B.reshape(N, K, n, m), Q, Sz, r_scaled, dt, mu, bound, rail, sigma)
         if it == settings.iterations:
             break
         # batched line search: every problem tries every alpha in one rollout
         rep = lambda a: np.repeat(a[:, None], L, 1).reshape((N * L,) + a.shape[1:])  # noqa: E731
         Zn, Un = _forward(system, rep(Z), rep(U), (alphas[None, :, None, None] * kff[:, None]).reshape(N * L, K, m), rep(gains), bound, dt, settings.substeps)
-        cn = plan_cost(system, Zn, Un, Q, Sz, r_scaled, dt, rail).reshape(N, L)
+        cn = plan_cost(system, Zn, Un, Q, Sz, r_scaled, dt, rail, sigma).reshape(N, L)
         best = np.argmin(cn, axis=1)
         better = ok & (cn[np.arange(N), best] < cost)
         idx = (np.arange(N) * L + best)[better]
@@ -238,10 +259,10 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
     return U, Z, gains, cost
 
 
-def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None):
+def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None, sigma=None):
     """The backward pass: feed-forward k (N, K, m), gains (N, K, m, n), and which problems' passes
     stayed positive definite (N,). Inputs whose step lands beyond the limit are clamped there and
-    get no feedback. `rail`: `_rail`'s triple, or None."""
+    get no feedback. `rail`: `_rail`'s triple, or None; `sigma`: `settle_weights` (K,), or None."""
     N, K, m = U.shape
     n, nq = Z.shape[2], system.nq
     d = _error(system, Z)
@@ -259,7 +280,8 @@ def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None):
     for k in range(K - 1, -1, -1):
         Ak, Bk = A[:, k], B[:, k]
         At, Bt = np.swapaxes(Ak, 1, 2), np.swapaxes(Bk, 1, 2)
-        Qx, Qxx = dt * d[:, k] @ Q, np.broadcast_to(dt * Q, (N, n, n))
+        Qk = Q if sigma is None or not sigma[k] else Q + sigma[k] * Sz
+        Qx, Qxx = dt * d[:, k] @ Qk, np.broadcast_to(dt * Qk, (N, n, n))
         if rail is not None:
             Qxx = Qxx.copy()
             Qx[:, :nq] += lx[:, k]

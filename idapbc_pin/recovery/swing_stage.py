@@ -32,13 +32,14 @@ holds every number.
    from `box_states` states of the half box and the training box (success over 20 s). Among the
    candidates that lose at most `box_loss` of the box states the run's law brings to x* (all of
    them, where none does), the one that holds the most swing-up states is chosen (ties: a fit before
-   a tracking law, the later fit, the larger box); it is kept when it holds at least `margin` more than the run's law and
+   a tracking law, then the one that brings more box states to x*, the later, the larger kept box); it is kept when it holds at least `margin` more than the run's law and
    keeps the box.
 
 5. **Manoeuvre.** Each nominal plan as a manoeuvre from a command at rest (`manoeuvre`: tracked in
    time, then the run's law as the gate leaves it); the one that holds the most near-resting
    starts of its own is kept when it holds `margin` more of the gate's near-resting states than the
-   run's law (``swingup-manoeuvre.npz``, summary.json → "swing_manoeuvre").
+   run's law, or as many and reaches x* sooner from the exact resting state
+   (``swingup-manoeuvre.npz``, summary.json → "swing_manoeuvre").
 
 The law goes to ``swingup.npz`` when kept (every command on the run then applies it), else to
 ``swingup-refused.npz``, and the entry to summary.json → "swing_up"; each write atomic.
@@ -237,10 +238,12 @@ def _manoeuvre(run, system, plans: list, config: SwingUpConfig, progress: bool, 
     best, entry = choose_manoeuvre(system, run.controller, manoeuvres, x_pick, x_gate, config)
     write_law(run, manoeuvres[entry["choice"]].arrays(), "swing_manoeuvre", entry, (MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE))
     if progress:
-        verdict = "kept" if entry["used"] else f"not kept (needs {config.margin} more held than the run's law)"
+        verdict = "kept" if entry["used"] else f"not kept (needs {config.margin} more held than the run's law, or as many and sooner from rest)"
+        at = {k: "never" if t is None else f"{t:.2f} s" for k, t in entry["rest_time"].items()}
         print(f"swing-up manoeuvre (a nominal plan tracked in time from the command, then the run's law): the {len(manoeuvres)} nominals hold "
               f"{', '.join(map(str, entry['picked']))} of {len(x_pick)} near-resting starts; of the gate's {entry['states']}, the run's law holds "
-              f"{entry['run']}, manoeuvre {entry['choice'] + 1} {entry['held']}: {verdict}  [{time.perf_counter() - start:.0f} s]", flush=True)
+              f"{entry['run']}, manoeuvre {entry['choice'] + 1} {entry['held']}; from rest at x* from {at['run']} and {at['manoeuvre']}: {verdict}  "
+              f"[{time.perf_counter() - start:.0f} s]", flush=True)
     return entry
 
 
@@ -299,8 +302,8 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
     keeps_box = [b >= run_box - config.box_loss for b in boxed]
     # the candidate that holds the most among those that keep the box (all of them where none does)
     pool = [i for i in range(len(cands)) if keeps_box[i]] or list(range(len(cands)))
-    fitted = len(laws) if fitted is None else int(fitted)  # ties: a fit (the later one) before a tracking law, the larger box first
-    best = max(pool, key=lambda i: (held[i], cands[i][0] < fitted, cands[i][0], -order.index(cands[i][1])))
+    fitted = len(laws) if fitted is None else int(fitted)  # ties: a fit before a tracking law, more box states, the later, the larger box
+    best = max(pool, key=lambda i: (held[i], cands[i][0] < fitted, boxed[i], cands[i][0], -order.index(cands[i][1])))
     box = run_box, boxed[best]
     used = held[best] >= run_holds + config.margin and keeps_box[best]
     if progress:
