@@ -405,3 +405,24 @@ def test_the_stage_judges_tracking_laws_and_a_manoeuvre_from_its_nominals_and_a_
     for t, tau in zip(MANOEUVRE_TIMES, out["manoeuvre"]):
         u = manoeuvre.inputs(x, t) if t < manoeuvre.duration else kept.controller(x)
         _close(tau, kept.system.saturate(u) @ kept.system.B.T, 1e-9)
+
+
+def test_on_a_tie_in_holds_the_gate_takes_a_fit_then_the_candidate_that_keeps_more_of_the_box(tiny_swing_run, monkeypatch):
+    """The gate's choice among candidates that hold as many swing-up states, read from its judgements
+    (stubbed here: the rule, not the simulations, is under test): a fit before a tracking law, then
+    the one that brings more box states to x*; a candidate losing more than `box_loss` of the box is
+    not eligible however much it holds."""
+    from idapbc_pin.recovery import swing_stage
+
+    system = tiny_swing_run.system
+    laws = [random_swing_law(system, seed=s) for s in range(4)]  # two "fits", then two "tracking laws"
+
+    def judged(held, boxed):
+        monkeypatch.setattr(swing_stage, "count_holds", lambda system, laws, x0, config: [0, *held])
+        monkeypatch.setattr(swing_stage, "compare_laws", lambda system, jobs, **kw: [(np.arange(len(jobs[0][1])) < b, None) for b in [50, *boxed]])
+        return swing_stage.swing_gate(tiny_swing_run, laws, SwingUpConfig(gate_states=4, box_states=100, workers=1), fitted=2)[1]["fit"]
+
+    assert judged([4, 4, 4, 4], [50, 50, 60, 60]) == 1  # a fit before a tracking law; the later fit
+    assert judged([4, 4, 4, 4], [55, 50, 60, 60]) == 0  # among the fits, more box states
+    assert judged([3, 3, 4, 4], [55, 50, 49, 70]) == 3  # more held wins; between the tracking laws, more box states
+    assert judged([3, 3, 4, 2], [55, 50, 40, 70]) == 0  # a law that loses the box is not eligible

@@ -151,7 +151,8 @@ def deploy_readme(record: dict) -> str:
         text += ("\nFrom rest near the hanging posture, `controller.swing_up_torque(q, v, t)` runs the run's swing-up manoeuvre, t seconds "
                  "after its command: a nominal plan from rest (controller.json's \"manoeuvre\": states \"X\" in (q, p), inputs \"U\", one knot "
                  "of \"knot\" s each) tracked in time by the gains \"K\" of a time-varying LQR, then `torque(q, v)` after its end. It was kept "
-                 "because it brought more simulated near-resting states to x* under the effort limits than the law alone; start it from rest, "
+                 "because, simulated under the effort limits, it held more near-resting states at x* than the law alone, or as many and "
+                 "reached x* sooner from rest; start it from rest, "
                  "and fall back to `torque(q, v)` if the robot is far from its nominal.\n")
     body = _BODY.format(dtype=record["dtype"], n=2 * nv, nv=nv, x_star=x_star, joints=_joint_table(record), onnx_row=onnx_row,
                         fallback_line=line, fallback_text=text)
