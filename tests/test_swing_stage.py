@@ -19,9 +19,10 @@ from idapbc_pin.sim.states import resting_states
 
 from .conftest import sample_domain
 
-#: The smallest stage that exercises every step: two starts, half-second plans, one DAgger round.
-TINY = dict(starts=2, horizon=0.5, ilqr_iterations=2, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=2, box_states=4, judge_T=3.0, workers=1,
-            circle=0.5)
+#: The smallest stage that exercises every step: two starts, half-second plans (two iterations each,
+#: the nominals' too), one DAgger round.
+TINY = dict(starts=2, horizon=0.5, ilqr_iterations=2, track_iterations=2, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=2, box_states=4,
+            judge_T=3.0, workers=1, circle=0.5)
 
 
 def random_swing_law(system, seed: int = 0, width: int = 16, inner=None, box=None) -> SwingUpLaw:
