@@ -226,10 +226,8 @@ class ExportedController:
         k = min(int(np.floor(t / float(mv["knot"]) + 1e-9)), len(mv["X"]) - 1)
         after = mv["X"][k + 1] if k + 1 < len(mv["X"]) else mv["end"]
         nominal = mv["X"][k] + min(max(t / float(mv["knot"]) - k, 0.0), 1.0) * (after - mv["X"][k])  # between the knots
-        P = len(mv["U"])
-        mid = min(max(t / float(mv["knot"]) - 0.5, 0.0), P - 1.0)  # the inputs between the knots' midpoints
-        j = min(int(np.floor(mid)), P - 2) if P > 1 else 0
-        feed = mv["U"][j] if P == 1 else mv["U"][j] + (mid - j) * (mv["U"][j + 1] - mv["U"][j])
+        mids = np.arange(len(mv["U"])) + 0.5  # the inputs between the knots' midpoints, held beyond the first and last
+        feed = np.array([np.interp(t / float(mv["knot"]), mids, u) for u in mv["U"].T])
         e = np.concatenate([q, np.einsum("nij,nj->ni", M, v)], axis=1) - nominal
         e[:, mv["angle_mask"]] = np.pi - np.mod(np.pi - e[:, mv["angle_mask"]], 2 * np.pi)
         u = np.clip(feed + e @ mv["K"][k].T, -mv["effort"], mv["effort"])

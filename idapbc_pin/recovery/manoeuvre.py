@@ -31,10 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.angles import wrap_angles
-from ..sim.integrate import simulate
-from ..sim.metrics import settling_time
-from ..sim.states import resting_states
-from ._holds import count_holds
+from ._holds import count_holds, judge_starts
 from .plans import PLAN_STEP
 from .tracking_law import TrackingLaw
 
@@ -72,9 +69,8 @@ class SwingManoeuvre:
         k = min(int(np.floor(t / self.knot + 1e-9)), len(tr.X) - 1)
         after = tr.X[k + 1] if k + 1 < len(tr.X) else self.end
         nominal = tr.X[k] + min(max(t / self.knot - k, 0.0), 1.0) * (after - tr.X[k])  # between the knots
-        mid = min(max(t / self.knot - 0.5, 0.0), len(tr.U) - 1.0)  # the inputs between the knots' midpoints
-        j = min(int(np.floor(mid)), len(tr.U) - 2) if len(tr.U) > 1 else 0
-        feed = tr.U[j] if len(tr.U) == 1 else tr.U[j] + (mid - j) * (tr.U[j + 1] - tr.U[j])
+        mids = np.arange(len(tr.U)) + 0.5  # the inputs between the knots' midpoints, held beyond the first and last
+        feed = np.array([np.interp(t / self.knot, mids, u) for u in tr.U.T])
         d = wrap_angles(np.atleast_2d(np.asarray(x, dtype=np.float64)) - nominal, tr.angle_mask)
         return np.clip(feed + d @ tr.K[k].T, -tr.effort, tr.effort)
 
@@ -119,24 +115,17 @@ class ManoeuvreLaw:
         return self.after(x)
 
 
-def _rest_times(system, laws: list, x_rest: np.ndarray, T: float) -> list[float]:
-    """For each law, the time (s) from which the state stays in the success box from the resting
-    state x_rest (n,) over T s (`sim.metrics.settling_time`; inf where it is not there at the end)."""
-    times = [float(settling_time(simulate(system, law, x_rest[None], T=T, dt=PLAN_STEP), system)[0]) for law in laws]
-    return [t if np.isfinite(t) else math.inf for t in times]
-
-
 def choose_manoeuvre(system, after, manoeuvres: list, x_pick: np.ndarray, x_gate: np.ndarray, config) -> tuple[int | None, dict]:
     """The manoeuvre of `manoeuvres` (each then `after`, the run's controller) that holds the most of
     the near-resting states x_pick (the first on a tie), judged with `after` alone from the gate's
-    states x_gate and from the exact resting state, over `config.judge_T`: (its index where it holds
+    states x_gate (the first exactly at rest, whose settling times are compared), over `config.judge_T`: (its index where it holds
     `config.margin` more of x_gate than `after`, or as many and settles sooner from rest, else None;
     {"picked": holds of each from x_pick, "choice", "states", "run", "held": from x_gate,
     "rest_time": {"run", "manoeuvre"} in s (None: not settled), "used"})."""
     picked = count_holds(system, [m.law(after) for m in manoeuvres], x_pick, config)
     best = max(range(len(picked)), key=lambda i: picked[i])
-    run, held = count_holds(system, [after, manoeuvres[best].law(after)], x_gate, config)
-    t_run, t_own = _rest_times(system, [after, manoeuvres[best].law(after)], resting_states(system, 1)[0], config.judge_T)
+    (run, t_run), (held, t_own) = judge_starts(system, [after, manoeuvres[best].law(after)], x_gate, config)
+    t_run, t_own = (t if np.isfinite(t) else math.inf for t in (t_run, t_own))
     used = held >= run + config.margin or (held >= run and t_own < t_run)
     rest = {k: (t if math.isfinite(t) else None) for k, t in (("run", t_run), ("manoeuvre", t_own))}
     return (best if used else None), {"picked": [int(h) for h in picked], "choice": int(best), "states": int(len(x_gate)), "run": int(run),
