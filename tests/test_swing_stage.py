@@ -22,7 +22,7 @@ from .conftest import sample_domain
 #: The smallest stage that exercises every step: two starts, half-second plans (two iterations each,
 #: the nominals' too), one DAgger round.
 TINY = dict(starts=2, horizon=0.5, ilqr_iterations=2, track_iterations=2, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=2, box_states=4,
-            judge_T=3.0, workers=1, circle=0.5)
+            judge_T=3.0, workers=1, circle=0.5, manoeuvre_horizons=(0.25,))
 
 
 def random_swing_law(system, seed: int = 0, width: int = 16, inner=None, box=None) -> SwingUpLaw:
@@ -258,7 +258,7 @@ def test_train_swing_up_runs_the_stage_after_training_and_records_it(tmp_path, c
 
     train_toml, swing_toml, out = tmp_path / "tiny.toml", tmp_path / "swing.toml", tmp_path / "runs"
     train_toml.write_text("[train]\nwidth = 8\ndepth = 1\n")
-    swing_toml.write_text("[swing_up]\n" + "".join(f"{k} = {v!r}\n" for k, v in TINY.items()).replace("'", '"'))
+    swing_toml.write_text("[swing_up]\n" + "".join(f"{k} = {list(v) if isinstance(v, tuple) else v!r}\n" for k, v in TINY.items()).replace("'", '"'))
     argv = ["train", "pendubot", "--effort", "shoulder=8", "--fast", "--epochs", "2", "--config", str(train_toml), "--evaluate", "0",
             "--recover", "never", "--swing-up", "--swing-config", str(swing_toml), "--out", str(out)]  # fmt: skip
     assert main(argv) == 0
@@ -379,8 +379,10 @@ def test_the_stage_judges_tracking_laws_and_a_manoeuvre_from_its_nominals_and_a_
     assert entry["gate"]["fitted"] == fits and all(len(held) == fits + 2 for held in entry["gate"]["candidates"].values())
     run = ip.load_run(path)
     judged = run.summary["swing_manoeuvre"]
-    assert judged["states"] == TINY["gate_states"] and len(judged["picked"]) == 1 and judged["choice"] == 0
-    assert judged["used"] == (judged["held"] >= judged["run"] + SwingUpConfig().margin)
+    assert judged["states"] == TINY["gate_states"] and judged["horizons"] == [0.5, 0.25] and judged["choice"] == 0  # one nominal of each horizon
+    own, run_score = judged["rest_score"]["manoeuvre"], judged["rest_score"]["run"]
+    assert own is not None and run_score is not None and len(judged["picked_score"]) == 2  # a URDF robot: v2 scores from rest
+    assert judged["used"] == (judged["held"] >= judged["run"] + SwingUpConfig().margin or (judged["held"] >= judged["run"] and own > run_score))
     if not judged["used"]:
         assert run.manoeuvre is None and (path / MANOEUVRE_REFUSED_FILE).is_file() and not (path / MANOEUVRE_FILE).exists()
         (path / MANOEUVRE_REFUSED_FILE).rename(path / MANOEUVRE_FILE)

@@ -140,3 +140,41 @@ def test_a_manoeuvre_from_its_own_start_follows_its_plan_then_hands_over(pendubo
     assert back.knot == KNOT and np.array_equal(back.track.K, manoeuvre.track.K) and np.array_equal(back.end, end)
     with pytest.raises(ValueError, match="knot"):
         SwingManoeuvre.from_arrays(manoeuvre.track.arrays())
+
+
+def test_the_manoeuvre_picked_holds_nearly_the_most_and_scores_best_from_rest_and_is_kept_only_if_it_does_better(monkeypatch):
+    """`choose_manoeuvre`'s rule, read from its judgements (stubbed: the rule, not the simulations, is
+    under test): among the manoeuvres holding ≥ `PICK_SHARE` of the most any holds, the best v2 from
+    rest; kept where it holds `margin` more than the run's law, or as many and scores higher from rest;
+    without a URDF tip (no score) the sooner settled ranks first."""
+    import math
+
+    from idapbc_pin.recovery import manoeuvre as mod
+    from idapbc_pin.recovery._holds import Judged
+    from idapbc_pin.recovery.config import SwingUpConfig
+
+    class Stub:
+        def __init__(self, i):
+            self.i = i
+
+        def law(self, after):
+            return self.i
+
+    def choose(picked, run, own):
+        answers = iter([picked, [run, own]])
+        monkeypatch.setattr(mod, "judge_starts", lambda system, laws, x0, config, score=False: next(answers))
+        return mod.choose_manoeuvre(None, None, [Stub(i) for i in range(len(picked))], np.zeros((20, 4)), np.zeros((20, 4)), SwingUpConfig())
+
+    nan = math.nan
+    picked = [Judged(20, 4.0, 0.30), Judged(18, 3.0, 0.55), Judged(17, 2.0, 0.70), Judged(5, 2.0, 0.90)]
+    best, entry = choose(picked, run=Judged(20, 5.0, 0.20), own=Judged(20, 3.0, 0.55))
+    assert mod.PICK_SHARE == 0.9 and entry["choice"] == 1 and best == 1  # 18 ≥ 0.9 · 20 > 17: the best score among 20, 18
+    assert entry["used"] and entry["picked_score"] == [0.30, 0.55, 0.70, 0.90] and entry["rest_score"] == {"run": 0.20, "manoeuvre": 0.55}
+    assert choose(picked, run=Judged(20, 5.0, 0.60), own=Judged(20, 3.0, 0.55))[0] is None  # as many held, a lower score: not kept
+    assert choose(picked, run=Judged(18, 5.0, 0.60), own=Judged(19, 3.0, 0.55))[0] is None  # 2 more needed where it scores lower
+    assert choose(picked, run=Judged(18, 5.0, 0.60), own=Judged(19, 3.0, 0.55))[1]["held"] == 19
+    assert choose(picked, run=Judged(15, 5.0, 0.60), own=Judged(17, 3.0, 0.10))[0] == 1  # margin more held: kept
+    no_tip = [Judged(20, 4.0, nan), Judged(19, 3.0, nan), Judged(20, nan, nan)]
+    best, entry = choose(no_tip, run=Judged(19, 5.0, nan), own=Judged(19, 3.0, nan))
+    assert best == 1 and entry["picked_score"] == [None, None, None] and entry["rest_score"]["run"] is None  # sooner settled
+    assert choose(no_tip, run=Judged(19, 2.0, nan), own=Judged(19, 3.0, nan))[0] is None

@@ -18,7 +18,7 @@ import pytest
 
 import idapbc_pin as ip
 from idapbc_pin.control.energy_pump import EnergyPumpLaw, cyclic_coordinates
-from idapbc_pin.evaluation.leaderboard_score import leaderboard_score
+from idapbc_pin.sim.leaderboard import leaderboard_score
 from idapbc_pin.evaluation.swingup import SwingupResult, evaluate_swingup, judge_swingup, swingup_states
 from idapbc_pin.model.resting import resting_configuration, tip_height
 from idapbc_pin.sim.trajectory import Trajectory

@@ -10,7 +10,7 @@
 * `evaluate`: `evaluate_run`, ROA on the domain and the half box and both ROA radii, effort limits
   applied unless lifted (evaluation.json).
 * `swingup`: `evaluate_swingup`, from hanging to upright under the torque limits: the holds verdict,
-  the RealAIGym tip test and (`leaderboard_score`) the leaderboard's v2 score of the hanging start.
+  the RealAIGym tip test and the leaderboard's v2 score of the hanging start (`idapbc_pin.sim.leaderboard`).
 * `robustness`: perturbed judge plants, the measured-state sensor, `robustness_table` (robustness.json).
 * `closed_loop`: `simulate_run`, the ``idapbc-pin simulate`` command (simulation.json; the figure
   is `idapbc_pin.reporting.simulation_figure`).

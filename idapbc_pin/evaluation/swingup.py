@@ -8,13 +8,11 @@ over each step: 500 Hz; effort limits on every controller), and two verdicts are
 * *holds*: over the last `HOLD_WINDOW` s every wrapped angle within `HOLD_POSITION` rad of x*'s
   (a prismatic coordinate within `HOLD_POSITION` m), every speed within `HOLD_SPEED`, and a
   prismatic joint within its URDF limits throughout (a cart on its rail);
-* the *tip test* of the RealAIGym leaderboard: the tip stays above the threshold from the swing-up
-  time to the end (and the cart on its rail). With h_rest and h* the tip's height
-  (`idapbc_pin.model.resting.tip_height`) at rest and at x*, the normalised height
-  (h − h_rest)/(h* − h_rest) stays ≥ `TIP_SHARE`. For a chain hanging straight down from its pivot
-  (h_rest = −L, h* = L) that is exactly the leaderboard's h ≥ 0.9 L measured from the pivot.
+* the *tip test* of the RealAIGym leaderboard: the tip stays above `TIP_SHARE` of its way from
+  rest to x* from the swing-up time to the end, with a cart on its rail
+  (`idapbc_pin.sim.leaderboard.tip_swingup_times`).
 
-For the exact hanging start also the leaderboard's v2 score (`leaderboard_score`).
+For the exact hanging start also the leaderboard's v2 score (`idapbc_pin.sim.leaderboard`).
 """
 
 from __future__ import annotations
@@ -27,12 +25,11 @@ import numpy as np
 from .._parallel import process_map
 from ..errors import IdapbcError
 from ..model.angles import wrap_angles
-from ..model.resting import resting_configuration, tip_height
 from ..sim.integrate import simulate
 from ..sim.metrics import HOLD_ANGLE, HOLD_SPEED, SUCCESS_WINDOW, holds as holds_verdict, on_rail
 from ..sim.states import RESTING_SPREAD, circle_states, resting_states
 from ..sim.step import DEFAULT_STEP
-from .leaderboard_score import LeaderboardScore, leaderboard_score
+from ..sim.leaderboard import TIP_SHARE, LeaderboardScore, row_score, stays_from, tip_swingup_times
 
 __all__ = [
     "HOLD_POSITION",
@@ -53,8 +50,6 @@ __all__ = [
 #: The holds verdict (`sim.metrics.holds`) reads the last HOLD_WINDOW seconds for
 #: |wrap(q − q*)| ≤ HOLD_POSITION (rad or m) and |v| ≤ HOLD_SPEED (rad/s or m/s) on every coordinate.
 HOLD_WINDOW, HOLD_POSITION, HOLD_SPEED = SUCCESS_WINDOW, HOLD_ANGLE, HOLD_SPEED
-#: The tip test: normalised tip height ≥ TIP_SHARE (0.95 ⇔ the leaderboard's 0.9 L above the pivot).
-TIP_SHARE = 0.95
 #: Start states: q_rest ± U(−START_SPREAD, START_SPREAD) and v ± U(−START_SPREAD, START_SPREAD).
 START_SPREAD = RESTING_SPREAD
 
@@ -77,15 +72,6 @@ def swingup_states(system, n: int = 20, seed: int = 0, starts: str = "hanging") 
     if starts == "circle":
         return circle_states(system, int(n), seed)
     return resting_states(system, int(n), seed, START_SPREAD)
-
-
-def _stays_from(flags: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(N,) s: the first sample time from which `flags` (N, K) holds to the end; nan where the last
-    sample fails."""
-    stays = np.flip(np.logical_and.accumulate(np.flip(flags, axis=1), axis=1), axis=1)
-    out = t[np.argmax(stays, axis=1)].astype(float)
-    out[~stays[:, -1]] = np.nan
-    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -137,15 +123,12 @@ def judge_swingup(system, traj) -> SwingupScore:
     t, q, v, u = traj.t, traj.q, traj.v, traj.u
     N, K = q.shape[:2]
     q_star = np.asarray(system.x_star, float)[:nq]
-    h_rest, h_star = float(tip_height(system, resting_configuration(system))), float(tip_height(system, q_star))
-    z = (tip_height(system, q.reshape(-1, nq)).reshape(N, K) - h_rest) / (h_star - h_rest)
     rail = on_rail(traj, system)
-    swingup = _stays_from(z >= TIP_SHARE, t)
-    swingup[traj.diverged | ~rail | ~(swingup < t[-1])] = np.nan
+    swingup = tip_swingup_times(system, traj)
     dq = wrap_angles(q - q_star, np.asarray(system.angle_mask, bool)[:nq])
     box = (np.abs(dq) <= HOLD_POSITION).all(axis=-1) & (np.abs(v) <= HOLD_SPEED).all(axis=-1)
     holds = holds_verdict(traj, system, HOLD_WINDOW)
-    to_goal = _stays_from(box, t)
+    to_goal = stays_from(box, t)
     to_goal[traj.diverged | ~rail] = np.nan
     B = np.asarray(system.B, float)
     effort = np.asarray(system.effort, float)
@@ -154,7 +137,7 @@ def judge_swingup(system, traj) -> SwingupScore:
         ratio = np.where(np.isfinite(effort), peak_each / effort, np.nan)
     peak_ratio = np.full(N, np.nan) if np.all(np.isnan(ratio)) else np.nanmax(ratio, axis=1)
     energy = np.abs(np.diff(q @ B, axis=1) * u[:, :-1]).sum(axis=(1, 2))
-    hanging = leaderboard_score(t, q[0], v[0], u[0] @ B.T, swingup[0])
+    hanging = row_score(system, traj, 0, swingup[0])
     return SwingupScore(holds=holds, tip=np.isfinite(swingup), swingup_time=swingup, time_to_goal=to_goal,
                         peak_input=peak_each.max(axis=1), peak_ratio=peak_ratio, energy=energy,
                         diverged=np.asarray(traj.diverged, bool).copy(), off_rail=~rail, hanging=hanging)

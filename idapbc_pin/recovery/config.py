@@ -160,7 +160,10 @@ class SwingUpConfig(Settings):
     track_share : share of the effort limits the nominals use (the rest is the feedback's).
     manoeuvre : also judge each nominal as a manoeuvre from rest, tracked in time
         (`recovery.manoeuvre`), and keep the best where it holds `margin` more than the run's law, or
-        as many and reaches x* sooner from the exact resting state.
+        as many and scores higher from the exact resting state (RealAIGym v2; sooner at x* without a URDF tip).
+    manoeuvre_horizons : lengths (s) of further nominal plans from rest, tried as manoeuvres only
+        (beside those of `horizon`, which the tracking laws read too): a short swing-up scores
+        better where the robot can do it (the v2 score prices time, torque and speed).
     workers, ray : as `RecoveryConfig`'s: processes (0: one per core) or Ray tasks; the time only.
     """
 
@@ -188,6 +191,7 @@ class SwingUpConfig(Settings):
     track_iterations: int = 80
     track_share: float = 0.8
     manoeuvre: bool = True
+    manoeuvre_horizons: tuple = (2.0,)
     workers: int = 0
     ray: str | None = None
 
@@ -195,7 +199,9 @@ class SwingUpConfig(Settings):
         ok = (all(0 < r <= 1 for r in self.inner_scales) and 0 < self.track_share <= 1
               and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations) >= 1
               and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks) >= 0
-              and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10)
+              and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10
+              and all(0 < h <= self.judge_T - 2.0 for h in self.manoeuvre_horizons))
         if not ok:
             raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch, ilqr_iterations and track_iterations "
-                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales and track_share in (0, 1], circle in [0, 10], horizon > 0 and judge_T ≥ horizon + 2 s. Fix: pass valid values.")
+                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales and track_share in (0, 1], circle in [0, 10], horizon and "
+                              "manoeuvre_horizons > 0 and judge_T ≥ each of them + 2 s. Fix: pass valid values.")

@@ -15,12 +15,15 @@ to the U_k the plan held). The law is sampled every 2 ms and the plan's knots ar
 X_k alone, the nominal itself would read as an error within each knot, and U_k held would step at
 every knot (the leaderboard's torque smoothness counts each step). After the plan's end the run's
 own law (its networks, and its swing-up or recovery law where it keeps one) catches.
-The swing-up stage picks, among the nominals (`swing_tracks.nominals`, at most `MANOEUVRE_NOMINALS`),
-the manoeuvre that holds the most of near-resting states of its own (the cheapest nominal on a tie),
-and keeps it (``swingup-manoeuvre.npz``) when it holds `SwingUpConfig.margin` more of its gate's
-near-resting states than the run's law does, or as many and, from the exact resting state, settles
-at x* sooner (`sim.metrics.settling_time`): what a command at rest asks for. `simulate --from
-hanging` judges it beside the run's law.
+The swing-up stage picks, among the nominals (`swing_tracks.nominals`, at most `MANOEUVRE_NOMINALS` of each horizon),
+from near-resting states of its own (the first exactly at rest), among the manoeuvres that hold at
+least `PICK_SHARE` of the most any of them holds, the one whose swing-up from exact rest scores
+best by the RealAIGym v2 score (`sim.leaderboard`: time, energy, torque, smoothness and speed, what
+a command at rest is judged by; the most held, then the cheapest nominal, where the system has no
+URDF tip to score). It keeps it (``swingup-manoeuvre.npz``) when it holds `SwingUpConfig.margin`
+more of its gate's near-resting states than the run's law does, or as many and, from the exact
+resting state, scores higher (settles at x* sooner, `sim.metrics.settling_time`, without a tip).
+`simulate --from hanging` judges it beside the run's law.
 """
 
 from __future__ import annotations
@@ -31,15 +34,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.angles import wrap_angles
-from ._holds import count_holds, judge_starts
+from ._holds import Judged, judge_starts
 from .plans import PLAN_STEP
 from .tracking_law import TrackingLaw
 
-__all__ = ["MANOEUVRE_NOMINALS", "ManoeuvreLaw", "SwingManoeuvre", "choose_manoeuvre"]
+__all__ = ["MANOEUVRE_NOMINALS", "PICK_SHARE", "ManoeuvreLaw", "SwingManoeuvre", "choose_manoeuvre"]
 
-#: Nominal plans (those that hold from rest, cheapest first) whose manoeuvres are tried: which nominal
-#: tracks well from near rest does not follow from its cost.
-MANOEUVRE_NOMINALS = 8
+#: Nominal plans of each horizon (those that hold from rest, cheapest first) whose manoeuvres are
+#: tried: which nominal tracks well from near rest does not follow from its cost.
+MANOEUVRE_NOMINALS = 4
+#: Manoeuvres that hold at least this share of the most any holds are ranked by their v2 score from rest.
+PICK_SHARE = 0.9
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,18 +120,35 @@ class ManoeuvreLaw:
         return self.after(x)
 
 
+def _from_rest(judged: Judged) -> float:
+    """How well a law does from exact rest, higher is better: its v2 score, or (a system without a
+    URDF tip) minus its settling time (−∞: not settled)."""
+    if math.isfinite(judged.rest_score):
+        return judged.rest_score
+    return -judged.rest_time if math.isfinite(judged.rest_time) else -math.inf
+
+
 def choose_manoeuvre(system, after, manoeuvres: list, x_pick: np.ndarray, x_gate: np.ndarray, config) -> tuple[int | None, dict]:
-    """The manoeuvre of `manoeuvres` (each then `after`, the run's controller) that holds the most of
-    the near-resting states x_pick (the first on a tie), judged with `after` alone from the gate's
-    states x_gate (the first exactly at rest, whose settling times are compared), over `config.judge_T`: (its index where it holds
-    `config.margin` more of x_gate than `after`, or as many and settles sooner from rest, else None;
-    {"picked": holds of each from x_pick, "choice", "states", "run", "held": from x_gate,
-    "rest_time": {"run", "manoeuvre"} in s (None: not settled), "used"})."""
-    picked = count_holds(system, [m.law(after) for m in manoeuvres], x_pick, config)
-    best = max(range(len(picked)), key=lambda i: picked[i])
-    (run, t_run), (held, t_own) = judge_starts(system, [after, manoeuvres[best].law(after)], x_gate, config)
-    t_run, t_own = (t if np.isfinite(t) else math.inf for t in (t_run, t_own))
-    used = held >= run + config.margin or (held >= run and t_own < t_run)
-    rest = {k: (t if math.isfinite(t) else None) for k, t in (("run", t_run), ("manoeuvre", t_own))}
-    return (best if used else None), {"picked": [int(h) for h in picked], "choice": int(best), "states": int(len(x_gate)), "run": int(run),
-                                      "held": int(held), "rest_time": rest, "used": bool(used)}
+    """The manoeuvre of `manoeuvres` (each then `after`, the run's controller) picked from the
+    near-resting states x_pick (the first exactly at rest): among those that hold at least
+    `PICK_SHARE` of the most any holds, the best from rest (v2 score; without a tip, the sooner
+    settled), then the most held, then the first; judged with `after` alone from the gate's states
+    x_gate (the first exactly at rest) over `config.judge_T`: (its index where it holds
+    `config.margin` more of x_gate than `after`, or as many and does better from rest, else None;
+    {"picked": holds of each from x_pick, "picked_score": each one's v2 from rest (None: no tip),
+    "choice", "states", "run", "held": from x_gate, "rest_time": {"run", "manoeuvre"} in s (None:
+    not settled), "rest_score": {"run", "manoeuvre"} (None: no tip), "used"})."""
+    picked = judge_starts(system, [m.law(after) for m in manoeuvres], x_pick, config, score=True)
+    top = max(j.held for j in picked)
+    pool = [i for i, j in enumerate(picked) if j.held >= PICK_SHARE * top]
+    best = max(pool, key=lambda i: (_from_rest(picked[i]), picked[i].held, -i))
+    run, own = judge_starts(system, [after, manoeuvres[best].law(after)], x_gate, config, score=True)
+    used = own.held >= run.held + config.margin or (own.held >= run.held and _from_rest(own) > _from_rest(run))
+
+    def plain(value: float):
+        return float(value) if math.isfinite(value) else None
+
+    return (best if used else None), {"picked": [int(j.held) for j in picked], "picked_score": [plain(j.rest_score) for j in picked],
+                                      "choice": int(best), "states": int(len(x_gate)), "run": int(run.held), "held": int(own.held),
+                                      "rest_time": {"run": plain(run.rest_time), "manoeuvre": plain(own.rest_time)},
+                                      "rest_score": {"run": plain(run.rest_score), "manoeuvre": plain(own.rest_score)}, "used": bool(used)}

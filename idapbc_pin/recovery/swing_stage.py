@@ -35,11 +35,13 @@ holds every number.
    a tracking law, then the one that brings more box states to x*, the later, the larger kept box); it is kept when it holds at least `margin` more than the run's law and
    keeps the box.
 
-5. **Manoeuvre.** Each nominal plan as a manoeuvre from a command at rest (`manoeuvre`: tracked in
-   time, then the run's law as the gate leaves it); the one that holds the most near-resting
-   starts of its own is kept when it holds `margin` more of the gate's near-resting states than the
-   run's law, or as many and reaches x* sooner from the exact resting state
-   (``swingup-manoeuvre.npz``, summary.json → "swing_manoeuvre").
+5. **Manoeuvre.** Each nominal plan (those of `horizon`, and as many of each `manoeuvre_horizons`)
+   as a manoeuvre from a command at rest (`manoeuvre`: tracked in
+   time, then the run's law as the gate leaves it); among those that hold nearly the most of
+   near-resting starts of their own, the one whose swing-up from exact rest scores best (RealAIGym
+   v2) is kept when it holds `margin` more of the gate's near-resting states than the run's law, or
+   as many and scores higher from the exact resting state (``swingup-manoeuvre.npz``, summary.json →
+   "swing_manoeuvre").
 
 The law goes to ``swingup.npz`` when kept (every command on the run then applies it), else to
 ``swingup-refused.npz``, and the entry to summary.json → "swing_up"; each write atomic.
@@ -199,8 +201,12 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
         if progress:
             print(f"{format_swing_gate(entry['gate'], config)}  [{time.perf_counter() - start:.0f} s]", flush=True)
     store.clear()
-    if config.manoeuvre and plans:
-        _manoeuvre(run, system, plans, config, progress, start)
+    if config.manoeuvre:
+        candidates = [(plan, config.horizon) for plan in plans[:MANOEUVRE_NOMINALS]]
+        for h in (h for h in config.manoeuvre_horizons if h != config.horizon):
+            candidates += [(plan, h) for plan in nominals(system, PumpThenRun(system, teacher), config.replace(horizon=h), MANOEUVRE_NOMINALS)]
+        if candidates:
+            _manoeuvre(run, system, candidates, config, progress, start)
     return entry
 
 
@@ -226,24 +232,30 @@ def _fit_and_gate(run, system, teacher, labels: tuple, box_labels: tuple, tracks
             "_law": (laws + tracks)[k].with_box(kept_boxes(system, config)[box])}
 
 
-def _manoeuvre(run, system, plans: list, config: SwingUpConfig, progress: bool, start: float) -> dict:
-    """Step 5 of the module docstring: the manoeuvre of each nominal plan judged against the run's law
-    as the stage leaves it; written to summary.json → "swing_manoeuvre" and its file."""
+def _manoeuvre(run, system, candidates: list, config: SwingUpConfig, progress: bool, start: float) -> dict:
+    """Step 5 of the module docstring: the manoeuvre of each nominal plan of `candidates` [(plan, its
+    horizon s)] judged against the run's law as the stage leaves it; written to summary.json →
+    "swing_manoeuvre" and its file."""
     run = resolve_run(run.path)  # with the swing-up law the stage kept, if any
     box = kept_boxes(system, config)["posture"]
     manoeuvres = [SwingManoeuvre(tracking_law(system, U, Z, G, 1.0, box), system.state_from(Z[-1:, : system.nq], Z[-1:, system.nq :])[0], KNOT)
-                  for U, Z, G in plans]
+                  for (U, Z, G), _ in candidates]
     x_pick = resting_states(system, config.gate_states, config.plan_seed + 600)
     x_gate = swing_starts(system, config.gate_states, 0.0, SWING_GATE_SEED + run.config.seed)
     best, entry = choose_manoeuvre(system, run.controller, manoeuvres, x_pick, x_gate, config)
+    entry["horizons"] = [float(h) for _, h in candidates]
     write_law(run, manoeuvres[entry["choice"]].arrays(), "swing_manoeuvre", entry, (MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE))
     if progress:
-        verdict = "kept" if entry["used"] else f"not kept (needs {config.margin} more held than the run's law, or as many and sooner from rest)"
+        verdict = "kept" if entry["used"] else f"not kept (needs {config.margin} more held than the run's law, or as many and better from rest)"
         at = {k: "never" if t is None else f"{t:.2f} s" for k, t in entry["rest_time"].items()}
-        print(f"swing-up manoeuvre (a nominal plan tracked in time from the command, then the run's law): the {len(manoeuvres)} nominals hold "
-              f"{', '.join(map(str, entry['picked']))} of {len(x_pick)} near-resting starts; of the gate's {entry['states']}, the run's law holds "
-              f"{entry['run']}, manoeuvre {entry['choice'] + 1} {entry['held']}; from rest at x* from {at['run']} and {at['manoeuvre']}: {verdict}  "
-              f"[{time.perf_counter() - start:.0f} s]", flush=True)
+        v2 = {k: "–" if v is None else f"{v:.3f}" for k, v in entry["rest_score"].items()}
+        scores = ", ".join("–" if v is None else f"{v:.3f}" for v in entry["picked_score"])
+        lengths = "/".join(f"{h:g}" for h in dict.fromkeys(entry["horizons"]))
+        print(f"swing-up manoeuvre (a nominal plan tracked in time from the command, then the run's law): the {len(manoeuvres)} nominals of "
+              f"{lengths} s hold {', '.join(map(str, entry['picked']))} of {len(x_pick)} near-resting starts (v2 from rest {scores}); of the gate's "
+              f"{entry['states']}, the run's law holds {entry['run']}, manoeuvre {entry['choice'] + 1} ({entry['horizons'][entry['choice']]:g} s) "
+              f"{entry['held']}; from rest at x* from {at['run']} and "
+              f"{at['manoeuvre']}, v2 {v2['run']} and {v2['manoeuvre']}: {verdict}  [{time.perf_counter() - start:.0f} s]", flush=True)
     return entry
 
 

@@ -13,6 +13,7 @@ One concept per module, in the order a rollout uses them:
 * `metrics`: the judge's verdicts on a `Trajectory`: success, settling time, equilibrium offset,
   peak input.
 * `compare`: `compare_laws`, candidate laws judged from the same states (every gate uses it).
+* `leaderboard`: the RealAIGym tip test and v2 score of a swing-up (`tip_swingup_times`, `row_score`).
 
 Scores built on these verdicts (ROA, radius, paired comparison, invariant share) live in
 `idapbc_pin.evaluation`.

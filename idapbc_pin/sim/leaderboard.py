@@ -1,4 +1,12 @@
-"""The RealAIGym simulation leaderboard's v2 score of one swing-up: success · (1 − ⅕ Σ tanh(π c_i / n_i)).
+"""The RealAIGym simulation leaderboard's tip test and v2 score of a swing-up: success · (1 − ⅕ Σ tanh(π c_i / n_i)).
+
+* `tip_swingup_times`: the tip test of a `Trajectory`. With h_rest and h* the tip's height
+  (`idapbc_pin.model.resting.tip_height`) at rest and at x*, the swing-up time is the first sample
+  time from which the normalised height (h − h_rest)/(h* − h_rest) stays ≥ `TIP_SHARE` to the end
+  (a cart on its rail throughout). For a chain hanging straight down from its pivot (h_rest = −L,
+  h* = L) that is exactly the leaderboard's h ≥ 0.9 L measured from the pivot.
+* `leaderboard_score`: the v2 score of one trajectory given its swing-up time; `row_score`: the
+  same for one row of a `Trajectory` (the swing-up stage and the swing-up evaluation both use it).
 
 The criteria c_i of a trajectory sampled at t_0 … t_K (the input τ_k held over [t_k, t_{k+1}]),
 summed over every joint (an unactuated joint's torque is 0):
@@ -28,7 +36,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["NORMALISATION", "LeaderboardScore", "leaderboard_score"]
+from ..model.resting import resting_configuration, tip_height
+from .metrics import on_rail
+from .trajectory import Trajectory
+
+__all__ = ["NORMALISATION", "TIP_SHARE", "LeaderboardScore", "leaderboard_score", "row_score", "stays_from", "tip_swingup_times"]
+
+#: The tip test: normalised tip height ≥ TIP_SHARE (0.95 ⇔ the leaderboard's 0.9 L above the pivot).
+TIP_SHARE = 0.95
 
 #: The v2 normalisation n_i of each criterion (weights 1).
 NORMALISATION = {"swingup_time": 20.0, "energy": 60.0, "torque_cost": 20.0, "torque_smoothness": 0.1, "velocity_cost": 400.0}
@@ -91,3 +106,37 @@ def leaderboard_score(t, q, v, tau, swingup_time: float) -> LeaderboardScore:
         velocity_cost=criteria["velocity_cost"],
         score=float(1.0 - penalty) if success else 0.0,
     )
+
+
+def stays_from(flags: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N,) s: the first sample time from which `flags` (N, K) holds to the end; nan where the last
+    sample fails."""
+    stays = np.flip(np.logical_and.accumulate(np.flip(flags, axis=1), axis=1), axis=1)
+    out = t[np.argmax(stays, axis=1)].astype(float)
+    out[~stays[:, -1]] = np.nan
+    return out
+
+
+def tip_swingup_times(system, traj: Trajectory) -> np.ndarray:
+    """(N,) s: the tip test's swing-up time of each row of `traj` (module docstring); nan where the
+    tip is not up at the end, the row diverged or a cart left its rail. Needs a URDF system
+    (`tip_height` raises IdapbcError for a built-in analytic one)."""
+    nq = system.nq
+    N, K = traj.q.shape[:2]
+    q_star = np.asarray(system.x_star, float)[:nq]
+    h_rest, h_star = float(tip_height(system, resting_configuration(system))), float(tip_height(system, q_star))
+    z = (tip_height(system, traj.q.reshape(-1, nq)).reshape(N, K) - h_rest) / (h_star - h_rest)
+    out = stays_from(z >= TIP_SHARE, traj.t)
+    out[traj.diverged | ~on_rail(traj, system) | ~(out < traj.t[-1])] = np.nan
+    return out
+
+
+def row_score(system, traj: Trajectory, row: int = 0, swingup_time: float | None = None) -> LeaderboardScore:
+    """The v2 score of row `row` of `traj` (recorded at every step, inputs u (N, K, m) held over
+    each step), with that row's tip-test swing-up time (`tip_swingup_times`, unless given)."""
+    B = np.asarray(system.B, float)
+    if swingup_time is None:
+        rows = slice(row, row + 1)
+        one = Trajectory(traj.t, traj.x[rows], traj.q[rows], traj.v[rows], traj.u[rows], traj.diverged[rows])
+        swingup_time = float(tip_swingup_times(system, one)[0])
+    return leaderboard_score(traj.t, traj.q[row], traj.v[row], traj.u[row] @ B.T, swingup_time)
