@@ -191,7 +191,7 @@ class SwingUpConfig(Settings):
     track_iterations: int = 80
     track_share: float = 0.8
     manoeuvre: bool = True
-    manoeuvre_horizons: tuple = (2.0,)
+    manoeuvre_horizons: tuple = (1.5, 2.0)
     workers: int = 0
     ray: str | None = None
 
