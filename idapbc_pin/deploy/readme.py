@@ -152,7 +152,7 @@ def deploy_readme(record: dict) -> str:
                  "after its command: a nominal plan from rest (controller.json's \"manoeuvre\": states \"X\" in (q, p), inputs \"U\", one knot "
                  "of \"knot\" s each) tracked in time by the gains \"K\" of a time-varying LQR, then `torque(q, v)` after its end. It was kept "
                  "because, simulated under the effort limits, it held more near-resting states at x* than the law alone, or as many and "
-                 "reached x* sooner from rest; start it from rest, "
+                 "swung up better from rest (the RealAIGym leaderboard's v2 score: time, energy, torque, smoothness, speed); start it from rest, "
                  "and fall back to `torque(q, v)` if the robot is far from its nominal.\n")
     body = _BODY.format(dtype=record["dtype"], n=2 * nv, nv=nv, x_star=x_star, joints=_joint_table(record), onnx_row=onnx_row,
                         fallback_line=line, fallback_text=text)
