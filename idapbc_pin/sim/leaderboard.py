@@ -12,7 +12,7 @@ The criteria c_i of a trajectory sampled at t_0 … t_K (the input τ_k held ove
 summed over every joint (an unactuated joint's torque is 0):
 
 * swing-up time: when the tip enters the region above the threshold and stays there to the end
-  (`idapbc_pin.evaluation.swingup` measures it); success: it does so before the end;
+  (`tip_swingup_times` measures it); success: it does so before the end;
 * energy Σ_k Σ_j |(q_{k+1,j} − q_{k,j}) τ_{k,j}| (J);
 * torque cost Σ_k τ_kᵀ τ_k (t_{k+1} − t_k) (N²·m²·s);
 * torque smoothness Σ_j std_k(τ_{k+1,j} − τ_{k,j}) over all samples, population std (N·m);
