@@ -15,14 +15,15 @@ to the U_k the plan held). The law is sampled every 2 ms and the plan's knots ar
 X_k alone, the nominal itself would read as an error within each knot, and U_k held would step at
 every knot (the leaderboard's torque smoothness counts each step). After the plan's end the run's
 own law (its networks, and its swing-up or recovery law where it keeps one) catches.
-The swing-up stage picks, among the nominals (`swing_tracks.nominals`, at most `MANOEUVRE_NOMINALS` of each horizon),
-from near-resting states of its own (the first exactly at rest), among the manoeuvres that hold at
-least `PICK_SHARE` of the most any of them holds, the one whose swing-up from exact rest scores
-best by the RealAIGym v2 score (`sim.leaderboard`: time, energy, torque, smoothness and speed, what
-a command at rest is judged by; the most held, then the cheapest nominal, where the system has no
-URDF tip to score). It keeps it (``swingup-manoeuvre.npz``) when it holds `SwingUpConfig.margin`
-more of its gate's near-resting states than the run's law does, or as many and, from the exact
-resting state, scores higher (settles at x* sooner, `sim.metrics.settling_time`, without a tip).
+The swing-up stage picks, among the nominals (`swing_tracks.nominals`, at most `MANOEUVRE_NOMINALS`
+of each horizon), from near-resting states of its own (the first exactly at rest), among the
+manoeuvres that hold at least `PICK_SHARE` of the most any of them holds, the one whose swing-up
+from exact rest scores best by the RealAIGym v2 score (`sim.leaderboard`: time, energy, torque,
+smoothness and speed, what a command at rest is judged by; the sooner settled where the system has
+no URDF tip to score; then the most held, then the cheapest nominal). It keeps it (``swingup-manoeuvre.npz``) when it holds
+`SwingUpConfig.margin` more of its gate's near-resting states than the run's law does, or as many
+and, from the exact resting state, scores higher (settles at x* sooner, `sim.metrics.settling_time`,
+without a tip).
 `simulate --from hanging` judges it beside the run's law.
 """
 
@@ -120,6 +121,11 @@ class ManoeuvreLaw:
         return self.after(x)
 
 
+def _plain(value: float) -> float | None:
+    """`value` for JSON: None where it is not finite."""
+    return float(value) if math.isfinite(value) else None
+
+
 def _from_rest(judged: Judged) -> float:
     """How well a law does from exact rest, higher is better: its v2 score, or (a system without a
     URDF tip) minus its settling time (−∞: not settled)."""
@@ -144,11 +150,7 @@ def choose_manoeuvre(system, after, manoeuvres: list, x_pick: np.ndarray, x_gate
     best = max(pool, key=lambda i: (_from_rest(picked[i]), picked[i].held, -i))
     run, own = judge_starts(system, [after, manoeuvres[best].law(after)], x_gate, config, score=True)
     used = own.held >= run.held + config.margin or (own.held >= run.held and _from_rest(own) > _from_rest(run))
-
-    def plain(value: float):
-        return float(value) if math.isfinite(value) else None
-
-    return (best if used else None), {"picked": [int(j.held) for j in picked], "picked_score": [plain(j.rest_score) for j in picked],
+    return (best if used else None), {"picked": [int(j.held) for j in picked], "picked_score": [_plain(j.rest_score) for j in picked],
                                       "choice": int(best), "states": int(len(x_gate)), "run": int(run.held), "held": int(own.held),
-                                      "rest_time": {"run": plain(run.rest_time), "manoeuvre": plain(own.rest_time)},
-                                      "rest_score": {"run": plain(run.rest_score), "manoeuvre": plain(own.rest_score)}, "used": bool(used)}
+                                      "rest_time": {"run": _plain(run.rest_time), "manoeuvre": _plain(own.rest_time)},
+                                      "rest_score": {"run": _plain(run.rest_score), "manoeuvre": _plain(own.rest_score)}, "used": bool(used)}

@@ -36,8 +36,8 @@ holds every number.
    keeps the box.
 
 5. **Manoeuvre.** Each nominal plan (those of `horizon`, and as many of each `manoeuvre_horizons`)
-   as a manoeuvre from a command at rest (`manoeuvre`: tracked in
-   time, then the run's law as the gate leaves it); among those that hold nearly the most of
+   as a manoeuvre from a command at rest (`manoeuvre`: tracked in time, then the run's law as the
+   gate leaves it); among those that hold nearly the most of
    near-resting starts of their own, the one whose swing-up from exact rest scores best (RealAIGym
    v2) is kept when it holds `margin` more of the gate's near-resting states than the run's law, or
    as many and scores higher from the exact resting state (``swingup-manoeuvre.npz``, summary.json →
@@ -175,14 +175,15 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
     teacher = run.box_controller
     store = ChunkStore(run.path)
     x0 = swing_starts(system, config.starts, config.circle, config.plan_seed)
-    X, U, taught, planned = _label(system, x0, config.plan_seed, config, PumpThenRun(system, teacher), store, "swing-labels", progress)
+    catch = PumpThenRun(system, teacher)  # the labels' first teacher, and the catch of every nominal plan
+    X, U, taught, planned = _label(system, x0, config.plan_seed, config, catch, store, "swing-labels", progress)
     Xb, Ub = _box_labels(run, system, len(X))
     if progress:
         circle = f" ({config.starts} near-resting, {len(x0) - config.starts} at rest from the full circle)" if len(x0) > config.starts else " near-resting"
         print(f"swing-up labels: energy pumping with the run's law in the box brings {taught} of {len(x0)}{circle} starts to x*, "
               f"plans {planned} more; "
               f"{len(X)} labels, and {len(Xb)} of the recovery stage's  [{time.perf_counter() - start:.0f} s]", flush=True)
-    plans = nominals(system, PumpThenRun(system, teacher), config, max(NOMINALS, MANOEUVRE_NOMINALS if config.manoeuvre else 0)) \
+    plans = nominals(system, catch, config, max(NOMINALS, MANOEUVRE_NOMINALS if config.manoeuvre else 0)) \
         if config.tracks or config.manoeuvre else []
     tracks, track_info = tracking_laws(system, teacher, plans, kept_boxes(system, config)["posture"], config, progress) if config.tracks and plans else ([], {})
     if not len(X) and not tracks:
@@ -204,7 +205,7 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
     if config.manoeuvre:
         candidates = [(plan, config.horizon) for plan in plans[:MANOEUVRE_NOMINALS]]
         for h in (h for h in config.manoeuvre_horizons if h != config.horizon):
-            candidates += [(plan, h) for plan in nominals(system, PumpThenRun(system, teacher), config.replace(horizon=h), MANOEUVRE_NOMINALS)]
+            candidates += [(plan, h) for plan in nominals(system, catch, config.replace(horizon=h), MANOEUVRE_NOMINALS)]
         if candidates:
             _manoeuvre(run, system, candidates, config, progress, start)
     return entry
