@@ -222,6 +222,26 @@ def test_run_time_path_equals_the_training_path(form, energy_input, scaling, dty
     np.testing.assert_allclose(ctrl.flow().energy(x), H, rtol=tol, atol=tol * np.abs(H).max())
 
 
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_a_large_batch_is_evaluated_in_blocks_with_the_values_of_one_pass(dtype):
+    """Past `block_rows` states, f̃_d and H_d are evaluated block by block: the same values as the
+    autograd path (the networks' rounding), and each block's rows as that block alone gives them."""
+    system = ip.load_system("cartpole")
+    torch.manual_seed(2)
+    ctrl = Controller(system, build_nets(system, TrainConfig(width=64, depth=3, dtype=dtype)))
+    flow = ctrl.flow()
+    n = 2 * flow.block_rows + 7
+    assert flow.block_rows * 64 * flow.dtype.itemsize <= 128_000 < n * 64 * flow.dtype.itemsize
+    x = system.x_star + np.random.default_rng(3).normal(scale=0.5, size=(n, system.n))
+    tol = 1e-12 if dtype == "float64" else 2e-5
+    fd = flow(x)
+    np.testing.assert_allclose(fd, ctrl.f_d(x), rtol=tol, atol=tol * np.abs(fd).max())
+    H = flow.energy(x)
+    np.testing.assert_allclose(H, ctrl.H_d(x), rtol=tol, atol=tol * np.abs(H).max())
+    blocks = np.array_split(np.arange(n), 3)
+    np.testing.assert_array_equal(fd, np.concatenate([flow(x[rows]) for rows in blocks]))
+
+
 def test_run_time_path_follows_the_weights():
     """After an optimiser step the controller's run-time path uses the new weights, not a stale copy."""
     system = ip.load_system("cartpole")

@@ -16,7 +16,11 @@ so it equals them to rounding in the networks' dtype (float32 or float64); u = (
 clamped to [−b, b] for J_d and R_d when the networks were built with an ``input_bound`` b.
 Why numpy at run time: one evaluation is about 60 small operations, 5–10 µs each in torch and 1–2 µs
 in numpy; the layout (stacked input layers, transposed weights, matrices placed by products with
-constant bases) keeps that count low (`benchmarks/bench_controller.py`).
+constant bases) keeps that count low (`benchmarks/bench_controller.py`). Large batches are evaluated
+in blocks of `block_rows` states, so that each (block, width) work array stays within
+`BLOCK_BYTES`: a few cache-sized arrays instead of large ones that the C allocator maps and unmaps
+from the operating system at every call. The rows of a block do not depend on the others', so the
+values are those of one pass (BLAS may round a row differently in another batch).
 """
 
 from __future__ import annotations
@@ -26,10 +30,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["DesiredFlow", "FORMAT", "Mlp", "load_flow", "softplus", "softplus_and_expit"]
+__all__ = ["BLOCK_BYTES", "DesiredFlow", "FORMAT", "Mlp", "load_flow", "softplus", "softplus_and_expit"]
 
 #: Version of the `DesiredFlow.arrays` layout (stored under the key ``format``).
 FORMAT = 1
+
+#: Bytes of one (block, width) work array of a block of states (`DesiredFlow.block_rows`): below
+#: glibc's default threshold (128 KiB) above which each allocation is a fresh memory map.
+BLOCK_BYTES = 128_000
 
 
 def softplus(a: np.ndarray) -> np.ndarray:
@@ -191,6 +199,21 @@ class DesiredFlow:
         """The networks' dtype, in which f̃_d is evaluated."""
         return self.x_star.dtype
 
+    @property
+    def block_rows(self) -> int:
+        """States per block of `__call__` and `energy`: the widest layer's (block, width) array in
+        `BLOCK_BYTES`."""
+        widths = [self.icnn_out.shape[0]] + [W.shape[0] for W in self.j_net.weights + self.r_net.weights]
+        return max(16, BLOCK_BYTES // (max(widths) * self.dtype.itemsize))
+
+    def _blocks(self, fn, x: np.ndarray) -> np.ndarray:
+        """fn over equal blocks of at most `block_rows` states of x (N, n), concatenated along N."""
+        x = np.asarray(x, dtype=self.dtype)
+        count = -(-len(x) // self.block_rows)
+        if count <= 1:
+            return fn(x)
+        return np.concatenate([fn(block) for block in np.array_split(x, count)])
+
     # ------------------------------------------------------------------ saving and loading
     def arrays(self) -> dict[str, np.ndarray]:
         """Every weight as a named array (no None, no objects): ``np.savez(path, **flow.arrays())``."""
@@ -256,7 +279,10 @@ class DesiredFlow:
     def energy(self, x: np.ndarray) -> np.ndarray:
         """H_d(x): (N, n) -> (N,), float64 (`EnergyNet.forward`, the Bregman term as
         `value_and_grad_explicit` forms it); a recovery law's level switch reads it."""
-        d = np.asarray(x, dtype=self.dtype) - self.x_star
+        return self._blocks(self._energy, x)
+
+    def _energy(self, x: np.ndarray) -> np.ndarray:
+        d = x - self.x_star
         u, z, _ = self._icnn(d, d / self.x_scale)
         s = self._s(d, u, z)
         H = s if self.P is None else 0.5 * ((d @ self.P) * d).sum(-1) + s - np.log1p(s)
@@ -287,7 +313,10 @@ class DesiredFlow:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """f̃_d(x) = J_d∇H_d − L(Lᵀ∇H_d) − ρS∇H_d: (N, n) -> (N, n), float64."""
-        d = np.asarray(x, dtype=self.dtype) - self.x_star
+        return self._blocks(self._flow, x)
+
+    def _flow(self, x: np.ndarray) -> np.ndarray:
+        d = x - self.x_star
         u = d / self.x_scale
         col = self._grad_H(d, u)[:, :, None]
         if self.input_bound is not None:  # J_d's and R_d's networks see the state clamped to the box
