@@ -24,10 +24,6 @@ __all__ = ["PinocchioPlant", "load_urdf_plant"]
 #: Step of the central difference that gives Φ = vᵀ(∂²M/∂q²)v from Pinocchio's exact first-order
 #: Coriolis matrix; truncation ~h², round-off ~1e-16/h: both ≈1e-11 relative.
 _FD_STEP = 6e-6
-#: Step and weights of the fourth-order central difference of the kinetic energy that gives the
-#: Coriolis rows of `PinocchioPlant.f_rows`: truncation ~h⁴, round-off ~1e-16/h, both ≲1e-13 relative.
-_KINETIC_STEP, _KINETIC_STENCIL = 1e-3, np.array([1.0, -1.0, 2.0, -2.0])
-_KINETIC_WEIGHTS = np.array([8.0, -8.0, -1.0, 1.0]) / 12.0
 
 _JOINT_KINDS = {
     "JointModelRX": ("revolute", (1.0, 0.0, 0.0)),
@@ -294,37 +290,20 @@ class PinocchioPlant:
         return np.concatenate([v, p_dot], axis=1)
 
     def f_rows(self, q: np.ndarray, p: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """Rows `rows` (k,) of f(x), indices into (q̇, ṗ): (N, nv) ×2 -> (N, k), batched by
-        Pinocchio's pooled algorithms (no per-state loop); equal to `f`'s to ~1e-13 relative.
+        """Rows `rows` (k,) of f(x), indices into (q̇, ṗ): (N, nv) ×2 -> (N, k); `f`'s own values
+        where a row needs the Coriolis term, else equal to them to rounding.
 
-        ṗ_j = (Cᵀv)_j − ∇U_j − D_j v_j, and the Coriolis term (Cᵀv)_j = ∂T/∂q_j is the slope of
-        the kinetic energy T = ½vᵀM(q)v at fixed v: a fourth-order central difference in q_j, each
-        M(q')v an RNEA of the gravity-free model at zero velocity. It is zero for a joint that hangs
-        from the fixed base (moving it carries every body after it rigidly, which leaves T
-        unchanged), so those rows (the input rows of a pendubot or a cart-pole) skip it.
+        The Coriolis term (Cᵀv)_j = ∂T/∂q_j (kinetic energy T at fixed v) is zero for a joint that
+        hangs from the fixed base: moving it carries every body after it rigidly, which leaves T
+        unchanged. So when every momentum row asked for belongs to such a joint (the input rows of
+        a pendubot or a cart-pole), ṗ_j = −∇U_j − D_j v_j needs no per-state Coriolis matrix.
         """
         rows = np.asarray(rows, dtype=int)
-        p = np.asarray(p, float)
-        v, grad_U = self._velocity_and_gravity(self.config(q), p)
-        p_dot = -grad_U - self.damping * v
-        joints = np.unique(rows[rows >= self.nv] - self.nv)
-        joints = joints[~self._at_base[joints]]
-        if len(joints):
-            p_dot[:, joints] += self._kinetic_slopes(q, v, joints)
-        return np.concatenate([v, p_dot], axis=1)[:, rows]
-
-    def _kinetic_slopes(self, q: np.ndarray, v: np.ndarray, joints: np.ndarray) -> np.ndarray:
-        """∂T/∂q_j at fixed v for the coordinates `joints` (k,): (N, nv) ×2 -> (N, k) (`f_rows`)."""
-        N, nv = q.shape
-        h = _KINETIC_STEP * _KINETIC_STENCIL  # (4,)
-        shifted = np.broadcast_to(q, (len(h), len(joints), N, nv)).copy()
-        for a, j in enumerate(joints):
-            shifted[:, a, :, j] += h[:, None]
-        Q = np.asfortranarray(self.config(shifted.reshape(-1, nv)).T)
-        V = np.asfortranarray(np.tile(v, (len(h) * len(joints), 1)).T)
-        Mv = np.array(pin.rneaInParallel(1, self._free_pool, Q, np.zeros_like(V), V)).reshape(nv, -1)
-        T = 0.5 * np.einsum("in,in->n", Mv, V).reshape(len(h), len(joints), N)
-        return np.tensordot(_KINETIC_WEIGHTS, T, axes=1).T / _KINETIC_STEP
+        joints = rows[rows >= self.nv] - self.nv
+        if not self._at_base[joints].all():
+            return self.f(q, p)[:, rows]
+        v, grad_U = self._velocity_and_gravity(self.config(q), np.asarray(p, float))
+        return np.concatenate([v, -grad_U - self.damping * v], axis=1)[:, rows]
 
     def f_and_jacobian(self, q: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """f(x) (N, 2nv) and ∂f/∂x (N, 2nv, 2nv) in one pass.
