@@ -12,7 +12,6 @@ import math
 
 import numpy as np
 import scipy.linalg as sla
-from scipy.optimize import minimize
 
 from ..config import TrainConfig
 from ..model import System
@@ -129,6 +128,8 @@ def box_fitted_weight(A_cl: np.ndarray, half: np.ndarray) -> np.ndarray:
         return -math.log(share) if share > 0 and math.isfinite(share) else 1e9
 
     start = -2.0 * np.log(half)
+    from scipy.optimize import minimize  # here, not at import (`idapbc_pin.model.resting`)
+
     fits = [minimize(cost, start + shift, method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-4, "fatol": 1e-7}) for shift in (0.0, 1.0, -1.0)]
     best = min(fits, key=lambda r: r.fun)
     logw = best.x if best.fun < cost(start) else start

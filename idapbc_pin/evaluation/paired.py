@@ -23,8 +23,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
-from scipy.stats import binom, norm
 
 __all__ = ["PairedComparison", "paired_comparison"]
 
@@ -61,6 +59,9 @@ class PairedComparison:
         """(low, high): Tango's score interval of `difference` at `level`, within [−1, 1]."""
         if not self.n:
             return (math.nan, math.nan)
+        from scipy.optimize import brentq  # here, not at import: scipy.stats and .optimize take ~0.5 s to load
+        from scipy.stats import norm
+
         z = float(norm.ppf(0.5 + self.level / 2.0))
         b, c, n, d0, tiny = self.only_a, self.only_b, self.n, self.difference, 1e-12
         score = lambda d: _tango_score(d, b, c, n)  # noqa: E731  decreasing in d, 0 at d0
@@ -74,6 +75,8 @@ class PairedComparison:
         k = self.only_a + self.only_b
         if k == 0:
             return 1.0
+        from scipy.stats import binom  # here, not at import (see `interval`)
+
         return float(min(1.0, 2.0 * binom.cdf(min(self.only_a, self.only_b), k, 0.5)))
 
     def text(self) -> str:

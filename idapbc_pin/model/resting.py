@@ -17,7 +17,6 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pinocchio as pin
-from scipy.optimize import minimize
 
 from ..errors import IdapbcError
 from ._pinocchio import PinocchioPlant
@@ -96,6 +95,8 @@ def resting_configuration(system) -> np.ndarray:
         q = q0.copy()
         q[idx] = z
         return float(system.potential(q)), _potential_gradient(system, q)[idx]
+
+    from scipy.optimize import minimize  # here, not at import: scipy.optimize takes ~0.35 s to load
 
     res = minimize(fun, q0[idx], jac=True, method="BFGS", options={"gtol": 1e-12})
     q = q0.copy()
