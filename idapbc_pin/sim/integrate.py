@@ -41,6 +41,8 @@ Controller = Callable[[np.ndarray], np.ndarray]
 # ====================================================================== the vector field
 def _out_of_bounds(q: np.ndarray, v: np.ndarray, bound: float) -> np.ndarray:
     """(N,) bool: a component of q (N, nq) or v (N, nq) is non-finite or beyond `bound`."""
+    if q.size and np.abs(q).max() <= bound and np.abs(v).max() <= bound:  # every row (NaN fails the test): two reductions
+        return np.zeros(q.shape[0], bool)
     ok = (np.abs(q) <= bound).all(axis=1) & (np.abs(v) <= bound).all(axis=1)  # NaN compares False, so |NaN| and ∞ fail too
     return ~ok
 
@@ -60,7 +62,8 @@ def _vector_field(judge: Judge, ctrl: Controller, bound, bound_q: float, q_star:
     def rhs(q, v, held=None):
         N = q.shape[0]
         bad = _out_of_bounds(q, v, bound_q)
-        if bad.any():
+        any_bad = bool(bad.any())  # the row-wise repairs below run only where a row is bad (rare)
+        if any_bad:
             q, v = q.copy(), v.copy()
             q[bad], v[bad] = q_star, 0.0
         if held is not None:
@@ -71,13 +74,16 @@ def _vector_field(judge: Judge, ctrl: Controller, bound, bound_q: float, q_star:
             if u.size != N * m:
                 raise ValueError(f"the controller returned shape {u.shape} for {N} states; expected ({N}, {m})")
             u = u.reshape(N, m).copy()
-            bad |= ~np.all(np.isfinite(u), axis=1)
-            u[bad] = 0.0
+            if any_bad or not np.isfinite(u).all():
+                bad |= ~np.all(np.isfinite(u), axis=1)
+                u[bad] = 0.0
+                any_bad = True
             if bound is not None:
                 u = np.clip(u, -bound, bound)
         a = judge.accel(q, v, u @ judge.B.T)
-        bad |= ~np.all(np.isfinite(a), axis=1)
-        a[bad] = 0.0
+        if any_bad or not np.isfinite(a).all():
+            bad |= ~np.all(np.isfinite(a), axis=1)
+            a[bad] = 0.0
         return v, a, u, x, bad
 
     return rhs
@@ -94,11 +100,12 @@ def _rk4_advance(rhs, q, v, first, n_steps: int, h: float, bound: float, hold: b
     q, v = q.copy(), v.copy()
     bad_all = first[2].copy()
     live = np.flatnonzero(~bad_all)
-    k1q, k1v, u1 = first[0][live], first[1][live], first[3][live]
+    whole = live.size == q.shape[0]  # every row live: no gathering and scattering (the same values)
+    k1q, k1v, u1 = (first[0], first[1], first[3]) if whole else (first[0][live], first[1][live], first[3][live])
     for step in range(n_steps):
         if live.size == 0:
             break
-        q0, v0 = q[live], v[live]
+        q0, v0 = (q, v) if whole else (q[live], v[live])
         if step > 0:
             k1q, k1v, u1, _, b1 = rhs(q0, v0)
         else:
@@ -110,10 +117,13 @@ def _rk4_advance(rhs, q, v, first, n_steps: int, h: float, bound: float, hold: b
         qn = q0 + (h / 6.0) * (k1q + 2.0 * k2q + 2.0 * k3q + k4q)
         vn = v0 + (h / 6.0) * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
         bad = b1 | b2 | b3 | b4 | _out_of_bounds(qn, vn, bound)
+        if whole and not bad.any():
+            q, v = qn, vn
+            continue
         ok = live[~bad]
         q[ok], v[ok] = qn[~bad], vn[~bad]
         bad_all[live[bad]] = True
-        live = ok
+        live, whole = ok, False
     return q, v, bad_all
 
 
@@ -286,9 +296,12 @@ def _record(rhs, advance, q, v, x_last, diverged, steps: list[int], m: int, sett
         if live.size:
             dq, dv, u, x, b = rhs(q[live], v[live])
             x_last[live] = x
-            u_last[live[~b]] = u[~b]
-            diverged[live[b]] = True
-            live, dq, dv, u = live[~b], dq[~b], dv[~b], u[~b]
+            if b.any():
+                u_last[live[~b]] = u[~b]
+                diverged[live[b]] = True
+                live, dq, dv, u = live[~b], dq[~b], dv[~b], u[~b]
+            else:
+                u_last[live] = u
             if settle is not None and step >= settle.first:
                 go_on = ~settle.stop(q, v, x_last, live)
                 live, dq, dv, u = live[go_on], dq[go_on], dv[go_on], u[go_on]
@@ -302,8 +315,11 @@ def _record(rhs, advance, q, v, x_last, diverged, steps: list[int], m: int, sett
             X[live, r + 1 :], V[live, r + 1 :], U[live, r + 1 :] = np.nan, np.nan, np.nan  # rows still moving: undecided
             break
         qn, vn, b = advance(q[live], v[live], (dq, dv, np.zeros(live.size, bool), u), steps[r + 1] - step)
-        q[live[~b]], v[live[~b]] = qn[~b], vn[~b]
-        diverged[live[b]] = True
+        if b.any():
+            q[live[~b]], v[live[~b]] = qn[~b], vn[~b]
+            diverged[live[b]] = True
+        else:
+            q[live], v[live] = qn, vn
     return X, V, U, diverged
 
 

@@ -30,15 +30,21 @@ class Judge:
         self.B = np.asarray(system.B, float)
         self.threads = int(threads or DEFAULT_THREADS)
         self._kw = {} if self.threads == 1 else {"threads": self.threads}
+        # A `System`'s own plant, called with the (N, nq) float arrays the integrator holds, spares the
+        # System's shape checks at every RK4 stage; any other object is asked through its methods.
+        self._plant = getattr(system, "plant", None)
 
     def accel(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """v̇ of the true plant: (N, nq) ×3 -> (N, nq), tau on every joint."""
         if q.shape[0] == 0:
             return np.zeros_like(q)
-        return np.asarray(self.system.forward_dynamics(q, v, tau, **self._kw), float).reshape(q.shape)
+        source = self.system if self._plant is None else self._plant
+        return np.asarray(source.forward_dynamics(q, v, tau, **self._kw), float).reshape(q.shape)
 
     def state(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """x = (q, M(q) v): (N, nq) ×2 -> (N, n)."""
         if q.shape[0] == 0:
             return np.zeros((0, 2 * self.nq))
+        if self._plant is not None:
+            return np.concatenate([q, self._plant.momenta(q, v, **self._kw)], axis=1)
         return np.asarray(self.system.state_from(q, v), float).reshape(q.shape[0], 2 * self.nq)
