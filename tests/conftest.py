@@ -47,6 +47,23 @@ def cart_out_and_back(reaches, T: float):
 
 
 @pytest.fixture
+def cli(capsys):
+    """``idapbc-pin ARGS`` through `main` in this process (the console script's own entry point): a
+    `subprocess.CompletedProcess` with its exit status and what it printed, as a fresh Python's run
+    would give (tests that need a fresh Python, where nothing else may reach stderr, start one)."""
+    import subprocess
+
+    from idapbc_pin.cli.main import main
+
+    def run(*args):
+        code = main([str(a) for a in args])
+        captured = capsys.readouterr()
+        return subprocess.CompletedProcess(args, code, captured.out, captured.err)
+
+    return run
+
+
+@pytest.fixture
 def rng():
     return np.random.default_rng(12345)
 

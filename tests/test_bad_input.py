@@ -50,22 +50,9 @@ def write(tmp_path):
 
 
 def _cli(*args):
+    """``idapbc-pin ARGS`` in a fresh Python; the cases of one kind go through the in-process `cli`
+    fixture (tests/conftest.py), one of each kind through here."""
     return subprocess.run([sys.executable, "-m", "idapbc_pin.cli", *args], capture_output=True, text=True, timeout=120)
-
-
-@pytest.fixture
-def cli(capsys):
-    """``idapbc-pin ARGS`` through `main` in this process (the console script's entry point): the
-    cases of one kind run here, one of each kind also in a fresh Python (`_cli`), where nothing else
-    may reach stderr either."""
-    from idapbc_pin.cli.main import main
-
-    def run(*args):
-        code = main([str(a) for a in args])
-        captured = capsys.readouterr()
-        return subprocess.CompletedProcess(args, code, captured.out, captured.err)
-
-    return run
 
 
 def test_good_pendulum_loads(write):

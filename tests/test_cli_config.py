@@ -34,17 +34,6 @@ def _cli(*args):
     return subprocess.run([sys.executable, "-m", "idapbc_pin.cli", *map(str, args)], capture_output=True, text=True, timeout=120)
 
 
-@pytest.fixture
-def cli(capsys):
-    """``idapbc-pin ARGS`` through `main` in this process (the console script's own entry point)."""
-
-    def run(*args):
-        code = main([str(a) for a in args])
-        return SimpleNamespace(returncode=code, stderr=capsys.readouterr().err)
-
-    return run
-
-
 def _one_error_line(result, *fragments):
     assert result.returncode == 2, result.stderr
     assert "Traceback" not in result.stderr and result.stderr.startswith("error: ") and result.stderr.count("\n") == 1, result.stderr

@@ -179,6 +179,8 @@ class DesiredFlow:
     # and its W_z^{k+}ᵀ (width, width), contiguous: one product for every layer's input term
     icnn_in: tuple[np.ndarray, np.ndarray] = field(init=False, repr=False)
     icnn_z_t: tuple[np.ndarray, ...] = field(init=False, repr=False)
+    # states per block of `__call__` and `energy`: the widest layer's (block, width) array in `BLOCK_BYTES`
+    block_rows: int = field(init=False, repr=False)
 
     def __post_init__(self):
         derived = {
@@ -186,6 +188,7 @@ class DesiredFlow:
             "lower_basis": _lower_basis(self.n, self.dtype),
             "icnn_in": (np.concatenate([W.T for W in self.icnn_x], axis=1), np.concatenate(self.icnn_b)),
             "icnn_z_t": tuple(np.ascontiguousarray(W.T) for W in self.icnn_z),
+            "block_rows": max(16, BLOCK_BYTES // (self._widest() * self.dtype.itemsize)),
         }
         for name, value in derived.items():
             object.__setattr__(self, name, value)
@@ -199,12 +202,9 @@ class DesiredFlow:
         """The networks' dtype, in which f̃_d is evaluated."""
         return self.x_star.dtype
 
-    @property
-    def block_rows(self) -> int:
-        """States per block of `__call__` and `energy`: the widest layer's (block, width) array in
-        `BLOCK_BYTES`."""
-        widths = [self.icnn_out.shape[0]] + [W.shape[0] for W in self.j_net.weights + self.r_net.weights]
-        return max(16, BLOCK_BYTES // (max(widths) * self.dtype.itemsize))
+    def _widest(self) -> int:
+        """The widest layer of the three networks (outputs of one linear map)."""
+        return max([self.icnn_out.shape[0]] + [W.shape[0] for W in self.j_net.weights + self.r_net.weights])
 
     def _blocks(self, fn, x: np.ndarray) -> np.ndarray:
         """fn over equal blocks of at most `block_rows` states of x (N, n), concatenated along N."""

@@ -33,13 +33,13 @@ class Judge:
         # A `System`'s own plant, called with the (N, nq) float arrays the integrator holds, spares the
         # System's shape checks at every RK4 stage; any other object is asked through its methods.
         self._plant = getattr(system, "plant", None)
+        self._dynamics = system if self._plant is None else self._plant
 
     def accel(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """v̇ of the true plant: (N, nq) ×3 -> (N, nq), tau on every joint."""
         if q.shape[0] == 0:
             return np.zeros_like(q)
-        source = self.system if self._plant is None else self._plant
-        return np.asarray(source.forward_dynamics(q, v, tau, **self._kw), float).reshape(q.shape)
+        return np.asarray(self._dynamics.forward_dynamics(q, v, tau, **self._kw), float).reshape(q.shape)
 
     def state(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """x = (q, M(q) v): (N, nq) ×2 -> (N, n)."""
