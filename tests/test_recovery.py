@@ -995,15 +995,27 @@ def test_recover_on_a_robot_without_limits_fits_a_law_within_the_plan_bound(tmp_
 
 
 # ------------------------------------------------------------------ when `train` recovers on its own
+_BINDS: dict = {}
+
+
+def binds(system, box: str = "half") -> dict:
+    """`limits_bind(system, box=box)`, computed once per robot, limits and box in this module: the
+    test is deterministic (fixed states, LQR), and several tests ask it of the same robot."""
+    key = (system.name, tuple(np.asarray(system.effort, float)), np.asarray(system.domain, float).tobytes(), box)
+    if key not in _BINDS:
+        _BINDS[key] = limits_bind(system, box=box)
+    return dict(_BINDS[key])
+
+
 def test_the_limits_bind_on_an_8_nm_shoulder_and_not_at_the_zoo_pendubots_20():
     """Saturated LQR loses ≥ 10 % of the half box to an 8 N·m shoulder, not to the URDF's 20 N·m;
     both leave a recovery law room (saturated LQR fails on ≥ 10 %), the cartpole's 50 N slider none."""
-    weak = limits_bind(ip.load_system("pendubot", effort={"shoulder": 8.0}))
-    zoo = limits_bind(ip.load_system("pendubot"))
+    weak = binds(ip.load_system("pendubot", effort={"shoulder": 8.0}))
+    zoo = binds(ip.load_system("pendubot"))
     assert weak["binds"] and weak["unsaturated"] - weak["saturated"] >= BIND_POINTS * BIND_STATES / 100
     assert not zoo["binds"] and weak["unsaturated"] == zoo["unsaturated"]  # same states, same unsaturated LQR
     assert weak["room"] and zoo["room"] and BIND_STATES - zoo["saturated"] >= ROOM_POINTS * BIND_STATES / 100
-    cartpole = limits_bind(ip.load_system("cartpole"))
+    cartpole = binds(ip.load_system("cartpole"))
     assert not cartpole["room"] and cartpole["saturated"] > (100 - ROOM_POINTS) * BIND_STATES / 100
 
 
@@ -1011,11 +1023,11 @@ def test_where_the_half_box_leaves_no_room_the_training_box_is_tested_and_the_pl
     """The cartpole's 50 N slider leaves no room on the half box and room on the training box:
     `train --recover auto` then fits the recovery law from training-box starts."""
     cartpole = ip.load_system("cartpole")
-    wide = limits_bind(cartpole, box="domain")
+    wide = binds(cartpole, box="domain")
     assert wide["room"] and BIND_STATES - wide["saturated"] >= ROOM_POINTS * BIND_STATES / 100
     asked = []
     monkeypatch.setattr(weak_actuators, "recover", lambda run, config, progress: asked.append(config.start_box) or {"used": False})
-    monkeypatch.setattr(weak_actuators, "limits_bind", lambda system, box="half": {"half": limits_bind(cartpole), "domain": wide}[box])
+    monkeypatch.setattr(weak_actuators, "limits_bind", lambda system, box="half": {"half": binds(cartpole), "domain": wide}[box])
     assert auto_recover(tiny_run, "auto", RecoveryConfig(**TINY)) == {"used": False} and asked == ["domain"]
     printed = capsys.readouterr().out
     assert "no room there; testing the training box" in printed and "fitting a recovery law from training-box starts" in printed
@@ -1025,15 +1037,16 @@ def test_a_robot_without_limits_is_tested_with_lqr_itself_and_never_binds():
     """No limits: saturated and unsaturated LQR are the same law; the paper cartpole's LQR loses no
     half-box state and ≥ 10 % of its training box (room there), the mass-spring-damper's neither."""
     cartpole = ip.load_system("paper_cartpole")
-    half, wide = limits_bind(cartpole), limits_bind(cartpole, box="domain")
+    half, wide = binds(cartpole), binds(cartpole, box="domain")
     assert half["saturated"] == half["unsaturated"] == BIND_STATES and not half["room"] and not half["binds"]
     assert wide["saturated"] == wide["unsaturated"] and wide["room"] and not wide["binds"]
     msd = ip.load_system("paper_mass_spring_damper")
-    assert not limits_bind(msd)["room"] and not limits_bind(msd, box="domain")["room"]
+    assert not binds(msd)["room"] and not binds(msd, box="domain")["room"]
 
 
 def test_auto_recovers_exactly_when_saturated_lqr_leaves_room(tiny_run, tmp_path, capsys, monkeypatch):
     _short_gate(monkeypatch)
+    monkeypatch.setattr(weak_actuators, "limits_bind", lambda system, box="half": binds(system, box))
     path = tmp_path / "run"
     shutil.copytree(tiny_run.path, path)
     config = RecoveryConfig(**TINY, margin=-4)

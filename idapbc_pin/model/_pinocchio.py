@@ -345,24 +345,24 @@ class PinocchioPlant:
     def forward_dynamics(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, threads: int = 1) -> np.ndarray:
         """Accelerations from Pinocchio's ABA with joint damping (`abaInParallel`, which ignores
         `model.damping`, so −D v is added to τ): (N, nv) ×3 -> (N, nv)."""
-        q, v, tau = (np.asarray(a, float) for a in (q, v, tau))
+        q, v, tau = np.asarray(q, float), np.asarray(v, float), np.asarray(tau, float)
         if q.shape[0] == 0:
             return np.zeros_like(q)
-        pool, _ = self._pools_for(int(threads))
+        pool = self._pool if threads == 1 else self._pools_for(int(threads))[0]
         qc = np.asfortranarray(self.config(q).T)
         a = pin.abaInParallel(int(threads), pool, qc, np.asfortranarray(v.T), np.asfortranarray((tau - self.damping * v).T))
-        return np.array(a).reshape(q.shape[1], q.shape[0]).T
+        return a.reshape(q.shape[1], q.shape[0]).T  # a fresh (nv, N) array
 
     def momenta(self, q: np.ndarray, v: np.ndarray, threads: int = 1) -> np.ndarray:
         """p = M(q) v as the RNEA of the gravity-free model at zero velocity: (N, nv) ×2 -> (N, nv)."""
         q, v = np.asarray(q, float), np.asarray(v, float)
         if q.shape[0] == 0:
             return np.zeros_like(q)
-        _, free_pool = self._pools_for(int(threads))
+        free_pool = self._free_pool if threads == 1 else self._pools_for(int(threads))[1]
         qc = np.asfortranarray(self.config(q).T)
         zeros = np.zeros((v.shape[1], v.shape[0]), order="F")
         p = pin.rneaInParallel(int(threads), free_pool, qc, zeros, np.asfortranarray(v.T))
-        return np.array(p).reshape(q.shape[1], q.shape[0]).T
+        return p.reshape(q.shape[1], q.shape[0]).T  # a fresh (nv, N) array
 
     def scaled(self, mass: float = 1.0, length: float = 1.0, damping: float = 1.0) -> "PinocchioPlant":
         """Every link's mass and rotational inertia × mass, joint placements and levers × length

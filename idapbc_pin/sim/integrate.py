@@ -41,7 +41,7 @@ Controller = Callable[[np.ndarray], np.ndarray]
 # ====================================================================== the vector field
 def _out_of_bounds(q: np.ndarray, v: np.ndarray, bound: float) -> np.ndarray:
     """(N,) bool: a component of q (N, nq) or v (N, nq) is non-finite or beyond `bound`."""
-    if q.size and np.abs(q).max() <= bound and np.abs(v).max() <= bound:  # every row (NaN fails the test): two reductions
+    if float(np.vdot(q, q)) + float(np.vdot(v, v)) <= bound * bound:  # every row within bound (NaN, ∞ fail): two products
         return np.zeros(q.shape[0], bool)
     ok = (np.abs(q) <= bound).all(axis=1) & (np.abs(v) <= bound).all(axis=1)  # NaN compares False, so |NaN| and ∞ fail too
     return ~ok
