@@ -26,5 +26,7 @@ def wrap_angles(dq, angle_mask) -> np.ndarray:
     mask = np.asarray(angle_mask, bool)
     if mask.shape != dq.shape[-1:]:
         raise ValueError(f"angle_mask has shape {mask.shape}, expected ({dq.shape[-1]},)")
+    if mask.all():  # every component an angle: the same formula without the masked copy
+        return np.subtract(math.pi, np.mod(math.pi - dq, 2.0 * math.pi), out=dq)
     dq[..., mask] = math.pi - np.mod(math.pi - dq[..., mask], 2.0 * math.pi)
     return dq
