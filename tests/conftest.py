@@ -83,6 +83,11 @@ def systems():
     return get
 
 
+#: The fallback gate's states and horizon (s) in the suite (`_short_fallback_gate`; the README test's
+#: fresh Python takes them too).
+SHORT_GATE_STATES, SHORT_GATE_HORIZON = 4, 0.5
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _short_fallback_gate():
     """The suite trains tiny networks by the dozen; after each, ``fallback="auto"`` runs a gate that
@@ -92,8 +97,8 @@ def _short_fallback_gate():
     from idapbc_pin.recovery import box_gate as fallback_gate
 
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(fallback_gate, "GATE_STATES", 4)
-        patch.setattr(fallback_gate, "GATE_HORIZON", 0.5)
+        patch.setattr(fallback_gate, "GATE_STATES", SHORT_GATE_STATES)
+        patch.setattr(fallback_gate, "GATE_HORIZON", SHORT_GATE_HORIZON)
         yield
 
 

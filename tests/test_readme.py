@@ -21,6 +21,8 @@ import pytest
 
 from idapbc_pin.viewer import SERVER_MARKER
 
+from .conftest import SHORT_GATE_HORIZON, SHORT_GATE_STATES
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -33,10 +35,11 @@ def quickstart() -> str:
     return blocks[0]
 
 
-#: Run before the quickstart, as the suite's `_short_fallback_gate` fixture does in this process: the
-#: gate that `train` runs after training simulates 4 states for 0.5 s instead of 100 for 20 s. The
-#: quickstart itself runs as written; tests/test_fallback.py holds the gate's decisions at their values.
-SHORT_GATE = "from idapbc_pin.recovery import box_gate\nbox_gate.GATE_STATES, box_gate.GATE_HORIZON = 4, 0.5\n"
+#: Run before the quickstart: the suite's short fallback gate (`conftest._short_fallback_gate`) in the
+#: script's fresh Python. The quickstart itself runs as written; tests/test_fallback.py holds the
+#: gate's decisions at their real values.
+SHORT_GATE = (f"from idapbc_pin.recovery import box_gate\n"
+              f"box_gate.GATE_STATES, box_gate.GATE_HORIZON = {SHORT_GATE_STATES}, {SHORT_GATE_HORIZON}\n")
 
 
 def _servers_with(token: str) -> list[int]:

@@ -348,7 +348,7 @@ class PinocchioPlant:
         q, v, tau = np.asarray(q, float), np.asarray(v, float), np.asarray(tau, float)
         if q.shape[0] == 0:
             return np.zeros_like(q)
-        pool = self._pool if threads == 1 else self._pools_for(int(threads))[0]
+        pool, _ = self._pools_for(int(threads))
         qc = np.asfortranarray(self.config(q).T)
         a = pin.abaInParallel(int(threads), pool, qc, np.asfortranarray(v.T), np.asfortranarray((tau - self.damping * v).T))
         return a.reshape(q.shape[1], q.shape[0]).T  # a fresh (nv, N) array
@@ -358,7 +358,7 @@ class PinocchioPlant:
         q, v = np.asarray(q, float), np.asarray(v, float)
         if q.shape[0] == 0:
             return np.zeros_like(q)
-        free_pool = self._free_pool if threads == 1 else self._pools_for(int(threads))[1]
+        _, free_pool = self._pools_for(int(threads))
         qc = np.asfortranarray(self.config(q).T)
         zeros = np.zeros((v.shape[1], v.shape[0]), order="F")
         p = pin.rneaInParallel(int(threads), free_pool, qc, zeros, np.asfortranarray(v.T))
