@@ -41,7 +41,7 @@ def quickstart() -> str:
 #: that `train` does not treat as a smoke run). The quickstart itself runs as written, line for line;
 #: tests/test_fallback.py holds the gate's decisions at their real values, and what the whole preset
 #: reaches is the benchmarks' figure, not this test's.
-SHORT_GATE = (f"from idapbc_pin.recovery import box_gate\n"
+PRELUDE = (f"from idapbc_pin.recovery import box_gate\n"
               f"box_gate.GATE_STATES, box_gate.GATE_HORIZON = {SHORT_GATE_STATES}, {SHORT_GATE_HORIZON}\n"
               f"from idapbc_pin.config import TrainConfig\n"
               f"_fast = TrainConfig.fast.__func__\n"
@@ -85,7 +85,7 @@ def test_the_readme_quickstart_runs_as_written(tmp_path):
     """About a minute on 2 cores: it trains the fast preset (cut to `SMOKE_EPOCHS` epochs), then an
     ROA of 200 states, a certificate and a replay."""
     token = uuid.uuid4().hex
-    proc = _script(SHORT_GATE + quickstart(), tmp_path, token)
+    proc = _script(PRELUDE + quickstart(), tmp_path, token)
     try:
         out, err = proc.communicate(timeout=900)
     finally:
