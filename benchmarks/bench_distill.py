@@ -6,7 +6,7 @@ per state. This benchmark asks whether their torques can be turned into one feed
 
 1. **Labels.** From `--starts` uniform start states (seed `--plan-seed`, never the evaluation's),
    saturated LQR runs first; where it fails, a cross-entropy plan within the limits is searched
-   (`idapbc_pin.recovery.plans`), then LQR. Every start that reaches x* gives labels (x(t), u(t))
+   (`idapbc_pin.trajectory.plans`), then LQR. Every start that reaches x* gives labels (x(t), u(t))
    every 10 ms over its first 6 s (`idapbc_pin.recovery.stage.collect_labels`).
 2. **A plain feedback** (`control.recovery.RecoveryLaw`: an MLP of wrap(x − x*)/s, two tanh layers
    of `--width`, output ū·tanh(·)) fitted to the labels by least squares (Adam).
@@ -43,7 +43,7 @@ from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
 from idapbc_pin.sim.states import uniform_states
 from idapbc_pin.training.loss import loss_terms
-from idapbc_pin.recovery.plans import PLAN_STEP as DT
+from idapbc_pin.trajectory.plans import PLAN_STEP as DT
 from idapbc_pin.recovery.stage import RecoveryConfig, collect_labels, dagger_round, fit_recovery_law
 
 

@@ -22,7 +22,7 @@ from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
 from idapbc_pin.sim.states import uniform_states
-from idapbc_pin.recovery.plans import PLAN_STEP, PlanSettings, search_plan, search_plans
+from idapbc_pin.trajectory.plans import PLAN_STEP, PlanSettings, search_plan, search_plans
 
 
 def main() -> None:

@@ -26,8 +26,8 @@ from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
 from idapbc_pin.sim.states import uniform_states
-from idapbc_pin.recovery.plans import PLAN_STEP as DT
-from idapbc_pin.recovery.plans import PlanSettings, PlanThenLaw, search_plan
+from idapbc_pin.trajectory.plans import PLAN_STEP as DT
+from idapbc_pin.trajectory.plans import PlanSettings, PlanThenLaw, search_plan
 
 
 def main() -> None:

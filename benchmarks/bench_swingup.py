@@ -8,10 +8,12 @@ directory adds a table for its own system with its controller beside the two ref
 ``--train``, each robot is first trained as a user would, ``idapbc-pin train ROBOT --fast --swing-up``
 (the default path: training, the box evaluation, the recovery stage where the limits bind, the
 swing-up stage), timed, and its run is judged beside the references. The RealAIGym rows carry the
-leaderboard's published figures as a quoted line. ``--starts hanging circle`` adds a table from
-states at rest with every angle drawn from the full circle (the first again exactly hanging).
+leaderboard's published figures as a quoted line. ``--starts hanging circle anywhere`` adds tables
+from states at rest with every angle drawn from the full circle, and from anywhere on the torus with
+speeds (the first again exactly hanging); ``--uptime`` adds the global policy test (the RealAIGym
+simulation v3 uptime: 60-s episodes with 15 resets to random postures at rest) of the state feedbacks.
 Run: python benchmarks/bench_swingup.py [--n 20] [--T 10] [--only [NAME ...]] [--run RUN ...] [--train] [--workers 1]
-         [--starts hanging circle]
+         [--starts hanging circle anywhere] [--uptime [E]]
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import idapbc_pin as ip
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.control.energy_pump import EnergyPumpLaw
 from idapbc_pin.evaluation.swingup import STARTS, evaluate_swingup
+from idapbc_pin.evaluation.uptime import UPTIME_EPISODES, uptime_test
 
 URDF_DIR = Path(__file__).resolve().parents[1] / "urdf"
 
@@ -51,6 +54,14 @@ PUBLISHED = {
     "realaigym_acrobot": "best 0.655 (swing-up 1.0 s), TVLQR 0.504 (4.05 s)",
 }
 SOURCE = "github dfki-ric-underactuated-lab/real_ai_gym_leaderboard, simulation leaderboard v2"
+#: The global policy leaderboard's best uptimes (simulation v3, the ICRA 2025 competition).
+PUBLISHED_UPTIME = {"realaigym_pendubot": "best uptime 0.799 (VIMPPI)", "realaigym_acrobot": "best uptime 0.658 (AR-EAPO)"}
+SOURCE_V3 = "github dfki-ric-underactuated-lab/double_pendulum, leaderboard simulation_v3"
+
+
+def name_of(title: str) -> str:
+    """The robot name a table's title starts with."""
+    return title.split(" ")[0].split(",")[0]
 
 
 def load(name: str):
@@ -92,11 +103,20 @@ def report(title: str, system, controllers: dict, args, published: str | None = 
         if run is not None and run.manoeuvre is not None and starts == "hanging":
             laws["NIDA-PBC manoeuvre (then the run's law)"] = run.manoeuvre.law(run.controller)
         result = evaluate_swingup(system, laws, n=args.n, T=args.T, seed=args.seed, workers=args.workers, starts=starts)
-        where = "near hanging" if starts == "hanging" else "at rest, angles from the full circle"
+        where = {"hanging": "near hanging", "circle": "at rest, angles from the full circle",
+                 "anywhere": "anywhere on the torus, angles from the full circle and speeds U(-1, 1) rad/s"}[starts]
         print(f"\n### {title}, from {where} (actuated {limit}; {time.perf_counter() - t0:.1f} s)\n")
+        print(result.table())
+    if args.uptime:  # state feedbacks only: a manoeuvre's clock means nothing after a reset
+        t0 = time.perf_counter()
+        result = uptime_test(system, controllers, episodes=args.uptime, seed=args.seed, workers=args.workers)
+        print(f"\n### {title}, the global policy test: {args.uptime} episodes of 60 s, 15 resets to postures at rest from the full circle "
+              f"({time.perf_counter() - t0:.1f} s)\n")
         print(result.table())
     if published:
         print(f'\n> RealAIGym leaderboard, published: {published} — "{SOURCE}"')
+    if args.uptime and name_of(title) in PUBLISHED_UPTIME:
+        print(f'\n> RealAIGym global policy leaderboard (simulation v3), published: {PUBLISHED_UPTIME[name_of(title)]} — "{SOURCE_V3}"')
 
 
 def main() -> None:
@@ -106,6 +126,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the start states")
     parser.add_argument("--starts", nargs="+", choices=STARTS, default=["hanging"],
                         help="start sets: hanging (near-resting, default) and/or circle (at rest, every angle from the full circle)")
+    parser.add_argument("--uptime", type=int, nargs="?", const=UPTIME_EPISODES, default=0, metavar="E",
+                        help=f"also the global policy test: E episodes of 60 s with 15 resets (default E {UPTIME_EPISODES}); state feedbacks only")
     parser.add_argument("--only", nargs="*", default=None, help=f"robots to run (default all: {', '.join(ROBOTS)}; `--only` alone: none, for --run)")
     parser.add_argument("--run", nargs="+", default=[], help="run directories judged on their own systems")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (0: one per core)")

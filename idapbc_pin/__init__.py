@@ -12,8 +12,8 @@ Public API (see the README and docs/method.md)::
     ip.recovery.auto_recover(run)                       # ... only where saturated LQR leaves room (`train`'s default)
 
 Evaluations apply the actuators' effort limits (``sys.effort``) to every controller unless
-``limits=False``. The subpackages follow the data flow: model → control → sim → training → run →
-recovery → evaluation → certificate → reporting / viewer → deploy → batch → cli.
+``limits=False``. The subpackages follow the data flow: model → control → sim → trajectory (plans,
+their tracking, fits) → training → run → recovery (the stages) → evaluation → certificate → reporting / viewer → deploy → batch → cli.
 """
 
 from .batch.runner import run_batch
@@ -34,7 +34,7 @@ from .evaluation.roa import roa
 from .model import System, load_system
 from .run import Run, load_run
 from .training.train import train
-from . import recovery
+from . import recovery, trajectory
 from .viewer import view, write_html
 
 __version__ = "0.1.0"

@@ -14,7 +14,7 @@ import idapbc_pin as ip
 from idapbc_pin.cli import recover as recover_cli
 from idapbc_pin.cli.main import build_parser, main
 from idapbc_pin.recovery.config import RecoveryConfig
-from idapbc_pin.recovery.plans import PlanSettings
+from idapbc_pin.trajectory.plans import PlanSettings
 
 RECOVERY_TOML = """[recovery]
 starts = 12

@@ -252,7 +252,7 @@ def test_standalone_applies_a_recovery_law_within_its_plan_bound_on_an_unlimited
     standalone gives the library's τ to 1e-9."""
     from tests.test_recovery import random_law
 
-    from idapbc_pin.recovery.plans import plan_bound
+    from idapbc_pin.trajectory.plans import plan_bound
     from idapbc_pin.run import RECOVERY_FILE
 
     path = tmp_path / "run"

@@ -1,5 +1,5 @@
-"""Torque plans by iterative LQR (`recovery.ilqr`, `recovery.plans.plan_candidates`, `TrackThenLaw`)
-and the finished chunks a killed recovery stage reads back (`recovery.chunks`).
+"""Torque plans by iterative LQR (`trajectory.ilqr`, `trajectory.plans.plan_candidates`, `TrackThenLaw`)
+and the finished chunks a killed recovery stage reads back (`trajectory.chunks`).
 
 Claims:
 * the plant's Jacobians in z = (q, v) equal Pinocchio's analytic ABA derivatives, and the knot map's
@@ -28,10 +28,10 @@ import idapbc_pin as ip
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.recovery import stage as stage_module
-from idapbc_pin.recovery.chunks import CHUNKS_DIR, ChunkStore, chunk_key
-from idapbc_pin.recovery.ilqr import (ILQRSettings, _knot_jacobians, _rail, _rail_terms, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout,
+from idapbc_pin.trajectory.chunks import CHUNKS_DIR, ChunkStore, chunk_key
+from idapbc_pin.trajectory.ilqr import (ILQRSettings, _knot_jacobians, _rail, _rail_terms, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout,
                                       settle_weights)
-from idapbc_pin.recovery.plans import PERIODS, PLAN_STEP, PlanSettings, TrackThenLaw, plan_candidates
+from idapbc_pin.trajectory.plans import PERIODS, PLAN_STEP, PlanSettings, TrackThenLaw, plan_candidates
 from idapbc_pin.recovery.stage import RecoveryConfig, collect_labels
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success

@@ -54,7 +54,7 @@ from idapbc_pin.sim.states import scaled_box
 from idapbc_pin.sim.states import evaluation_box, uniform_states
 from idapbc_pin.recovery import stage as recovery_module
 from idapbc_pin.recovery import gate as recovery_gate
-from idapbc_pin.recovery.plans import PLAN_STEP, PlanSettings, PlanThenLaw, plan_bound, planning_system, search_plan, search_plans
+from idapbc_pin.trajectory.plans import PLAN_STEP, PlanSettings, PlanThenLaw, plan_bound, planning_system, search_plan, search_plans
 from idapbc_pin.recovery.stage import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, ends_near, fit_recovery_law, gate_choice, recover, refit, regate
 from idapbc_pin.recovery.fit import base_inputs
 from idapbc_pin.recovery.gate import NEAR_SCALE, read_labels, save_labels

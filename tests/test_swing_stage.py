@@ -307,6 +307,26 @@ def test_simulate_from_the_circle_judges_starts_at_rest_from_anywhere_into_their
     assert after == before  # the near-hanging evaluation's file is left as it was
 
 
+def test_simulate_from_anywhere_judges_the_state_feedback_on_the_torus_and_in_the_uptime_test(swung_run, capsys, monkeypatch):
+    """`simulate --from anywhere`: both tables with every reference, anywhere.json with moving starts
+    and each episode's resets (the episode shortened here to 8 s with 2 resets)."""
+    from idapbc_pin.cli.main import main
+    from idapbc_pin.evaluation import anywhere
+
+    monkeypatch.setattr(anywhere, "UPTIME_T", 8.0)
+    monkeypatch.setattr(anywhere, "UPTIME_RESETS", 2)
+    run, _ = swung_run
+    assert main(["simulate", str(run.path), "--from", "anywhere", "--n", "3", "--T", "2", "--episodes", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "from 3 states anywhere on the torus" in text and "uptime test: 2 episodes of 8 s, 2 resets" in text
+    assert text.count("| energy pump + LQR |") == 2 and text.count("| NIDA-PBC |") == 2
+    record = json.loads((run.path / "anywhere.json").read_text())
+    assert record["torus"]["starts"] == "anywhere" and np.abs(record["torus"]["states"][1][2:]).max() > 0  # moving
+    assert set(record["uptime"]["mean"]) == {"NIDA-PBC", "LQR", "energy pump + LQR"}
+    assert np.shape(record["uptime"]["reset_times"]) == (2, 2) and all(0 <= u <= 1 for u in record["uptime"]["uptime"]["LQR"])
+    assert main(["simulate", str(run.path), "--from", "anywhere", "--no-limits"]) == 2
+
+
 def test_the_figure_of_a_swing_up_run_ends_with_its_swing_up_from_hanging(swung_run):
     """figure.png's last row: q(t), u(t) and H(t) of the run's law, saturated LQR and the energy pump
     from the exact hanging start, the input within the effort limits drawn dashed."""
@@ -351,9 +371,9 @@ def test_the_stage_judges_tracking_laws_and_a_manoeuvre_from_its_nominals_and_a_
 
     from idapbc_pin.evaluation.swingup import MANOEUVRE_ROW, evaluate_run_swingup
     from idapbc_pin.recovery import swing_stage
-    from idapbc_pin.recovery.ilqr import rollout
-    from idapbc_pin.recovery.manoeuvre import SwingManoeuvre
-    from idapbc_pin.recovery.swing_tracks import KNOT, tvlqr_gains
+    from idapbc_pin.trajectory.ilqr import rollout
+    from idapbc_pin.trajectory.manoeuvre import SwingManoeuvre
+    from idapbc_pin.trajectory.tracks import KNOT, tvlqr_gains
     from idapbc_pin.run import MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE
 
     def labels(system, x0, seed, config, progress, teacher, store, step):

@@ -1,7 +1,7 @@
-"""Tracking laws from the resting posture (`recovery.swing_tracks`, `recovery.tracking_law`): the
+"""Tracking laws from the resting posture (`trajectory.tracks`, `trajectory.tracking_law`): the
 time-varying LQR is the discrete LQR where the plan rests at x*, the law reproduces its plan and
 gains to first order in the run's coordinates (q, p), and it acts only outside its kept box. The
-manoeuvre (`recovery.manoeuvre`) interpolates the plan's inputs between the knots' midpoints without a
+manoeuvre (`trajectory.manoeuvre`) interpolates the plan's inputs between the knots' midpoints without a
 step, follows its plan from its own start, then hands over."""
 
 import numpy as np
@@ -9,10 +9,10 @@ import pytest
 import scipy.linalg
 
 import idapbc_pin as ip
-from idapbc_pin.recovery.ilqr import _knot_jacobians, rollout
+from idapbc_pin.trajectory.ilqr import _knot_jacobians, rollout
 from idapbc_pin.recovery.swing_law import swing_law_from_arrays
-from idapbc_pin.recovery.swing_tracks import KNOT, TRACK_Q, TRACK_R, tracking_law, tvlqr_gains
-from idapbc_pin.recovery.tracking_law import TrackingLaw
+from idapbc_pin.trajectory.tracks import KNOT, TRACK_Q, TRACK_R, tracking_law, tvlqr_gains
+from idapbc_pin.trajectory.tracking_law import TrackingLaw
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +93,7 @@ def test_on_its_nominal_a_manoeuvre_interpolates_the_plan_s_inputs_without_a_ste
     """At the nominal state interpolated between two knots, the manoeuvre's input is the plan's
     inputs interpolated between the knots' midpoints (the feedback reads no error): continuous
     through a knot, U_0 over the first half knot and the last input over the last half knot."""
-    from idapbc_pin.recovery.manoeuvre import SwingManoeuvre
+    from idapbc_pin.trajectory.manoeuvre import SwingManoeuvre
 
     system, nq = pendubot, pendubot.nq
     U, Z, _ = _plan(system, K=20, seed=4)
@@ -115,7 +115,7 @@ def test_a_manoeuvre_from_its_own_start_follows_its_plan_then_hands_over(pendubo
     its nominal (the law sampled every 2 ms against the nominal interpolated between the 20 ms knots;
     the plan and the judge both integrate by RK4 at 2 ms); after the plan the law it hands over to
     acts; a fresh law starts again at t = 0."""
-    from idapbc_pin.recovery.manoeuvre import SwingManoeuvre
+    from idapbc_pin.trajectory.manoeuvre import SwingManoeuvre
     from idapbc_pin.sim.integrate import simulate
 
     system, nq = pendubot, pendubot.nq
@@ -149,8 +149,8 @@ def test_the_manoeuvre_picked_holds_nearly_the_most_and_scores_best_from_rest_an
     without a URDF tip (no score) the sooner settled ranks first."""
     import math
 
-    from idapbc_pin.recovery import manoeuvre as mod
-    from idapbc_pin.recovery._holds import Judged
+    from idapbc_pin.trajectory import manoeuvre as mod
+    from idapbc_pin.trajectory.holds import Judged
     from idapbc_pin.recovery.config import SwingUpConfig
 
     class Stub:

@@ -248,5 +248,5 @@ def test_circle_states_start_at_rest_with_every_angle_anywhere_on_the_circle():
     dq = q[1:, 1] - system.x_star[1]
     assert np.abs(dq).max() < np.pi and dq.min() < -2.8 and dq.max() > 2.8  # the whole circle, not near hanging
     np.testing.assert_array_equal(swingup_states(system, n=400, seed=2, starts="circle"), x)
-    with pytest.raises(ip.IdapbcError, match="unknown swing-up starts 'anywhere'.*hanging, circle"):
-        swingup_states(system, n=3, starts="anywhere")
+    with pytest.raises(ip.IdapbcError, match="unknown swing-up starts 'nowhere'.*hanging, circle, anywhere"):
+        swingup_states(system, n=3, starts="nowhere")

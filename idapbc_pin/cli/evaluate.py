@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from ..certificate.certify import certify
+from ..evaluation.anywhere import evaluate_run_anywhere
 from ..evaluation.closed_loop import JUDGES, simulate_run
 from ..evaluation.robustness import default_conditions, robustness_table
 from ..reporting.report import report
@@ -28,6 +29,8 @@ def _run(args: argparse.Namespace):
 def _cmd_simulate(args: argparse.Namespace) -> int:
     x0, seed = x0_of(args), seed_of(args)
     run = _run(args)
+    if args.start == "anywhere":
+        return _simulate_anywhere(args, run, seed)
     if args.start != "box":
         return _simulate_swingup(args, run, seed)
     result = simulate_run(
@@ -63,6 +66,26 @@ def _simulate_swingup(args: argparse.Namespace, run, seed: int) -> int:
     png = swingup_figure(run, result) if args.start == "hanging" else None
     if png is not None:
         print(f"wrote {png}")
+    return 0
+
+
+def _simulate_anywhere(args: argparse.Namespace, run, seed: int) -> int:
+    """`simulate RUN --from anywhere`: the global evaluation (20 states from the torus over 10 s and 5
+    uptime episodes of 60 s unless --n / --T / --episodes say otherwise), beside saturated LQR and the
+    energy-pumping law; anywhere.json."""
+    from ..evaluation.anywhere import ANYWHERE_FILE
+
+    if args.no_limits or args.x0 is not None:
+        raise IdapbcError("simulate --from anywhere judges the run's state feedback under the effort limits from its own start states. "
+                          "Fix: drop --no-limits and --x0.")
+    n = 20 if args.n == library_default(simulate_run, "n") else args.n
+    T = 10.0 if args.T == library_default(simulate_run, "T") else args.T
+    if args.episodes < 1:
+        raise IdapbcError(f"--episodes must be at least 1, got {args.episodes}. Fix: e.g. --episodes 5.")
+    result = evaluate_run_anywhere(run, n=n, T=T, seed=seed, episodes=args.episodes, workers=workers_of(args), judge=args.judge)
+    print(f"{run.system.name} from anywhere, judged by {args.judge}, RK4 at 2 ms, the law held at 500 Hz, effort limits on every controller.")
+    print(result.table())
+    print(f"wrote {Path(args.run) / ANYWHERE_FILE}")
     return 0
 
 
@@ -123,11 +146,14 @@ def add_eval_commands(subparsers) -> None:
                    help="engine of the true plant for both controllers (default %(default)s; mujoco needs `pip install mujoco`, URDF robots only)")
     add_radius_argument(p)
     add_workers_argument(p)
-    p.add_argument("--from", dest="start", choices=("box", "hanging", "circle"), default="box",
+    p.add_argument("--episodes", type=int, default=library_default(evaluate_run_anywhere, "episodes"), metavar="E",
+                   help="with --from anywhere: uptime episodes of 60 s, each with 15 resets (default %(default)s)")
+    p.add_argument("--from", dest="start", choices=("box", "hanging", "circle", "anywhere"), default="box",
                    help="box (default): states uniform in the box; hanging: the swing-up evaluation from 20 near-resting states "
                         "(the first exactly at rest) over 10 s, beside saturated LQR and the energy-pumping law (swingup.json, "
                         "swingup.png); circle: the same from 20 states at rest, every angle drawn from the full circle "
-                        "(swingup-circle.json)")
+                        "(swingup-circle.json); anywhere: the run's state feedback from 20 states anywhere on the torus, "
+                        "moving, and the uptime test (60-s episodes with 15 resets to random postures; anywhere.json)")
     p.set_defaults(func=_cmd_simulate)
 
     p = subparsers.add_parser("certify", help="the paper's conditions checked on dense samples (a sampled certificate); certificate.json")

@@ -27,7 +27,7 @@ from ..errors import IdapbcError
 from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
 from ..sim.metrics import HOLD_ANGLE, HOLD_SPEED, SUCCESS_WINDOW, holds as holds_verdict, on_rail
-from ..sim.states import RESTING_SPREAD, circle_states, resting_states
+from ..sim.states import RESTING_SPREAD, anywhere_states, circle_states, resting_states
 from ..sim.step import DEFAULT_STEP
 from ..sim.leaderboard import TIP_SHARE, LeaderboardScore, row_score, stays_from, tip_swingup_times
 
@@ -54,8 +54,9 @@ HOLD_WINDOW, HOLD_POSITION, HOLD_SPEED = SUCCESS_WINDOW, HOLD_ANGLE, HOLD_SPEED
 START_SPREAD = RESTING_SPREAD
 
 
-#: The start sets: "hanging" (near the resting posture) and "circle" (at rest, angles from the full circle).
-STARTS = ("hanging", "circle")
+#: The start sets: "hanging" (near the resting posture), "circle" (at rest, angles from the full
+#: circle) and "anywhere" (angles from the full circle, speeds U(−1, 1): `sim.states.anywhere_states`).
+STARTS = ("hanging", "circle", "anywhere")
 #: The judge's step (s): the law held at 500 Hz. The row of a run's swing-up manoeuvre from rest.
 DT = DEFAULT_STEP
 MANOEUVRE_ROW = "NIDA-PBC manoeuvre"
@@ -66,11 +67,14 @@ def swingup_states(system, n: int = 20, seed: int = 0, starts: str = "hanging") 
     ``"hanging"``: the others q_rest + U(−0.1, 0.1) (rad or m) with v = U(−0.1, 0.1) (rad/s or m/s),
     p = M(q) v (`idapbc_pin.sim.states.resting_states`, which the swing-up stage draws its starts
     from too). ``"circle"``: the others at rest with every angle drawn from the full circle
-    (`idapbc_pin.sim.states.circle_states`)."""
+    (`idapbc_pin.sim.states.circle_states`). ``"anywhere"``: the same postures, moving
+(`idapbc_pin.sim.states.anywhere_states`)."""
     if starts not in STARTS:
         raise IdapbcError(f"unknown swing-up starts {starts!r}. Fix: one of {', '.join(STARTS)}.")
     if starts == "circle":
         return circle_states(system, int(n), seed)
+    if starts == "anywhere":
+        return anywhere_states(system, int(n), seed)
     return resting_states(system, int(n), seed, START_SPREAD)
 
 

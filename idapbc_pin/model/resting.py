@@ -150,7 +150,10 @@ def _urdf_child_link(urdf, joint: str) -> str | None:
 
 
 def _pinocchio_plant(system) -> PinocchioPlant:
+    """The system's Pinocchio plant, or the one a twin engine was built from (``plant.base``: the
+    MuJoCo judge of the same URDF has the same kinematics)."""
     plant = system.plant
+    plant = getattr(plant, "base", plant) if not isinstance(plant, PinocchioPlant) else plant
     if not isinstance(plant, PinocchioPlant):
         raise IdapbcError(
             f"the tip test needs a URDF model, and '{system.name}' is a built-in closed form without links. "

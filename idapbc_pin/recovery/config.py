@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 from .._settings import Settings
 from ..errors import IdapbcError
-from .plans import PlanSettings
+from ..trajectory.plans import PlanSettings
 
 __all__ = ["FORMS", "RecoveryConfig", "START_BOXES", "SwingUpConfig", "TEACHERS"]
 
@@ -153,13 +153,13 @@ class SwingUpConfig(Settings):
         alone (`swing_stage.kept_boxes`); none by default: a law acting through the box's postures
         at speed held fewer swing-ups than one that leaves every posture of the box to the run's law.
     judge_T : horizon of every swing-up rollout (the teacher's, the plans', DAgger's, the gate's), s.
-    tracks : tracking laws (`recovery.swing_tracks`: nominal plans from the exact resting posture,
+    tracks : tracking laws (`trajectory.tracks`: nominal plans from the exact resting posture,
         each tracked from the nearest point by a time-varying LQR) the gate judges beside the fits; 0:
         none.
     track_iterations : iterations of the iLQR solves of those nominals.
     track_share : share of the effort limits the nominals use (the rest is the feedback's).
     manoeuvre : also judge each nominal as a manoeuvre from rest, tracked in time
-        (`recovery.manoeuvre`), and keep the best where it holds `margin` more than the run's law, or
+        (`trajectory.manoeuvre`), and keep the best where it holds `margin` more than the run's law, or
         as many and scores higher from the exact resting state (RealAIGym v2; sooner at x* without a URDF tip).
     manoeuvre_horizons : lengths (s) of further nominal plans from rest, tried as manoeuvres only
         (beside those of `horizon`, which the tracking laws read too): a short swing-up scores

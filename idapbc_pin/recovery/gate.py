@@ -31,7 +31,7 @@ from ..sim.compare import compare_laws
 from ..sim.states import scaled_box, uniform_states
 from .config import RecoveryConfig
 from .law import RecoveryLaw
-from .plans import PLAN_STEP
+from ..trajectory.plans import PLAN_STEP
 
 __all__ = ["GATE_HORIZON", "LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery", "write_law"]
 

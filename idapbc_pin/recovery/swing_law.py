@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._kept_box import KeptBoxLaw
+from ..trajectory.kept_box import KeptBoxLaw
 
 __all__ = ["KeptBoxLaw", "SwingUpLaw", "swing_features", "swing_law_from_arrays"]
 
@@ -112,6 +112,6 @@ class SwingUpLaw(KeptBoxLaw):
 def swing_law_from_arrays(arrays, inner=None):
     """A run's swing-up law from its arrays (a dict or an open .npz): a `TrackingLaw` where they hold
     a nominal trajectory ("X"), else a `SwingUpLaw`, around `inner`; raises ValueError as theirs do."""
-    from .tracking_law import TrackingLaw
+    from ..trajectory.tracking_law import TrackingLaw
 
     return (TrackingLaw if "X" in arrays else SwingUpLaw).from_arrays(arrays, inner)

@@ -17,7 +17,7 @@ holds every number.
    law, the recovery stage's own labels (``recovery-labels.npz``, at most as many as the
    swing-up's) join them, so that the law also knows the box.
 2. **Fit.** A `SwingUpLaw` MLP (features: sin and cos of every angle, the other components scaled
-   by the labels' spread) by least squares on u/ū (`fit.fit_mlp`).
+   by the labels' spread) by least squares on u/ū (`trajectory.fit.fit_mlp`).
 3. **DAgger**, `dagger` rounds: the run's law with the fitted swing-up law (outside the training
    box's angles) runs from `dagger_starts` new near-resting starts (and `circle` times as many from
    the circle); the states its failures visit at 1, 2.5 and 4 s are labelled as in step 1, with
@@ -64,16 +64,16 @@ from ..sim.compare import compare_laws
 from ..sim.integrate import simulate
 from ..sim.metrics import holds
 from ..sim.states import circle_states, resting_states, uniform_states
-from ._holds import count_holds
-from .chunks import ChunkStore
+from ..trajectory.holds import count_holds
+from ..trajectory.chunks import ChunkStore
 from .config import RecoveryConfig, SwingUpConfig
-from .fit import fit_mlp
+from ..trajectory.fit import fit_mlp
 from .gate import GATE_HORIZON, RECOVERY_GATE_SEED, read_labels, write_law
-from .plans import PLAN_STEP, PlanSettings, planning_system
+from ..trajectory.plans import PLAN_STEP, PlanSettings, planning_system
 from .stage import collect_labels
 from .swing_law import SwingUpLaw, swing_features
-from .manoeuvre import MANOEUVRE_NOMINALS, SwingManoeuvre, choose_manoeuvre
-from .swing_tracks import KNOT, NOMINALS, nominals, tracking_law, tracking_laws
+from ..trajectory.manoeuvre import MANOEUVRE_NOMINALS, SwingManoeuvre, choose_manoeuvre
+from ..trajectory.tracks import KNOT, NOMINALS, nominals, tracking_law, tracking_laws
 
 __all__ = ["SWING_GATE_SEED", "fit_swing_law", "kept_boxes", "swing_gate", "swing_starts", "swing_up"]
 

@@ -31,7 +31,7 @@ from ..errors import IdapbcError
 from ..sim.integrate import simulate
 from ..sim.metrics import success
 from ..sim.states import uniform_states
-from .plans import PLAN_STEP, plan_bound
+from ..trajectory.plans import PLAN_STEP, plan_bound
 from .stage import RecoveryConfig, recover
 
 __all__ = ["BIND_POINTS", "BIND_STATES", "RECOVER_MODES", "RECOVER_TIME", "ROOM_POINTS", "SMOKE_EPOCHS", "auto_recover", "limits_bind", "recovery_hint", "room_from"]

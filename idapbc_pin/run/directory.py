@@ -47,7 +47,7 @@ RECOVERY_LABELS_FILE = "recovery-labels.npz"
 #: The swing-up law of a run, around its own law (`idapbc_pin.recovery.swing_up`), and the one the
 #: swing-up stage's gate refused (kept aside, never applied).
 SWINGUP_FILE, SWINGUP_REFUSED_FILE = "swingup.npz", "swingup-refused.npz"
-#: The swing-up manoeuvre from rest the stage kept (`idapbc_pin.recovery.manoeuvre`), and a refused one.
+#: The swing-up manoeuvre from rest the stage kept (`idapbc_pin.trajectory.manoeuvre`), and a refused one.
 MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE = "swingup-manoeuvre.npz", "swingup-manoeuvre-refused.npz"
 
 
@@ -132,7 +132,7 @@ class Run:
 
     @property
     def manoeuvre(self):
-        """The swing-up manoeuvre from rest the swing-up stage kept (`recovery.manoeuvre.SwingManoeuvre`;
+        """The swing-up manoeuvre from rest the swing-up stage kept (`trajectory.manoeuvre.SwingManoeuvre`;
         summary.json → swing_manoeuvre → used), or None; ``run.manoeuvre.law(run.controller)`` runs it."""
         if not (self.summary.get("swing_manoeuvre") or {}).get("used", False):
             return None
@@ -140,7 +140,7 @@ class Run:
         fix = "run `idapbc-pin train --resume RUN --swing-up` again (or delete summary.json's \"swing_manoeuvre\" entry to drop it)"
         if not path.is_file():
             raise DamagedFileError(f"'{path}' is missing, but summary.json says the run uses a swing-up manoeuvre. Fix: {fix}.")
-        from ..recovery.manoeuvre import SwingManoeuvre  # the recovery package's stage opens runs through this module
+        from ..trajectory.manoeuvre import SwingManoeuvre  # the stages open runs through this module
 
         return read_npz(path, SwingManoeuvre.from_arrays, fix=fix)
 

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import IdapbcError
 
-__all__ = ["RESTING_SPREAD", "circle_states", "evaluation_box", "half_box", "initial_states", "resting_states", "scaled_box", "uniform_states"]
+__all__ = ["ANYWHERE_SPEED", "RESTING_SPREAD", "anywhere_states", "circle_states", "evaluation_box", "half_box", "initial_states", "resting_states", "scaled_box", "uniform_states"]
 
 
 def half_box(system) -> tuple[np.ndarray, np.ndarray]:
@@ -94,3 +94,20 @@ def circle_states(system, n: int, seed: int = 0) -> np.ndarray:
     drawn = np.asarray(system.x_star, float)[: system.nq] + np.random.default_rng(seed).uniform(-np.pi, np.pi, q[1:].shape)
     q[1:] = np.where(angle, drawn, q[1:])
     return system.state_from(q, np.zeros_like(q))
+
+
+#: Speeds of the "anywhere" starts: U(−ANYWHERE_SPEED, ANYWHERE_SPEED) rad/s (m/s) on every coordinate.
+ANYWHERE_SPEED = 1.0
+
+
+def anywhere_states(system, n: int, seed: int = 0, speed: float = ANYWHERE_SPEED) -> np.ndarray:
+    """n start states x = (q, p) (n, 2·nq) from anywhere on the torus, moving: the first exactly at
+    rest in the resting posture, the others with the postures of `circle_states` (every angle x*'s +
+    U(−π, π), every linear coordinate at the resting posture's) and every speed U(−speed, speed)
+    (rad/s or m/s), p = M(q) v; drawn from numpy's default_rng(seed) (the speeds after the postures)."""
+    q, _ = system.split(circle_states(system, n, seed))
+    rng = np.random.default_rng(seed)
+    rng.uniform(-np.pi, np.pi, q[1:].shape)  # the postures' draw (circle_states), so the speeds come after it
+    v = np.zeros_like(q)
+    v[1:] = rng.uniform(-speed, speed, v[1:].shape)
+    return system.state_from(q, v)

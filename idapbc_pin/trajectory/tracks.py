@@ -30,7 +30,7 @@ from ..control.baseline import LQRController
 from ..sim.integrate import simulate
 from ..sim.metrics import holds
 from ..sim.states import resting_states
-from ._holds import count_holds
+from .holds import count_holds
 from .ilqr import ILQRSettings, _knot_jacobians, ilqr_plans, plan_weights
 from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw

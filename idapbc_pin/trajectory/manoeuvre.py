@@ -8,14 +8,14 @@ resting posture (t ∈ [k·knot, (k + 1)·knot), t counted from the command),
 
     u(x, t) = clip(U(t) + K_k wrap(x − X(t)), ±ū),    X(t) = X_k + (t/knot − k)(X_{k+1} − X_k),
 
-the time-varying LQR along the plan (`swing_tracks.tvlqr_gains`, in x = (q, p)) against the nominal
+the time-varying LQR along the plan (`tracks.tvlqr_gains`, in x = (q, p)) against the nominal
 state interpolated between its knots, with U(t) the plan's inputs interpolated linearly between the
 knots' midpoints (U_0 before the first, U_{P−1} after the last; each knot's mean input stays close
 to the U_k the plan held). The law is sampled every 2 ms and the plan's knots are 20 ms: against
 X_k alone, the nominal itself would read as an error within each knot, and U_k held would step at
 every knot (the leaderboard's torque smoothness counts each step). After the plan's end the run's
 own law (its networks, and its swing-up or recovery law where it keeps one) catches.
-The swing-up stage picks, among the nominals (`swing_tracks.nominals`, at most `MANOEUVRE_NOMINALS`
+The swing-up stage picks, among the nominals (`tracks.nominals`, at most `MANOEUVRE_NOMINALS`
 of each horizon), from near-resting states of its own (the first exactly at rest), among the
 manoeuvres that hold at least `PICK_SHARE` of the most any of them holds, the one whose swing-up
 from exact rest scores best by the RealAIGym v2 score (`sim.leaderboard`: time, energy, torque,
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.angles import wrap_angles
-from ._holds import Judged, judge_starts
+from .holds import Judged, judge_starts
 from .plans import PLAN_STEP
 from .tracking_law import TrackingLaw
 

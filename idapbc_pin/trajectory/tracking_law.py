@@ -1,13 +1,13 @@
 """A swing-up law that tracks a planned trajectory from the state alone: `TrackingLaw`.
 
-A torque plan from the resting posture to x* (`recovery.swing_tracks`) is a nominal trajectory of
+A torque plan from the resting posture to x* (`trajectory.tracks`) is a nominal trajectory of
 states X_k and inputs U_k, k = 0 … P − 1, with the gains K_k of a time-varying LQR along it. Tracked
 in time, it needs a clock started at the swing-up's beginning. This law needs none: it reads the
 nominal point nearest to the state,
 
     k(x) = argmin_k ‖W wrap(x − X_k)‖²,      u(x) = clip(U_k + K_k wrap(x − X_k), ±ū)   (k = k(x)),
 
-with W = diag(weight), and the run's law inside the kept box, as `SwingUpLaw` (`_kept_box`). Every
+with W = diag(weight), and the run's law inside the kept box, as `SwingUpLaw` (`kept_box`). Every
 array is in the run's coordinates x = (q, p), so the law needs no model of the robot. It is a state
 feedback like the others: `Controller`, `simulate` and `export` treat it as any outer law. Where the
 nominal passes close to itself at different times the nearest point may be the wrong one: the stage
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.angles import wrap_angles
-from ._kept_box import KeptBoxLaw
+from .kept_box import KeptBoxLaw
 
 __all__ = ["TrackingLaw"]
 

@@ -4,7 +4,7 @@
 Where a saturated law loses a state, a short plan may still bring it to x*: inputs over the first
 `horizon` seconds, then a feedback law takes over. Two searches find them (`PlanSettings.method`):
 
-* ``"ilqr"`` (the default): iterative LQR on the model's exact derivatives (`recovery.ilqr`), with
+* ``"ilqr"`` (the default): iterative LQR on the model's exact derivatives (`trajectory.ilqr`), with
   knots of `knot_step` seconds, from ten warm starts per state (the feedback law's own failed
   inputs, no input, and swings at ±ū of four periods), all states and warm starts solved together.
   Each candidate runs as a time-varying LQR along its planned trajectory (`TrackThenLaw`), which

@@ -8,6 +8,8 @@ import numpy as np
 
 from ..model.angles import wrap_angles
 
+__all__ = ["KeptBoxLaw"]
+
 
 class KeptBoxLaw:
     """Mixin of a swing-up law: the run's law (`inner` after the networks) inside the kept box

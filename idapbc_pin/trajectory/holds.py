@@ -1,5 +1,5 @@
-"""How many swing-up starts each of several laws holds at x*: the one helper of the swing-up stage's
-judgements (its gate, its tracking laws, its manoeuvre), with the settling time and, on request,
+"""How many swing-up starts each of several laws holds at x*: the one helper of every judgement of
+plan-based laws from rest (the swing-up stage's gate, the tracking laws, the manoeuvre), with the settling time and, on request,
 the RealAIGym v2 score of the first start."""
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ from ..sim.integrate import simulate
 from ..sim.leaderboard import row_score
 from ..sim.metrics import holds, settling_time
 from .plans import PLAN_STEP
+
+__all__ = ["Judged", "count_holds", "judge_starts"]
 
 
 class Judged(NamedTuple):

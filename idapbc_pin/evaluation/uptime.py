@@ -1,0 +1,169 @@
+"""The global-policy uptime test (DESIGN §4, "From anywhere"): one long episode with resets.
+
+The RealAIGym global policy test (simulation leaderboard v3) asks of a state feedback what a robot on
+a bench asks of it: to get up, and stay up, whatever state it is put in. One episode of `T` = 60 s
+starts at rest in the resting posture (a chain hanging). At `resets` = 15 times, spaced T/(resets+1)
+apart with a jitter U(−`jitter`, `jitter`) s each (±1 s), the state is put directly at a posture drawn
+uniformly from the full circle (every angle x*'s + U(−π, π); a linear coordinate at the resting
+posture's), at rest. The law runs on, with no clock and no notice. The score is the **uptime**: the
+share of the episode's samples at which the tip is up (the tip test's normalised height ≥
+`TIP_SHARE`: the leaderboard's 0.9 of the upright height above the pivot, for a chain hanging from
+it), with a cart on its rail at that sample. A row of a segment that diverged counts as down for the
+whole segment.
+
+`uptime_test` judges several controllers on the same `episodes` schedules (fixed seed); each segment
+between two resets is simulated once for every episode together (`simulate`, RK4 at 2 ms, the law
+held at 500 Hz, effort limits on), up to the longest, and each episode reads its own length of it.
+
+Reference: github.com/dfki-ric-underactuated-lab/double_pendulum, the global policy testing
+controller (v2) and ``get_uptime`` of the leaderboard analysis; written independently from the
+leaderboard's description. There, the reset drives the robot to the drawn posture with a PID law for
+0.5 s; here the reset puts the state there directly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._parallel import process_map
+from ..model.resting import resting_configuration, tip_height
+from ..sim.integrate import simulate
+from ..sim.leaderboard import TIP_SHARE
+from ..sim.metrics import rail_limits
+from ..sim.step import DEFAULT_STEP
+
+__all__ = ["UPTIME_EPISODES", "UPTIME_JITTER", "UPTIME_RESETS", "UPTIME_T", "UptimeResult", "reset_schedule", "reset_postures", "tip_up",
+           "uptime_test"]
+
+#: The leaderboard's episode: T s, `UPTIME_RESETS` resets with ±`UPTIME_JITTER` s of jitter; the mean over `UPTIME_EPISODES` episodes.
+UPTIME_T, UPTIME_RESETS, UPTIME_JITTER, UPTIME_EPISODES = 60.0, 15, 1.0, 5
+#: Seed offset of the schedules and postures (apart from the other evaluations' start states).
+UPTIME_SEED = 60_000
+
+
+def reset_schedule(rng: np.random.Generator, T: float = UPTIME_T, resets: int = UPTIME_RESETS, jitter: float = UPTIME_JITTER,
+                   dt: float = DEFAULT_STEP) -> np.ndarray:
+    """(resets,) int: the control steps (of dt) at which the state is reset, increasing, within (0, T/dt):
+    k·T/(resets+1) + U(−jitter, jitter) s for k = 1 … resets, rounded to the step."""
+    spacing = T / (resets + 1)
+    times = spacing * np.arange(1, resets + 1) + rng.uniform(-jitter, jitter, resets)
+    steps = np.rint(times / dt).astype(np.int64)
+    K = int(round(T / dt))
+    return np.clip(np.maximum.accumulate(steps), 1, K - 1)
+
+
+def reset_postures(system, rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, n_x) states x = (q, 0) at rest: every angle x*'s + U(−π, π) (rad), every linear
+    coordinate at the resting posture's (m)."""
+    nq = system.nq
+    q = np.tile(resting_configuration(system), (n, 1))
+    angle = np.asarray(system.angle_mask, bool)[:nq]
+    drawn = np.asarray(system.x_star, float)[:nq] + rng.uniform(-np.pi, np.pi, (n, nq))
+    q = np.where(angle, drawn, q)
+    return system.state_from(q, np.zeros_like(q))
+
+
+def tip_up(system, q: np.ndarray) -> np.ndarray:
+    """(...) bool: the tip is up at configurations q (..., nq): its normalised height
+    (h − h_rest)/(h* − h_rest) ≥ `TIP_SHARE`, and every linear coordinate within its rail."""
+    nq = system.nq
+    flat = np.asarray(q, float).reshape(-1, nq)
+    h_rest = float(tip_height(system, resting_configuration(system)))
+    h_star = float(tip_height(system, np.asarray(system.x_star, float)[:nq]))
+    up = (tip_height(system, flat) - h_rest) / (h_star - h_rest) >= TIP_SHARE
+    lower, upper = rail_limits(system)
+    up &= ((flat >= lower) & (flat <= upper)).all(axis=1)
+    return up.reshape(np.shape(q)[:-1])
+
+
+@dataclass(frozen=True)
+class _Schedule:
+    """The episodes' resets: steps (E, R) and the states put there (E, R, n), and the start (n,)."""
+
+    steps: np.ndarray
+    states: np.ndarray
+    start: np.ndarray
+    K: int
+
+
+def _schedules(system, episodes: int, seed: int, T: float, resets: int, jitter: float, dt: float) -> _Schedule:
+    rng = np.random.default_rng(UPTIME_SEED + int(seed))
+    steps = np.stack([reset_schedule(rng, T, resets, jitter, dt) for _ in range(episodes)]) if resets else np.zeros((episodes, 0), np.int64)
+    states = reset_postures(system, rng, episodes * resets).reshape(episodes, resets, system.n)
+    q_rest = resting_configuration(system)[None]
+    start = system.state_from(q_rest, np.zeros_like(q_rest))[0]
+    return _Schedule(steps=steps, states=states, start=start, K=int(round(T / dt)))
+
+
+def _episode_uptime(job) -> np.ndarray:
+    """Worker: (system, law, schedule, dt) -> (E, K) bool, the tip up at each control step of each episode."""
+    system, law, sched, dt = job
+    E, R = sched.steps.shape
+    bounds = np.concatenate([np.zeros((E, 1), np.int64), sched.steps, np.full((E, 1), sched.K, np.int64)], axis=1)
+    up = np.zeros((E, sched.K), bool)
+    for j in range(R + 1):
+        x0 = np.tile(sched.start, (E, 1)) if j == 0 else sched.states[:, j - 1]
+        lengths = bounds[:, j + 1] - bounds[:, j]
+        L = int(lengths.max())
+        if L <= 0:
+            continue
+        traj = simulate(system, law, x0, T=L * dt, dt=dt)
+        seg = tip_up(system, traj.q[:, :L])  # (E, L): the state at the start of each held step
+        seg[traj.diverged] = False
+        for e in range(E):
+            up[e, bounds[e, j]: bounds[e, j + 1]] = seg[e, : lengths[e]]
+    return up
+
+
+@dataclass(frozen=True, eq=False)
+class UptimeResult:
+    """Several controllers judged on the same uptime episodes.
+
+    Attributes
+    ----------
+    system : name. T : episode length (s). resets : resets per episode. jitter : s. dt : control period (s).
+    steps : (E, resets) the reset steps of each episode. states : (E, resets, n) the states put there.
+    uptime : controller name -> (E,) the share of each episode's control steps with the tip up.
+    """
+
+    system: str
+    T: float
+    resets: int
+    jitter: float
+    dt: float
+    steps: np.ndarray
+    states: np.ndarray
+    uptime: dict = field(default_factory=dict)
+
+    def table(self) -> str:
+        """A markdown table: each controller's mean uptime and its range over the episodes."""
+        E = self.steps.shape[0]
+        rows = [f"| controller | uptime, mean of {E} episodes | min | max |", "|---|---|---|---|"]
+        for name, u in self.uptime.items():
+            rows.append(f"| {name} | {float(np.mean(u)):.3f} | {float(np.min(u)):.3f} | {float(np.max(u)):.3f} |")
+        return "\n".join(rows)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the settings, the schedules and every controller's uptime per episode."""
+        return {"system": self.system, "T": self.T, "resets": self.resets, "jitter": self.jitter, "dt": self.dt,
+                "reset_times": (self.steps * self.dt).tolist(), "reset_states": self.states.tolist(),
+                "uptime": {k: [float(x) for x in u] for k, u in self.uptime.items()},
+                "mean": {k: float(np.mean(u)) for k, u in self.uptime.items()}}
+
+
+def uptime_test(system, controllers: dict, episodes: int = UPTIME_EPISODES, seed: int = 0, T: float = UPTIME_T,
+                resets: int = UPTIME_RESETS, jitter: float = UPTIME_JITTER, dt: float = DEFAULT_STEP, workers: int = 1) -> UptimeResult:
+    """The global-policy uptime test (module docstring) of `controllers` (name -> state feedback
+    (N, n) -> (N, m), no clock) on `system` (the true plant: a `System` or its MuJoCo twin), on the
+    same `episodes` schedules drawn with `seed`; one worker process per controller (`workers`, 0:
+    one per core; the laws must pickle)."""
+    if episodes < 1 or resets < 0 or not (T > 0 and math.isfinite(T)) or jitter < 0 or jitter * 2 >= T / (resets + 1):
+        raise ValueError(f"need episodes ≥ 1, resets ≥ 0, T > 0 and 0 ≤ jitter < half the spacing, got {episodes}, {resets}, {T}, {jitter}")
+    sched = _schedules(system, int(episodes), seed, float(T), int(resets), float(jitter), float(dt))
+    ups = process_map(_episode_uptime, [(system, law, sched, float(dt)) for law in controllers.values()], workers)
+    uptime = {name: up.mean(axis=1) for name, up in zip(controllers, ups)}
+    return UptimeResult(system=str(system.name), T=float(T), resets=int(resets), jitter=float(jitter), dt=float(dt),
+                        steps=sched.steps, states=sched.states, uptime=uptime)
