@@ -13,7 +13,8 @@ import idapbc_pin as ip
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.recovery.config import SwingUpConfig
 from idapbc_pin.recovery.swing_law import SwingUpLaw, swing_features
-from idapbc_pin.recovery.swing_stage import fit_swing_law, swing_up
+from idapbc_pin.recovery.swing_stage import fit_swing_law, kept_boxes, swing_up
+from idapbc_pin.trajectory.tracks import tracking_law, tvlqr_gains
 from idapbc_pin.run import SWINGUP_FILE, SWINGUP_REFUSED_FILE
 from idapbc_pin.sim.states import resting_states
 
@@ -22,7 +23,7 @@ from .conftest import sample_domain
 #: The smallest stage that exercises every step: two starts, half-second plans (two iterations each,
 #: the nominals' too), one DAgger round.
 TINY = dict(starts=2, horizon=0.5, ilqr_iterations=2, track_iterations=2, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=2, box_states=4,
-            judge_T=3.0, workers=1, circle=0.5, manoeuvre_horizons=(0.25,))
+            judge_T=3.0, workers=1, circle=0.5, manoeuvre_horizons=(0.25,), library=2, library_horizon=0.5)
 
 
 def random_swing_law(system, seed: int = 0, width: int = 16, inner=None, box=None) -> SwingUpLaw:
@@ -315,7 +316,9 @@ def test_simulate_from_anywhere_judges_the_state_feedback_on_the_torus_and_in_th
 
     monkeypatch.setattr(anywhere, "UPTIME_T", 8.0)
     monkeypatch.setattr(anywhere, "UPTIME_RESETS", 2)
-    run, _ = swung_run
+    run, entry = swung_run
+    library = entry["anywhere"]  # the stage's anywhere step: a library from the resting posture and 2 postures of the circle
+    assert library["starts"] == 3 and library["used"] == (run.summary["swing_up"].get("law") == "library")
     assert main(["simulate", str(run.path), "--from", "anywhere", "--n", "3", "--T", "2", "--episodes", "2"]) == 0
     text = capsys.readouterr().out
     assert "from 3 states anywhere on the torus" in text and "uptime test: 2 episodes of 8 s, 2 resets" in text
@@ -449,3 +452,31 @@ def test_on_a_tie_in_holds_the_gate_takes_a_fit_then_the_candidate_that_keeps_mo
     assert judged([4, 4, 4, 4], [55, 50, 60, 60]) == 0  # among the fits, more box states
     assert judged([3, 3, 4, 4], [55, 50, 49, 70]) == 3  # more held wins; between the tracking laws, more box states
     assert judged([3, 3, 4, 2], [55, 50, 40, 70]) == 0  # a law that loses the box is not eligible
+
+
+def test_the_anywhere_gate_keeps_a_library_by_its_own_rule_and_never_a_copy_of_the_law_it_replaces(tiny_swing_run):
+    """`anywhere_gate`: the run's law and the library judged on the same states; the verdict is the
+    documented rule on the figures it returns. A "library" that is the run's own law again is not
+    kept: it is not 0.25 s sooner (here neither reaches x*: never is not sooner than never)."""
+    from idapbc_pin.recovery.anywhere_stage import ANYWHERE_MARGIN, LIBRARY_LOSS, anywhere_gate
+    from tests.test_swing_tracks import _plan
+
+    run = tiny_swing_run
+    config = SwingUpConfig(gate_states=3, box_states=4, judge_T=3.0, horizon=0.5, manoeuvre_horizons=(0.25,), workers=1)
+    U, Z, _ = _plan(run.system)
+    library = tracking_law(run.system, U, Z, tvlqr_gains(run.system, U, Z), 0.1, kept_boxes(run.system, config)["posture"])
+    gate = anywhere_gate(run, run.controller, library, config)
+    assert gate["states"] == {"near": 3, "anywhere": 3, "box": 4} and len(gate["near"]) == len(gate["anywhere"]) == len(gate["box"]) == 2
+    inf = [math.inf if t is None else t for t in gate["time"]]
+    rule = (gate["anywhere"][1] >= gate["anywhere"][0] and math.isfinite(inf[1]) and inf[1] <= inf[0] - ANYWHERE_MARGIN and gate["near"][1] >= gate["near"][0] - LIBRARY_LOSS
+            and gate["box"][1] >= gate["box"][0] - config.box_loss)
+    assert gate["used"] == rule
+    same = anywhere_gate(run, run.box_controller, _NoLaw(), config)
+    assert same["near"][0] == same["near"][1] and same["time"][0] == same["time"][1] and not same["used"]
+
+
+class _NoLaw:
+    """An outer law that leaves the run's own outer law in charge (the library slot, filled with nothing new)."""
+
+    def with_inner(self, inner):
+        return inner

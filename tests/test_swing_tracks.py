@@ -178,3 +178,29 @@ def test_the_manoeuvre_picked_holds_nearly_the_most_and_scores_best_from_rest_an
     best, entry = choose(no_tip, run=Judged(19, 5.0, nan), own=Judged(19, 3.0, nan))
     assert best == 1 and entry["picked_score"] == [None, None, None] and entry["rest_score"]["run"] is None  # sooner settled
     assert choose(no_tip, run=Judged(19, 2.0, nan), own=Judged(19, 3.0, nan))[0] is None
+
+
+def test_a_library_reads_each_nominal_at_its_own_knots(pendubot, monkeypatch):
+    """`plan_library` puts every knot of every nominal into one `TrackingLaw`: at a knot of either
+    nominal the law reads that nominal's own input (its distance is zero there), and a start without
+    a nominal adds nothing. The starts are the resting posture and postures at rest from the circle."""
+    from idapbc_pin.model.resting import resting_configuration
+    from idapbc_pin.trajectory import library
+
+    plans = [_plan(pendubot, seed=s)[:2] for s in (1, 2)]
+    monkeypatch.setattr(library, "library_nominals", lambda *args, **kw: [plans[0], None, plans[1]])
+    box = np.full(pendubot.n, np.inf)
+    law, found = library.plan_library(pendubot, None, np.zeros((3, pendubot.n)), box, horizon=1.0, share=1.0, iterations=1, judge_T=3.0,
+                                      seed=0, speed_weight=0.3)
+    assert found == 2 and law.X.shape == (24, pendubot.n) and law.K.shape == (24, pendubot.m, pendubot.n)
+    for k, (U, Z) in enumerate(plans):
+        alone = tracking_law(pendubot, U, Z, tvlqr_gains(pendubot, U, Z), 0.3, box)
+        np.testing.assert_allclose(law.law(alone.X), np.clip(U, -pendubot.effort, pendubot.effort), rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(law.K[12 * k: 12 * (k + 1)], alone.K)
+    monkeypatch.setattr(library, "library_nominals", lambda *args, **kw: [None])
+    assert library.plan_library(pendubot, None, np.zeros((1, pendubot.n)), box, horizon=1.0, share=1.0, iterations=1, judge_T=3.0, seed=0,
+                                speed_weight=0.3) == (None, 0)
+    starts = library.library_starts(pendubot, 5, seed=3)
+    q, v = pendubot.split(starts)
+    assert starts.shape == (6, pendubot.n) and (v == 0).all()
+    np.testing.assert_array_equal(q[0], resting_configuration(pendubot))

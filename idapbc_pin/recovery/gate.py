@@ -28,7 +28,7 @@ from tqdm.auto import tqdm
 from .._io import DamagedFileError, atomic_write_bytes, read_npz, write_json
 from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
 from ..sim.compare import compare_laws
-from ..sim.states import scaled_box, uniform_states
+from ..sim.states import box_gate_states, scaled_box, uniform_states
 from .config import RecoveryConfig
 from .law import RecoveryLaw
 from ..trajectory.plans import PLAN_STEP
@@ -105,10 +105,7 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     at its level) must pass `_Confirmation` too."""
     system, seed = run.system, RECOVERY_GATE_SEED + run.config.seed
     half, n = config.gate_states // 2, config.gate_states
-    x0 = np.concatenate([
-        uniform_states(system, half, "half", seed), uniform_states(system, n - half, "domain", seed + 1),
-        uniform_states(system, config.near_states, scaled_box(system, NEAR_SCALE), seed + 2),
-    ])  # fmt: skip
+    x0 = np.concatenate([box_gate_states(system, n, seed), uniform_states(system, config.near_states, scaled_box(system, NEAR_SCALE), seed + 2)])
     ctrl = run.own_controller  # without any recovery law the run already has
     scales = [float(r) for r in config.inner_scales]
     base, *rest = _counts(system, [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales], x0, half, n, config, progress)

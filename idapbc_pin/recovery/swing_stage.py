@@ -35,7 +35,11 @@ holds every number.
    a tracking law, then the one that brings more box states to x*, the later, the larger kept box); it is kept when it holds at least `margin` more than the run's law and
    keeps the box.
 
-5. **Manoeuvre.** Each nominal plan (those of `horizon`, and as many of each `manoeuvre_horizons`)
+5. **Anywhere** (`library` > 0; `anywhere_stage`): a library of short plans from postures all
+   round the circle, read at the nearest point, replaces the law the gate left where it brings the
+   robot to x* sooner from anywhere, holds as many from anywhere, and loses nothing near hanging or
+   in the box (summary.json → "swing_up" → "anywhere").
+6. **Manoeuvre.** Each nominal plan (those of `horizon`, and as many of each `manoeuvre_horizons`)
    as a manoeuvre from a command at rest (`manoeuvre`: tracked in time, then the run's law as the
    gate leaves it); among those that hold nearly the most of
    near-resting starts of their own, the one whose swing-up from exact rest scores best (RealAIGym
@@ -63,9 +67,10 @@ from ..run import MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE, SWINGUP_FILE, SWINGUP_
 from ..sim.compare import compare_laws
 from ..sim.integrate import simulate
 from ..sim.metrics import holds
-from ..sim.states import circle_states, resting_states, uniform_states
+from ..sim.states import box_gate_states, circle_states, resting_states
 from ..trajectory.holds import count_holds
 from ..trajectory.chunks import ChunkStore
+from .anywhere_stage import run_anywhere_step
 from .config import RecoveryConfig, SwingUpConfig
 from ..trajectory.fit import fit_mlp
 from .gate import GATE_HORIZON, RECOVERY_GATE_SEED, read_labels, write_law
@@ -202,6 +207,8 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
         if progress:
             print(f"{format_swing_gate(entry['gate'], config)}  [{time.perf_counter() - start:.0f} s]", flush=True)
     store.clear()
+    if config.library:
+        entry = _anywhere(run, system, catch, entry, config, progress)
     if config.manoeuvre:
         candidates = [(plan, config.horizon) for plan in plans[:MANOEUVRE_NOMINALS]]
         for h in (h for h in config.manoeuvre_horizons if h != config.horizon):
@@ -209,6 +216,20 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
         if candidates:
             _manoeuvre(run, system, candidates, config, progress, start)
     return entry
+
+
+def _anywhere(run, system, catch, entry: dict, config: SwingUpConfig, progress: bool) -> dict:
+    """Step 5 of the module docstring (`anywhere_stage`): the library kept as the swing-up law, or its
+    gate recorded beside the law the swing-up gate left; returns the stage's summary entry."""
+    kept, anywhere = run_anywhere_step(run, system, catch, kept_boxes(system, config)["posture"], config, progress)
+    recorded = dict(run.summary.get("swing_up") or {}) | {"anywhere": anywhere}
+    if kept is not None:
+        recorded |= {"used": True, "law": "library"}
+        save_swing_up(run, kept, {k: v for k, v in recorded.items() if k != "law_file"})
+    else:
+        write_json(run.path / "summary.json", dict(run.summary) | {"swing_up": recorded})
+        run.summary = dict(run.summary) | {"swing_up": recorded}
+    return dict(entry) | {k: recorded[k] for k in ("anywhere", "used", "law") if k in recorded}
 
 
 def _fit_and_gate(run, system, teacher, labels: tuple, box_labels: tuple, tracks: list, config: SwingUpConfig, store, progress: bool, start: float) -> dict:
@@ -234,7 +255,7 @@ def _fit_and_gate(run, system, teacher, labels: tuple, box_labels: tuple, tracks
 
 
 def _manoeuvre(run, system, candidates: list, config: SwingUpConfig, progress: bool, start: float) -> dict:
-    """Step 5 of the module docstring: the manoeuvre of each nominal plan of `candidates` [(plan, its
+    """Step 6 of the module docstring: the manoeuvre of each nominal plan of `candidates` [(plan, its
     horizon s)] judged against the run's law as the stage leaves it; written to summary.json →
     "swing_manoeuvre" and its file."""
     run = resolve_run(run.path)  # with the swing-up law the stage kept, if any
@@ -306,10 +327,9 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
     x_swing = swing_starts(system, config.gate_states, config.circle, seed)
     run_holds, *held = count_holds(system, [ctrl, *with_laws], x_swing, config)
     order = list(boxes)
-    half = config.box_states // 2
     run_box, boxed = 0, [0] * len(cands)
     if config.box_states:
-        x_box = np.concatenate([uniform_states(system, half, "half", seed + 1), uniform_states(system, config.box_states - half, "domain", seed + 2)])
+        x_box = box_gate_states(system, config.box_states, seed + 1)
         run_box, *boxed = (int(ok.sum()) for ok, _ in compare_laws(system, [(c, x_box) for c in [ctrl, *with_laws]], T=GATE_HORIZON,
                                                                     dt=PLAN_STEP, workers=config.workers, ray=config.ray))
     keeps_box = [b >= run_box - config.box_loss for b in boxed]

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import IdapbcError
 
-__all__ = ["ANYWHERE_SPEED", "RESTING_SPREAD", "anywhere_states", "circle_states", "evaluation_box", "half_box", "initial_states", "resting_states", "scaled_box", "uniform_states"]
+__all__ = ["ANYWHERE_SPEED", "RESTING_SPREAD", "anywhere_states", "box_gate_states", "circle_states", "evaluation_box", "half_box", "initial_states", "resting_states", "scaled_box", "uniform_states"]
 
 
 def half_box(system) -> tuple[np.ndarray, np.ndarray]:
@@ -35,6 +35,13 @@ def uniform_states(system, n: int, box="domain", seed: int = 0) -> np.ndarray:
     """(n, system.n) states (q, p) drawn uniformly from `evaluation_box(system, box)`."""
     lo, hi = evaluation_box(system, box)
     return lo + (hi - lo) * np.random.default_rng(seed).random((int(n), system.n))
+
+
+def box_gate_states(system, n: int, seed: int) -> np.ndarray:
+    """(n, system.n) states of a gate's box check: n // 2 uniform in the half box (`seed`), the rest
+    uniform in the training box (seed + 1)."""
+    half = int(n) // 2
+    return np.concatenate([uniform_states(system, half, "half", seed), uniform_states(system, int(n) - half, "domain", seed + 1)])
 
 
 def initial_states(system, x0, n: int, seed: int) -> np.ndarray:

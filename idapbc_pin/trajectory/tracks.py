@@ -35,7 +35,7 @@ from .ilqr import ILQRSettings, _knot_jacobians, ilqr_plans, plan_weights
 from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
 
-__all__ = ["NOMINALS", "SPEED_WEIGHTS", "nominal_plans", "nominals", "tracking_law", "tracking_laws", "tvlqr_gains"]
+__all__ = ["NOMINALS", "SPEED_WEIGHTS", "nominal_plans", "nominals", "tracking_law", "tracking_laws", "tvlqr_gains", "warm_starts"]
 
 #: Knot of a nominal plan, s.
 KNOT = 0.02
@@ -56,14 +56,14 @@ SETTLED = {"q": 1.0, "r": 300.0, "end_box": 1000.0, "settle": 0.3}
 PLAIN = {}
 
 
-def _warm_starts(K: int, bound: np.ndarray, seed: int) -> np.ndarray:
-    """(S, K, m) warm starts: ±sinusoids of `WARM_PERIODS` at four phases and two amplitudes, and
-    `WARM_RANDOM` random piecewise-constant inputs of 10 knots, all within ±bound."""
+def warm_starts(K: int, bound: np.ndarray, seed: int, periods: tuple = WARM_PERIODS, n_random: int = WARM_RANDOM) -> np.ndarray:
+    """(S, K, m) warm starts: ±sinusoids of `periods` (s) at four phases and two amplitudes, and
+    `n_random` random piecewise-constant inputs of 10 knots, all within ±bound."""
     t = np.arange(K) * KNOT
     starts = [a * bound * np.sin(2 * np.pi * t / period + phase)[:, None]
-              for period in WARM_PERIODS for phase in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi) for a in (1.0, 0.5)]
+              for period in periods for phase in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi) for a in (1.0, 0.5)]
     rng = np.random.default_rng(seed)
-    for _ in range(WARM_RANDOM):
+    for _ in range(n_random):
         steps = np.repeat(rng.uniform(-1.0, 1.0, size=(K // 10 + 1, bound.size)), 10, axis=0)[:K]
         starts.append(steps * bound)
     return np.stack(starts)
@@ -74,7 +74,7 @@ def nominal_plans(system, teacher, x_rest: np.ndarray, config) -> list[tuple[np.
     [(U (K, m), Z (K + 1, n) in (q, v), cost)], cheapest first (step 1 of the module docstring)."""
     bound = config.track_share * plan_bound(system)
     K = max(1, int(round(config.horizon / KNOT)))
-    W = _warm_starts(K, bound, config.plan_seed)
+    W = warm_starts(K, bound, config.plan_seed)
     x0 = np.repeat(np.atleast_2d(x_rest), len(W), axis=0)
     for cost_terms in (SETTLED, PLAIN):
         settings = ILQRSettings(iterations=config.track_iterations, alphas=ALPHAS, **cost_terms)

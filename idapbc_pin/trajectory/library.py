@@ -1,0 +1,96 @@
+"""A library of short plans from postures all round the circle, read at the nearest point: `plan_library`.
+
+A tracking law (`TrackingLaw`) reads one nominal plan by the state. From a posture far from that
+plan's path it steers back to the path first, then follows it, which is slow. A library plans from
+many starts instead, each with a short horizon:
+
+1. **Starts**: the resting posture and `size` postures at rest with every angle from the full circle
+   (`sim.states.circle_states`, a seed of their own).
+2. **Plans**: from each start, iLQR plans of `horizon` s within `share` of the effort limits
+   (`ilqr.ilqr_plans`, all starts and warm starts in one batch), warm-started from ±sinusoids of
+   `WARM_PERIOD` at four phases and two amplitudes and `WARM_RANDOM` random steps. Their cost
+   (`LIBRARY_COST`) prices time: a running cost on the state and a light one on the input, the end
+   pinned on every coordinate and reached `settle` s before the end. Each plan is tracked by its own
+   iLQR gains and caught by `catch` (the swing-up stage's teacher); of a start's plans that hold at
+   x* over `judge_T`, the cheapest is its nominal.
+3. **The law**: each nominal with its time-varying LQR gains (`tracks.tvlqr_gains`) in x = (q, p)
+   (`tracks.tracking_law`), every knot of every nominal in one `TrackingLaw`. The law is the same
+   kind as any tracking law (the same arrays, the same export); it reads the nearest point over all
+   the knots.
+
+The starts are planned in chunks of `CHUNK` over `workers` processes; the chunks and their order fix
+the result, the number of workers only the time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._parallel import process_map
+from ..control.baseline import LQRController
+from ..sim.integrate import simulate
+from ..sim.metrics import holds
+from ..sim.states import circle_states
+from .ilqr import ILQRSettings, ilqr_plans
+from .plans import PLAN_STEP, TrackThenLaw, plan_bound
+from .tracking_law import TrackingLaw
+from .tracks import ALPHAS, KNOT, tracking_law, tvlqr_gains, warm_starts
+
+__all__ = ["CHUNK", "LIBRARY_COST", "WARM_PERIOD", "WARM_RANDOM", "library_nominals", "library_starts", "plan_library"]
+
+#: The library's plan cost (`ilqr.ILQRSettings` fields): time priced above torque, at rest at x* at the end.
+LIBRARY_COST = {"q": 1.0, "r": 1.0, "end_box": 1000.0, "settle": 0.3}
+#: Period (s) of the sinusoidal warm starts, and the number of random ones, per start.
+WARM_PERIOD, WARM_RANDOM = 1.0, 2
+#: Starts planned together in one batch (one worker job).
+CHUNK = 16
+
+
+def library_starts(system, size: int, seed: int) -> np.ndarray:
+    """(size + 1, n) states at rest: the resting posture, then `size` postures with every angle from the
+    full circle (`circle_states` with `seed`)."""
+    return circle_states(system, int(size) + 1, seed)
+
+
+def _chunk_nominals(job) -> list:
+    """Worker: (system, catch, starts (S, n), horizon, share, iterations, judge_T, seed) -> for each
+    start, (U (K, m), Z (K + 1, n) in (q, v)) of its cheapest plan that holds, or None."""
+    system, catch, starts, horizon, share, iterations, judge_T, seed = job
+    bound = share * plan_bound(system)
+    K = max(1, int(round(horizon / KNOT)))
+    W = warm_starts(K, bound, seed, periods=(WARM_PERIOD,), n_random=WARM_RANDOM)
+    w = len(W)
+    x0 = np.repeat(starts, w, axis=0)
+    settings = ILQRSettings(iterations=iterations, alphas=ALPHAS, **LIBRARY_COST)
+    U, Z, gains, cost = ilqr_plans(system, x0, np.tile(W, (len(starts), 1, 1)), bound, K * KNOT, LQRController(system).S, settings)
+    held = holds(simulate(system, TrackThenLaw(U, Z, gains, KNOT, catch, system), x0, T=judge_T, dt=PLAN_STEP), system)
+    out = []
+    for s in range(len(starts)):
+        rows = [i for i in range(s * w, (s + 1) * w) if held[i]]
+        best = min(rows, key=lambda i: (cost[i], i)) if rows else None
+        out.append(None if best is None else (U[best], Z[best]))
+    return out
+
+
+def library_nominals(system, catch, starts: np.ndarray, horizon: float, share: float, iterations: int, judge_T: float, seed: int,
+                     workers: int = 1) -> list:
+    """Steps 2 of the module docstring: for each start of `starts` (S, n), its nominal (U, Z), or None
+    where no plan holds; chunks of `CHUNK` starts in `workers` processes (0: one per core)."""
+    chunks = [starts[i: i + CHUNK] for i in range(0, len(starts), CHUNK)]
+    jobs = [(system, catch, c, float(horizon), float(share), int(iterations), float(judge_T), int(seed) + k) for k, c in enumerate(chunks)]
+    return [nominal for found in process_map(_chunk_nominals, jobs, workers) for nominal in found]
+
+
+def plan_library(system, catch, starts: np.ndarray, box: np.ndarray, *, horizon: float, share: float, iterations: int, judge_T: float,
+                 seed: int, speed_weight: float, workers: int = 1) -> tuple[TrackingLaw | None, int]:
+    """The library's `TrackingLaw` (module docstring) from `starts` (S, n) with the kept `box` (n,),
+    the nearest-point distance weighing momenta `speed_weight` / M_ii(q*); -> (the law, or None where
+    no start has a nominal; how many starts have one)."""
+    nominals = [nominal for nominal in library_nominals(system, catch, starts, horizon, share, iterations, judge_T, seed, workers) if nominal]
+    if not nominals:
+        return None, 0
+    laws = [tracking_law(system, U, Z, tvlqr_gains(system, U, Z), speed_weight, box) for U, Z in nominals]
+    first = laws[0]
+    law = TrackingLaw(np.concatenate([t.X for t in laws]), np.concatenate([t.U for t in laws]), np.concatenate([t.K for t in laws]),
+                      first.weight, first.x_star, first.effort, first.angle_mask, first.box)
+    return law, len(nominals)
