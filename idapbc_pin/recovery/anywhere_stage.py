@@ -29,7 +29,6 @@ import numpy as np
 import torch
 
 from .._parallel import process_map
-
 from ..run import resolve_run
 from ..sim.compare import compare_laws
 from ..sim.integrate import simulate
@@ -40,7 +39,8 @@ from ..trajectory.plans import PLAN_STEP
 from .config import SwingUpConfig
 from .gate import GATE_HORIZON, RECOVERY_GATE_SEED
 
-__all__ = ["ANYWHERE_GATE_SEED", "ANYWHERE_MARGIN", "LIBRARY_LOSS", "LIBRARY_SPEED_WEIGHT", "anywhere_gate", "format_anywhere", "library_law", "run_anywhere_step"]
+__all__ = ["ANYWHERE_GATE_SEED", "ANYWHERE_MARGIN", "LIBRARY_LOSS", "LIBRARY_SPEED_WEIGHT", "anywhere_gate", "format_anywhere", "library_law",
+           "run_anywhere_step"]
 
 #: Seed offset of the anywhere gate's states (apart from the swing-up gate's and the evaluations').
 ANYWHERE_GATE_SEED = RECOVERY_GATE_SEED + 7_000
@@ -52,13 +52,13 @@ LIBRARY_LOSS = 1
 LIBRARY_SPEED_WEIGHT = 0.1
 
 
-def library_law(system, catch, box: np.ndarray, config: SwingUpConfig):
+def library_law(system, catch, box: np.ndarray, config: SwingUpConfig, progress: bool = False):
     """Step 1 of the module docstring: (the library's `TrackingLaw` with the kept `box`, or None; how
-    many of its starts have a nominal; how many starts)."""
+    many of its starts have a nominal; how many starts); with `progress`, a bar over its chunks."""
     starts = library_starts(system, config.library, config.plan_seed + 700)
     law, found = plan_library(system, catch, starts, box, horizon=config.library_horizon, share=config.track_share,
                               iterations=config.library_iterations, judge_T=config.judge_T, seed=config.plan_seed + 800,
-                              speed_weight=LIBRARY_SPEED_WEIGHT, workers=config.workers)
+                              speed_weight=LIBRARY_SPEED_WEIGHT, workers=config.workers, progress="swing-up: library" if progress else None)
     return law, found, len(starts)
 
 
@@ -93,8 +93,8 @@ def anywhere_gate(run, current, library, config: SwingUpConfig) -> dict:
         x_box = box_gate_states(system, config.box_states, seed + 2)
         box = [int(ok.sum()) for ok, _ in compare_laws(system, [(law, x_box) for law in laws], T=GATE_HORIZON, dt=PLAN_STEP,
                                                         workers=config.workers, ray=config.ray)]
-    used = (anywhere[1] >= anywhere[0] and math.isfinite(times[1]) and times[1] <= times[0] - ANYWHERE_MARGIN and near[1] >= near[0] - LIBRARY_LOSS
-            and box[1] >= box[0] - config.box_loss)
+    sooner = math.isfinite(times[1]) and times[1] <= times[0] - ANYWHERE_MARGIN  # never is not sooner than never
+    used = anywhere[1] >= anywhere[0] and sooner and near[1] >= near[0] - LIBRARY_LOSS and box[1] >= box[0] - config.box_loss
     plain = [t if math.isfinite(t) else None for t in times]
     return {"near": near, "anywhere": anywhere, "time": plain, "box": box, "states": {"near": len(x_near), "anywhere": len(x_any),
             "box": config.box_states}, "used": bool(used)}
@@ -117,7 +117,7 @@ def format_anywhere(entry: dict, seconds: float) -> str:
 def run_anywhere_step(run, system, catch, box: np.ndarray, config: SwingUpConfig, progress: bool) -> tuple[object | None, dict]:
     """Steps 1 and 2: (the library law to keep, or None; the summary entry)."""
     start = time.perf_counter()
-    law, found, starts = library_law(system, catch, box, config)
+    law, found, starts = library_law(system, catch, box, config, progress)
     entry = {"nominals": found, "starts": starts, "horizon": config.library_horizon}
     if law is not None:
         current = resolve_run(run.path).controller  # with the swing-up law the gate kept, if any

@@ -24,7 +24,10 @@ the result, the number of workers only the time.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
+from tqdm.auto import tqdm
 
 from .._parallel import process_map
 from ..control.baseline import LQRController
@@ -73,20 +76,27 @@ def _chunk_nominals(job) -> list:
 
 
 def library_nominals(system, catch, starts: np.ndarray, horizon: float, share: float, iterations: int, judge_T: float, seed: int,
-                     workers: int = 1) -> list:
-    """Steps 2 of the module docstring: for each start of `starts` (S, n), its nominal (U, Z), or None
-    where no plan holds; chunks of `CHUNK` starts in `workers` processes (0: one per core)."""
+                     workers: int = 1, progress: str | None = None) -> list:
+    """Step 2 of the module docstring: for each start of `starts` (S, n), its nominal (U, Z), or None
+    where no plan holds; chunks of `CHUNK` starts in `workers` processes (0: one per core);
+    `progress`: the label of a bar over the chunks (None: no bar)."""
     chunks = [starts[i: i + CHUNK] for i in range(0, len(starts), CHUNK)]
     jobs = [(system, catch, c, float(horizon), float(share), int(iterations), float(judge_T), int(seed) + k) for k, c in enumerate(chunks)]
-    return [nominal for found in process_map(_chunk_nominals, jobs, workers) for nominal in found]
+    bar = tqdm(total=len(jobs), desc=progress, unit="chunk", disable=progress is None, dynamic_ncols=True, file=sys.stderr)
+    out = []
+    for found in process_map(_chunk_nominals, jobs, workers):
+        out += found
+        bar.update(1)
+    bar.close()
+    return out
 
 
 def plan_library(system, catch, starts: np.ndarray, box: np.ndarray, *, horizon: float, share: float, iterations: int, judge_T: float,
-                 seed: int, speed_weight: float, workers: int = 1) -> tuple[TrackingLaw | None, int]:
+                 seed: int, speed_weight: float, workers: int = 1, progress: str | None = None) -> tuple[TrackingLaw | None, int]:
     """The library's `TrackingLaw` (module docstring) from `starts` (S, n) with the kept `box` (n,),
     the nearest-point distance weighing momenta `speed_weight` / M_ii(q*); -> (the law, or None where
-    no start has a nominal; how many starts have one)."""
-    nominals = [nominal for nominal in library_nominals(system, catch, starts, horizon, share, iterations, judge_T, seed, workers) if nominal]
+    no start has a nominal; how many starts have one); `progress`: as `library_nominals`'."""
+    nominals = [nominal for nominal in library_nominals(system, catch, starts, horizon, share, iterations, judge_T, seed, workers, progress) if nominal]
     if not nominals:
         return None, 0
     laws = [tracking_law(system, U, Z, tvlqr_gains(system, U, Z), speed_weight, box) for U, Z in nominals]
