@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._parallel import process_map
-from ..model.resting import resting_configuration, tip_height
+from ..model.resting import resting_configuration
 from ..sim.integrate import simulate
-from ..sim.leaderboard import TIP_SHARE
+from ..sim.leaderboard import TIP_SHARE, tip_share
 from ..sim.metrics import rail_limits
 from ..sim.step import DEFAULT_STEP
 
@@ -69,14 +69,9 @@ def reset_postures(system, rng: np.random.Generator, n: int) -> np.ndarray:
 def tip_up(system, q: np.ndarray) -> np.ndarray:
     """(...) bool: the tip is up at configurations q (..., nq): its normalised height
     (h − h_rest)/(h* − h_rest) ≥ `TIP_SHARE`, and every linear coordinate within its rail."""
-    nq = system.nq
-    flat = np.asarray(q, float).reshape(-1, nq)
-    h_rest = float(tip_height(system, resting_configuration(system)))
-    h_star = float(tip_height(system, np.asarray(system.x_star, float)[:nq]))
-    up = (tip_height(system, flat) - h_rest) / (h_star - h_rest) >= TIP_SHARE
+    q = np.asarray(q, float)
     lower, upper = rail_limits(system)
-    up &= ((flat >= lower) & (flat <= upper)).all(axis=1)
-    return up.reshape(np.shape(q)[:-1])
+    return (tip_share(system, q) >= TIP_SHARE) & ((q >= lower) & (q <= upper)).all(axis=-1)
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ from ..model.resting import resting_configuration, tip_height
 from .metrics import on_rail
 from .trajectory import Trajectory
 
-__all__ = ["NORMALISATION", "TIP_SHARE", "LeaderboardScore", "leaderboard_score", "row_score", "stays_from", "tip_swingup_times"]
+__all__ = ["NORMALISATION", "TIP_SHARE", "LeaderboardScore", "leaderboard_score", "row_score", "stays_from", "tip_share", "tip_swingup_times"]
 
 #: The tip test: normalised tip height ≥ TIP_SHARE (0.95 ⇔ the leaderboard's 0.9 L above the pivot).
 TIP_SHARE = 0.95
@@ -117,16 +117,21 @@ def stays_from(flags: np.ndarray, t: np.ndarray) -> np.ndarray:
     return out
 
 
+def tip_share(system, q) -> np.ndarray:
+    """(...) the tip's normalised height (h − h_rest)/(h* − h_rest) at configurations q (..., nq):
+    0 at rest, 1 at x* (`idapbc_pin.model.resting.tip_height`)."""
+    nq = system.nq
+    q = np.asarray(q, float)
+    h_rest = float(tip_height(system, resting_configuration(system)))
+    h_star = float(tip_height(system, np.asarray(system.x_star, float)[:nq]))
+    return ((tip_height(system, q.reshape(-1, nq)) - h_rest) / (h_star - h_rest)).reshape(q.shape[:-1])
+
+
 def tip_swingup_times(system, traj: Trajectory) -> np.ndarray:
     """(N,) s: the tip test's swing-up time of each row of `traj` (module docstring); nan where the
     tip is not up at the end, the row diverged or a cart left its rail. Needs a URDF system
     (`tip_height` raises IdapbcError for a built-in analytic one)."""
-    nq = system.nq
-    N, K = traj.q.shape[:2]
-    q_star = np.asarray(system.x_star, float)[:nq]
-    h_rest, h_star = float(tip_height(system, resting_configuration(system))), float(tip_height(system, q_star))
-    z = (tip_height(system, traj.q.reshape(-1, nq)).reshape(N, K) - h_rest) / (h_star - h_rest)
-    out = stays_from(z >= TIP_SHARE, traj.t)
+    out = stays_from(tip_share(system, traj.q) >= TIP_SHARE, traj.t)
     out[traj.diverged | ~on_rail(traj, system) | ~(out < traj.t[-1])] = np.nan
     return out
 
