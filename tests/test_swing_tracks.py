@@ -204,3 +204,16 @@ def test_a_library_reads_each_nominal_at_its_own_knots(pendubot, monkeypatch):
     q, v = pendubot.split(starts)
     assert starts.shape == (6, pendubot.n) and (v == 0).all()
     np.testing.assert_array_equal(q[0], resting_configuration(pendubot))
+
+
+def test_the_tracking_laws_tree_finds_the_same_nearest_point_as_every_point():
+    from idapbc_pin.trajectory.tracking_law import _TREE_FROM, TrackingLaw, _brute_nearest
+
+    rng = np.random.default_rng(7)
+    P, n, m = 4 * _TREE_FROM, 4, 1
+    mask = np.array([True, True, False, False])
+    X = rng.uniform(-4, 4, (P, n)) * [1, 1, 2, 2]
+    law = TrackingLaw(X, np.zeros((P, m)), np.zeros((P, m, n)), np.array([1.0, 0.7, 0.3, 0.2]), np.zeros(n), np.ones(m), mask,
+                      np.full(n, np.inf))
+    x = np.concatenate([rng.uniform(-10, 10, (3000, n)), X[::5] + 1e-3 * rng.normal(size=(P // 5 + 1, n)), 1e3 * rng.normal(size=(20, n))])
+    np.testing.assert_array_equal(law.nearest(x)[0], _brute_nearest(x, X, law.weight, mask))

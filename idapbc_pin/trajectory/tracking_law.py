@@ -17,6 +17,7 @@ keeps such a law only where its gate says it holds swing-ups.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -24,6 +25,41 @@ from ..model.angles import wrap_angles
 from .kept_box import KeptBoxLaw
 
 __all__ = ["TrackingLaw"]
+
+#: Nominal points from which `TrackingLaw.nearest` searches a k-d tree instead of every point.
+_TREE_FROM = 256
+
+
+def _brute_nearest(x: np.ndarray, X: np.ndarray, weight: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(N,) argmin_k ‖W wrap(x − X_k)‖² over every point (what the export computes)."""
+    d = wrap_angles(x[:, None, :] - X[None], mask)
+    return np.argmin(((d * weight) ** 2).sum(axis=-1), axis=1)
+
+
+class _TorusTree:
+    """The same nearest point from a k-d tree on the torus (`scipy.spatial.cKDTree` with periodic
+    boxes): each angle a circle of length 2π·w, each other coordinate (scaled by w) on a circle so
+    long that no two points that matter are half of it apart. States beyond a quarter of that length
+    (beyond ±`_FAR` times the nominal's spread) are clipped to it."""
+
+    _FAR = 1e4
+
+    def __init__(self, X: np.ndarray, weight: np.ndarray, mask: np.ndarray):
+        from scipy.spatial import cKDTree
+
+        self.weight, self.mask = np.asarray(weight, float), np.asarray(mask, bool)
+        span = np.abs(X * self.weight).max(axis=0) + 1.0
+        self.half = np.where(self.mask, np.pi * self.weight, 2.0 * self._FAR * span)  # half of each circle
+        self.half = np.where(self.half > 0, self.half, 1.0)
+        self.tree = cKDTree(self._embed(X), boxsize=2.0 * self.half)
+
+    def _embed(self, x: np.ndarray) -> np.ndarray:
+        y = np.where(self.mask, x * self.weight, np.clip(x * self.weight, -0.5 * self.half, 0.5 * self.half))
+        y = np.mod(y + self.half, 2.0 * self.half)
+        return np.where(y >= 2.0 * self.half, 0.0, y)
+
+    def nearest(self, x: np.ndarray) -> np.ndarray:
+        return self.tree.query(self._embed(x), k=1)[1]
 
 _FIELDS = ("X", "U", "K", "weight", "x_star", "effort", "angle_mask", "box")
 
@@ -54,11 +90,15 @@ class TrackingLaw(KeptBoxLaw):
     box: np.ndarray
     inner: object = None
 
+    @cached_property
+    def _tree(self) -> "_TorusTree":
+        return _TorusTree(self.X, self.weight, self.angle_mask)
+
     def nearest(self, x) -> tuple[np.ndarray, np.ndarray]:
         """(k (N,) the index of the nearest nominal point, wrap(x − X_k) (N, n)) for states x (N, n)."""
-        d = wrap_angles(np.atleast_2d(np.asarray(x, dtype=np.float64))[:, None, :] - self.X[None], self.angle_mask)
-        k = np.argmin(((d * self.weight) ** 2).sum(axis=-1), axis=1)
-        return k, d[np.arange(len(k)), k]
+        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        k = self._tree.nearest(x) if len(self.X) >= _TREE_FROM else _brute_nearest(x, self.X, self.weight, self.angle_mask)
+        return k, wrap_angles(x - self.X[k], self.angle_mask)
 
     def law(self, x) -> np.ndarray:
         """The tracking law alone: (N, n) -> (N, m), within ±ū."""
