@@ -1,9 +1,16 @@
-"""Goal: the robustness table of issue 4: success under ±20 % link mass, torque saturation and noise.
+"""Goal: the robustness suite (DESIGN §4, "Robust swing-up") for the zoo and the RealAIGym robots.
 
-Neural IDA-PBC and the LQR baseline (Q = I, R = I) from the same uniform states of the half-size box,
-the judge plant perturbed (the controller keeps its nominal model). Trains the paper's cartpole and
-the zoo's acrobot with the fast preset (`TrainConfig.fast()`) unless run directories are given.
-Run: python benchmarks/bench_robustness.py [--n 100] [--T 20] [--box half] [--epochs N] [RUN_DIR ...]
+For each robot, `judge_suite` judges saturated LQR (Q = I, R = I) and the energy-pumping law with an
+LQR catch from exactly hanging under the six tests of the RealAIGym robustness leaderboard v2 (plant
+parameters varied one at a time, speed noise, torque noise, actuator lag, delay, pushes; 10 s at
+500 Hz, effort limits on) and prints each law's six scores and their mean. With ``--train``, each
+robot is first trained as a user would (``idapbc-pin train ROBOT --fast --swing-up``) and its state
+feedback and manoeuvre are judged beside them; ``--run RUN`` adds run directories (from hanging for
+a swing-up run, else from half-box states). The RealAIGym rows quote the leaderboard's published
+figures. ``--roa`` prints the older table instead (success from the half box under mass ×0.8/×1.2,
+saturation and measurement noise) for the runs given.
+Run: python benchmarks/bench_robustness.py [--only [NAME ...]] [--run RUN ...] [--train] [--levels 21] [--repetitions 10]
+         [--pushes 50] [--workers 0] [--roa]
 """
 
 from __future__ import annotations
@@ -16,35 +23,59 @@ import time
 import torch
 
 import idapbc_pin as ip
+from bench_swingup import ROBOTS, load, trained_run
+from idapbc_pin.control.baseline import LQRController
+from idapbc_pin.control.energy_pump import EnergyPumpLaw
+from idapbc_pin.evaluation.robust_suite import SuiteConfig, evaluate_run_suite, judge_suite
 from idapbc_pin.evaluation.robustness import default_conditions, robustness_table
+
+#: The robustness leaderboard v2's published scores (overall; model / speed noise / torque noise / lag / delay / pushes for TVLQR).
+PUBLISHED = {
+    "realaigym_pendubot": "AR-EAPO 0.913, evolsac 0.786, History SAC 0.770, TVLQR 0.767 (0.629 / 0.905 / 1.0 / 1.0 / 0.429 / 0.64)",
+    "realaigym_acrobot": "History SAC 0.751, AR-EAPO 0.727, evolsac 0.687, TVLQR 0.607 (0.481 / 0.190 / 1.0 / 0.952 / 0.238 / 0.78)",
+}
+SOURCE = "github dfki-ric-underactuated-lab/double_pendulum, leaderboard robustness_v2"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("runs", nargs="*", help="run directories (default: train paper_cartpole and acrobot, fast preset)")
-    parser.add_argument("--systems", nargs="+", default=["paper_cartpole", "acrobot"], help="systems to train when no run is given")
-    parser.add_argument("--n", type=int, default=100, help="states per condition (default 100)")
-    parser.add_argument("--T", type=float, default=20.0)
-    parser.add_argument("--box", default="half", choices=["domain", "half"])
-    parser.add_argument("--epochs", type=int, default=ip.TrainConfig.fast().epochs, help="fast-preset epochs when training")
-    parser.add_argument("--noise", type=float, default=0.01, help="measurement noise σ on (q, v)")
-    parser.add_argument("--saturation-factor", type=float, default=2.0, help="saturation at this × LQR's median nominal peak |u|")
-    parser.add_argument("--out", default=None, help="where to train (default: a temporary folder)")
+    parser.add_argument("--only", nargs="*", default=None, help=f"robots (default all: {', '.join(ROBOTS)}; `--only` alone: none, for --run)")
+    parser.add_argument("--run", nargs="+", default=[], help="run directories judged on their own systems")
+    parser.add_argument("--train", action="store_true", help="train each robot with `idapbc-pin train --fast --swing-up` and judge its run too")
+    parser.add_argument("--train-seed", type=int, default=0)
+    parser.add_argument("--levels", type=int, default=SuiteConfig.levels)
+    parser.add_argument("--repetitions", type=int, default=SuiteConfig.repetitions)
+    parser.add_argument("--pushes", type=int, default=SuiteConfig.pushes)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=0, help="worker processes, one law each (0: one per core)")
+    parser.add_argument("--roa", action="store_true", help="the older table (success from the half box under mismatch) for the runs given")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print(f"cpus={os.cpu_count()} load={os.getloadavg()[0]:.2f} n={args.n} T={args.T:g}s box={args.box}")
-    runs = list(args.runs)
-    if not runs:
-        out = args.out or tempfile.mkdtemp(prefix="bench_robustness_")
-        for name in args.systems:
-            t0 = time.perf_counter()
-            run = ip.train(ip.load_system(name), ip.TrainConfig.fast(epochs=args.epochs), out=os.path.join(out, name), progress=False)
-            print(f"trained {name} in {time.perf_counter() - t0:.0f} s -> {run.path}")
-            runs.append(run.path)
-    conditions = default_conditions(mass=(0.8, 1.2), saturation="auto", noise=args.noise)
-    for run in runs:
-        result = robustness_table(run, n=args.n, T=args.T, box=args.box, conditions=conditions, saturation_factor=args.saturation_factor)
-        print()
+    config = SuiteConfig(levels=args.levels, repetitions=args.repetitions, pushes=args.pushes)
+    print(f"cpus={os.cpu_count()} load={os.getloadavg()[0]:.2f} {config}")
+    if args.roa:
+        for path in args.run:
+            print("\n" + robustness_table(path, conditions=default_conditions(), workers=args.workers).table())
+        return
+    for name in args.only if args.only is not None else ROBOTS:
+        t0 = time.perf_counter()
+        if args.train:
+            with tempfile.TemporaryDirectory() as out:
+                run, wall, gate = trained_run(name, out, args.train_seed)
+                print(f"\n{name}: `idapbc-pin train --fast --swing-up` took {wall:.0f} s; {gate}")
+                result = evaluate_run_suite(run, config, seed=args.seed, workers=args.workers)
+        else:
+            system = load(name)
+            laws = {"LQR": LQRController(system), "energy pump + LQR": EnergyPumpLaw(system)}
+            result = judge_suite(system, laws, config, "hanging", args.seed, args.workers)
+        print(f"\n### {name}, from {result.start} ({result.rows.N} rollouts per law, {time.perf_counter() - t0:.0f} s)\n")
+        print(result.table())
+        if name in PUBLISHED:
+            print(f'\n> published: {PUBLISHED[name]} — "{SOURCE}"')
+    for path in args.run:
+        t0 = time.perf_counter()
+        result = evaluate_run_suite(ip.load_run(path), config, seed=args.seed, workers=args.workers)
+        print(f"\n### run {path} ({result.system}), from {result.start} ({result.rows.N} rollouts per law, {time.perf_counter() - t0:.0f} s)\n")
         print(result.table())
 
 

@@ -23,8 +23,9 @@ from .deploy.export import export
 from .errors import IdapbcError
 from .evaluation.evaluate import evaluate_run
 from .reporting.report import figure, report
-from .evaluation.robustness import perturbed_system, robustness_table
+from .evaluation.robustness import perturbed_system
 from .control.baseline import LQRController
+from .control.speed_filter import SpeedFilter
 from .sim.integrate import simulate
 from .evaluation.invariance import invariant_share
 from .sim.mujoco_plant import mujoco_judge
@@ -43,6 +44,7 @@ __all__ = [
     "IdapbcError",
     "LQRController",
     "Run",
+    "SpeedFilter",
     "System",
     "TrainConfig",
     "certify",
@@ -56,7 +58,6 @@ __all__ = [
     "paired_comparison",
     "perturbed_system",
     "report",
-    "robustness_table",
     "roa",
     "roa_radius",
     "run_batch",

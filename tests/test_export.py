@@ -28,6 +28,7 @@ import idapbc_pin as ip
 from idapbc_pin.cli.main import main
 from idapbc_pin.control.controller import Controller
 from idapbc_pin.control.desired_flow import load_flow
+from idapbc_pin.control.speed_filter import SpeedFilter
 from idapbc_pin.deploy.export import EXPORTED_FILES
 from idapbc_pin.model.zoo import zoo_urdf_path
 
@@ -54,7 +55,9 @@ q, v = data["q"], data["v"]
 MANOEUVRE_TIMES = {MANOEUVRE_TIMES!r}
 single = np.array([controller.torque(qk, vk) for qk, vk in zip(q, v)])
 manoeuvre = np.stack([controller.swing_up_torque(q, v, t) for t in MANOEUVRE_TIMES])
-np.savez(result, batched=controller.torque(q, v), single=single, effort=controller.EFFORT, manoeuvre=manoeuvre)
+speed_filter = controller.SpeedFilter()
+filtered = np.stack([speed_filter.update(q + 0.01 * k, v + np.sin(k)) for k in range(5)])
+np.savez(result, batched=controller.torque(q, v), single=single, effort=controller.EFFORT, manoeuvre=manoeuvre, filtered=filtered)
 runpy.run_path(folder + "/controller.py", run_name="__main__")
 assert not any(m.partition(".")[0] in ("idapbc_pin", "torch") for m in sys.modules)
 """
@@ -151,6 +154,8 @@ def test_standalone_torque_equals_the_saturated_law(limited_pendubot, tmp_path):
     assert np.abs(out["batched"]).max() <= system.effort[0] * (1 + 1e-12)
     for tau in out["manoeuvre"]:  # a run without a swing-up manoeuvre: its torque at any time
         np.testing.assert_array_equal(tau, out["batched"])
+    speed_filter = SpeedFilter()  # the export's filter is the library's, with the same settings
+    np.testing.assert_array_equal(out["filtered"], np.stack([speed_filter.update(q + 0.01 * k, v + np.sin(k)) for k in range(5)]))
 
 
 @pytest.mark.parametrize("inside_gain, inside_ramp", [(1.0, [0.0, 0.0]), (3.0, [0.0, 0.0]), (3.0, [0.2, 0.5])])

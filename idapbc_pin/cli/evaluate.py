@@ -9,6 +9,7 @@ from pathlib import Path
 from ..certificate.certify import certify
 from ..evaluation.anywhere import evaluate_run_anywhere
 from ..evaluation.closed_loop import JUDGES, simulate_run
+from ..evaluation.robust_suite import SUITE_FILE, SuiteConfig, evaluate_run_suite
 from ..evaluation.robustness import default_conditions, robustness_table
 from ..reporting.report import report
 from ..reporting.simulation_figure import simulation_figure
@@ -16,7 +17,7 @@ from ..errors import IdapbcError
 from ..run import load_run
 from ._args import (add_box_argument, add_checkpoint_argument, add_horizon_argument, add_limits_argument, add_radius_argument, add_rho_argument,
                     add_run_argument, add_seed_argument, add_states_argument, add_workers_argument, add_x0_argument, key_range, library_default,
-                    seed_of, workers_of, x0_of)
+                    positive_int, seed_of, workers_of, x0_of)
 
 __all__ = ["add_eval_commands"]
 
@@ -107,9 +108,19 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
-    conds = default_conditions(**{k: getattr(args, k) for k in ("saturation", "noise") if hasattr(args, k)})  # unset: the library's
     seed = seed_of(args)
-    result = robustness_table(_run(args), n=args.n, T=args.T, seed=seed, box=args.box, conditions=conds, rho=args.rho, limits=not args.no_limits,
+    if not args.roa:
+        sizes = {k: getattr(args, k) for k in ("levels", "repetitions", "pushes")} | ({} if args.T is None else {"T": args.T})
+        run = _run(args)
+        result = evaluate_run_suite(run, SuiteConfig(**sizes), start=args.start, seed=seed, workers=workers_of(args), limits=not args.no_limits)
+        start = "exactly hanging" if result.start == "hanging" else "states of the half box, one per rollout"
+        print(f"robustness suite of {result.system} from {start}, {result.config.T:g} s per rollout, {result.rows.N} rollouts per law:\n")
+        print(result.table())
+        print(f"wrote {Path(args.run) / SUITE_FILE}")
+        return 0
+    conds = default_conditions(**{k: getattr(args, k) for k in ("saturation", "noise") if hasattr(args, k)})  # unset: the library's
+    T = library_default(robustness_table, "T") if args.T is None else args.T
+    result = robustness_table(_run(args), n=args.n, T=T, seed=seed, box=args.box, conditions=conds, rho=args.rho, limits=not args.no_limits,
                               workers=workers_of(args))
     print(result.table())
     print(f"wrote {Path(args.run) / 'robustness.json'}")
@@ -179,8 +190,23 @@ def add_eval_commands(subparsers) -> None:
     add_workers_argument(p)
     p.set_defaults(func=_cmd_report)
 
-    p = subparsers.add_parser("robustness", help="success rates under mass mismatch, saturation and noise, Neural IDA-PBC vs LQR")
-    _add_run_options(p, robustness_table, "states")
+    p = subparsers.add_parser("robustness", help="the robustness suite (model, speed noise, torque noise, lag, delay, pushes) beside saturated "
+                              "LQR and the energy pump; --roa: success rates from the box under mass mismatch, saturation and noise")
+    add_run_argument(p)
+    add_states_argument(p, robustness_table, "with --roa: states")
+    suite = SuiteConfig()
+    p.add_argument("--T", type=float, default=None, metavar="SECONDS",
+                   help=f"rollout length (default {suite.T:g}; with --roa {library_default(robustness_table, 'T'):g})")
+    add_seed_argument(p, robustness_table)
+    add_limits_argument(p)
+    add_checkpoint_argument(p)
+    p.add_argument("--from", dest="start", choices=("auto", "hanging", "box"), default="auto",
+                   help="the suite's start: exactly hanging, or one half-box state per rollout (default auto: hanging for a swing-up run)")
+    p.add_argument("--levels", type=positive_int, default=suite.levels, metavar="L", help=f"levels of every graded test (default {suite.levels})")
+    p.add_argument("--repetitions", type=positive_int, default=suite.repetitions, metavar="R",
+                   help=f"rollouts per noise level (default {suite.repetitions})")
+    p.add_argument("--pushes", type=positive_int, default=suite.pushes, metavar="P", help=f"push profiles (default {suite.pushes})")
+    p.add_argument("--roa", action="store_true", help="the older table instead: success from the box under mass ×0.8/×1.2, saturation and noise")
     add_box_argument(p, robustness_table)
     factor = library_default(robustness_table, "saturation_factor")
     p.add_argument("--saturation", type=float, default=argparse.SUPPRESS, metavar="U",

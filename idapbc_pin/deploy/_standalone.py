@@ -4,6 +4,7 @@
     tau = controller.torque(q, v)           # (nv,) -> (nv,) or (N, nv) -> (N, nv); N·m or N per joint
     controller.EFFORT                       # (m,) limit of each actuated input, inf where none
     tau = controller.swing_up_torque(q, v, t)   # the swing-up manoeuvre from rest, t s after its command
+    f = controller.SpeedFilter();  v_hat = f.update(q, v)   # speeds estimated from noisy ones, once per tick
     controller.JOINTS, controller.ACTUATED  # order of q, v and tau; order of u and EFFORT
 
 q holds one coordinate per joint in JOINTS order (rad or m; a continuous joint's angle itself, not
@@ -37,6 +38,11 @@ with X(t) = X_k + (t / knot − k)(X_{k+1} − X_k) ("end" after the last knot) 
 interpolated linearly between the knots' midpoints (U_0 before the first, the last after it), t
 counted from the command at rest near the hanging posture; after the plan, `torque(q, v)`.
 
+`SpeedFilter(**overrides)` (speed_filter.py, numpy only) is the steady-state Kalman filter the
+robustness suite judges the law with: keep one per robot, call ``v_hat = f.update(q, v)`` once per
+control tick on the measured q, v, and pass (q, v_hat) to `torque`; its settings (dt, the noise it
+assumes) are controller.json's "speed_filter", and keyword arguments override them.
+
 f̃_d = (J_d − R_d)∇H_d comes from desired_flow.py with weights.npz (the same function as
 desired_flow.onnx); D is the URDF's joint damping. The folder's controller.json holds the rest.
 `python controller.py` prints the torque at the target (≈ 0) and the latency of one state.
@@ -53,7 +59,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-__all__ = ["ACTUATED", "EFFORT", "JOINTS", "ExportedController", "torque"]
+__all__ = ["ACTUATED", "EFFORT", "JOINTS", "ExportedController", "SpeedFilter", "swing_up_torque", "torque"]
 
 HERE = Path(__file__).resolve().parent
 
@@ -244,6 +250,12 @@ _CONTROLLER = ExportedController(HERE)
 JOINTS, ACTUATED, EFFORT = _CONTROLLER.joints, _CONTROLLER.actuated, _CONTROLLER.effort
 torque = _CONTROLLER.torque
 swing_up_torque = _CONTROLLER.swing_up_torque
+_FILTER_SETTINGS = json.loads((HERE / "controller.json").read_text()).get("speed_filter") or {}
+
+
+def SpeedFilter(**overrides):
+    """A fresh speed filter with controller.json's settings (keyword arguments override them)."""
+    return _load_sibling(HERE, "speed_filter").SpeedFilter(**(_FILTER_SETTINGS | overrides))
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ The folder (``--out DIR``) holds::
 
     controller.py       torque(q, v) -> τ, saturated at EFFORT; numpy + Pinocchio only
     desired_flow.py     f̃_d = (J_d − R_d)∇H_d in numpy (`idapbc_pin.control.desired_flow`, copied)
+    speed_filter.py     `SpeedFilter`, the speed estimate to run on the measurements first (`idapbc_pin.control.speed_filter`, copied)
     weights.npz         the networks' weights (`DesiredFlow.arrays`), in their dtype
     controller.json     joints, actuated joints, B, x*, effort limits, damping, the law outside the
                         training box (if the run uses one), dtype, provenance
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .._io import atomic_write_bytes, write_json
-from ..control import desired_flow
+from ..control import desired_flow, speed_filter
 from ..errors import IdapbcError
 from ..run import resolve_run
 from .onnx_flow import onnx_model
@@ -32,7 +33,7 @@ from .readme import deploy_readme
 __all__ = ["EXPORTED_FILES", "export"]
 
 #: The files `export` writes; ``--force`` overwrites these and leaves anything else in DIR alone.
-EXPORTED_FILES = ("controller.py", "desired_flow.py", "weights.npz", "controller.json", "robot.urdf", "desired_flow.onnx", "README.md")
+EXPORTED_FILES = ("controller.py", "desired_flow.py", "speed_filter.py", "weights.npz", "controller.json", "robot.urdf", "desired_flow.onnx", "README.md")
 
 _STANDALONE = Path(__file__).with_name("_standalone.py")
 
@@ -78,6 +79,7 @@ def _controller_record(run, flow, onnx: bool) -> dict:
         "wrap": None if run.nets.angle_mask is None else run.nets.angle_mask.cpu().numpy().tolist(),  # angles wrapped to within π of x*
         "fallback": None if run.fallback is None else run.fallback.to_json(),  # the linear law outside the training box
         "manoeuvre": None if run.manoeuvre is None else run.manoeuvre.to_json(),  # the swing-up manoeuvre from rest
+        "speed_filter": speed_filter.SpeedFilter().to_json(),  # the settings controller.SpeedFilter() starts from
         "state_names": list(system.state_names),
         "dtype": str(flow.dtype),
         "urdf": "robot.urdf",
@@ -112,6 +114,7 @@ def export(run_or_path, out, *, force: bool = False, onnx: bool = True, checkpoi
     atomic_write_bytes(out / "weights.npz", weights.getvalue())
     atomic_write_bytes(out / "robot.urdf", urdf.read_bytes())
     atomic_write_bytes(out / "desired_flow.py", Path(desired_flow.__file__).read_bytes())
+    atomic_write_bytes(out / "speed_filter.py", Path(speed_filter.__file__).read_bytes())
     record = _controller_record(run, flow, onnx)
     write_json(out / "controller.json", record)
     if onnx_bytes is not None:

@@ -66,12 +66,18 @@ the controller once, outside the loop:
 
     import time, controller
     period = 1e-3
+    speeds = controller.SpeedFilter(dt=period)     # one per robot: it keeps its state between ticks
     next_tick = time.perf_counter()
     while running:
         q, v = robot.read_joint_state()            # in controller.JOINTS order
-        robot.write_joint_effort(controller.torque(q, v))
+        robot.write_joint_effort(controller.torque(q, speeds.update(q, v)))
         next_tick += period
         time.sleep(max(0.0, next_tick - time.perf_counter()))
+
+`SpeedFilter` (speed_filter.py, numpy only) estimates the speeds from the measured positions and
+noisy speeds, a steady-state Kalman filter per joint; `idapbc-pin robustness` judges the law with
+it. It assumes positions precise to about 1e-4 rad: with coarser encoders pass
+`position_noise=` (rad) their resolution.
 
 Python's sleep jitters by tens of µs; where the period must hold, run the law in C++ (below).
 
