@@ -7,8 +7,10 @@ so the default training box follows the variant's own masses), trains it with ev
 saturated LQR fails from ≥ 10 of 100 half-box states, a few minutes per robot; `--recover never`:
 the law alone) and judges NIDA-PBC and LQR (Q = I, R = I) with MuJoCo from the same
 uniform states (their own seed, not the evaluation's seed 0), with the URDF's effort limits on both,
-and prints NIDA-PBC's lead with its 95 % interval (`idapbc_pin.evaluation.paired`).
-Run: python benchmarks/bench_outside_zoo.py [--n 200] [--seed 0] [--judge-seed 1] [--recover auto|always|never] [--only NAME ...]
+and prints NIDA-PBC's lead with its 95 % interval (`idapbc_pin.evaluation.paired`). With several
+training seeds (``--seed 0 1 2``), each variant gets a row per seed and a line with the spread of its
+leads (per seed, the least and the median), the same judged states for every seed.
+Run: python benchmarks/bench_outside_zoo.py [--n 200] [--seed 0 [1 2]] [--judge-seed 1] [--recover auto|always|never] [--only NAME ...]
 """
 
 from __future__ import annotations
@@ -97,7 +99,7 @@ def _lead(res) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=200, help="states per box (default 200)")
-    parser.add_argument("--seed", type=int, default=0, help="training seed")
+    parser.add_argument("--seed", type=int, nargs="+", default=[0], help="training seeds (default 0; several: a row per seed and their spread)")
     parser.add_argument("--judge-seed", type=int, default=1, help="seed of the judged states")
     parser.add_argument("--only", nargs="+", default=None, help=f"variants to run (default all: {', '.join(v.name for v in VARIANTS)})")
     parser.add_argument("--recover", choices=RECOVER_MODES, default="auto", help="a recovery law after training, as `train --recover` (default auto, as train's)")
@@ -108,21 +110,30 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     chosen = [v for v in VARIANTS if args.only is None or v.name in args.only]
     print(f"cpus={os.cpu_count()} load={os.getloadavg()[0]:.2f} n={args.n} seed={args.seed} judge_seed={args.judge_seed} out={out}")
-    print("| variant | actuated (limit) | half box: NIDA-PBC / LQR (lead, 95 % CI) | domain: NIDA-PBC / LQR (lead, 95 % CI) | median settling, half: NIDA-PBC / LQR | recovery law | training + recover |")
+    print("| variant (seed) | actuated (limit) | half box: NIDA-PBC / LQR (lead, 95 % CI) | domain: NIDA-PBC / LQR (lead, 95 % CI) | median settling, half: NIDA-PBC / LQR | recovery law | training + recover |")
     print("|---|---|---|---|---|---|---|")
     for v in chosen:
         system = ip.load_system(write_variant(v, out), actuated=list(v.actuated), target=v.target or None)
-        t0 = time.perf_counter()
-        run = ip.train(system, ip.TrainConfig.fast(seed=args.seed), out=out / v.name, progress=False)
-        ip.recovery.auto_recover(run, args.recover, progress=False)
-        seconds = time.perf_counter() - t0
-        judge = ip.mujoco_judge(system)
-        ctrls = {"NIDA-PBC": run.controller, "LQR": LQRController(system)}
-        res = {box: roa(judge, ctrls, n=args.n, box=box, seed=args.judge_seed, limits=True) for box in ("half", "domain")}
-        rate = {box: " / ".join(f"{100 * r[k].success_rate:.1f} %" for k in ctrls) + f" ({_lead(r)})" for box, r in res.items()}
-        settle = " / ".join(f"{res['half'][k].median_settling_time:.2f} s" for k in ctrls)
-        limit = ", ".join(f"{j}={e:g}" for j, e in zip(v.actuated, system.effort))
-        print(f"| {v.name} | {limit} | {rate['half']} | {rate['domain']} | {settle} | {'kept' if run.uses_recovery else 'none'} | {seconds:.0f} s |", flush=True)
+        leads = {"half": [], "domain": []}
+        for seed in args.seed:
+            t0 = time.perf_counter()
+            run = ip.train(system, ip.TrainConfig.fast(seed=seed), out=out / v.name / f"seed{seed}", progress=False)
+            ip.recovery.auto_recover(run, args.recover, progress=False)
+            seconds = time.perf_counter() - t0
+            judge = ip.mujoco_judge(system)
+            ctrls = {"NIDA-PBC": run.controller, "LQR": LQRController(system)}
+            res = {box: roa(judge, ctrls, n=args.n, box=box, seed=args.judge_seed, limits=True) for box in ("half", "domain")}
+            for box, r in res.items():
+                leads[box].append(100 * r.compare("NIDA-PBC", "LQR").difference)
+            rate = {box: " / ".join(f"{100 * r[k].success_rate:.1f} %" for k in ctrls) + f" ({_lead(r)})" for box, r in res.items()}
+            settle = " / ".join(f"{res['half'][k].median_settling_time:.2f} s" for k in ctrls)
+            limit = ", ".join(f"{j}={e:g}" for j, e in zip(v.actuated, system.effort))
+            print(f"| {v.name} ({seed}) | {limit} | {rate['half']} | {rate['domain']} | {settle} | {'kept' if run.uses_recovery else 'none'} | "
+                  f"{seconds:.0f} s |", flush=True)
+        if len(args.seed) > 1:
+            spread = "; ".join(f"{box}: {', '.join(f'{x:+.1f}' for x in xs)} (least {min(xs):+.1f}, median {sorted(xs)[len(xs) // 2]:+.1f})"
+                               for box, xs in leads.items())
+            print(f"| {v.name}: lead per seed {', '.join(str(s) for s in args.seed)} | {spread} |||||", flush=True)
 
 
 if __name__ == "__main__":
