@@ -133,11 +133,12 @@ def test_a_settled_plan_rests_nearer_x_star_over_its_last_seconds_than_a_plain_o
 
 
 def test_the_rail_term_keeps_a_plan_on_the_rail_where_a_plan_without_it_runs_off():
-    """The zoo cartpole's rail is ±5 m; a start at 4 m moving out at 4 m/s, pole near upright."""
+    """The zoo cartpole's rail is ±5 m; a start at 4 m moving out at 4 m/s, pole near upright (30
+    iterations: the first full steps run far out before the rail term pulls the plan back)."""
     system = ip.load_system("cartpole")
     x0 = system.state_from(np.array([[4.0, 0.3]]), np.array([[4.0, 0.0]]))
     S, U0 = LQRController(system).S, np.zeros((1, 100, 1))
-    far = {rail: ilqr_plans(system, x0, U0, system.effort, 2.0, S, ILQRSettings(rail=rail))[1][0, :, 0].max() for rail in (0.0, 1e3)}
+    far = {rail: ilqr_plans(system, x0, U0, system.effort, 2.0, S, ILQRSettings(rail=rail, iterations=30))[1][0, :, 0].max() for rail in (0.0, 1e3)}
     assert far[0.0] > 5.0 and far[1e3] <= 5.0
 
 
@@ -267,3 +268,14 @@ def test_a_kill_during_the_stage_leaves_a_working_run_and_resume_finishes_the_st
     assert main(main_args) == 0
     resumed = ip.load_run(run.path)
     assert "recovery" in resumed.summary and not chunks.exists()  # the stage ran to its gate, and cleared its chunks
+
+
+def test_every_ilqr_plan_on_the_cart_double_pendulum_gets_cheaper():
+    """Six iterations from a zero input lower every plan's cost at least twofold on four half-box
+    starts of the zoo's cart double pendulum. A backward pass that folds its regularisation μI into
+    the value's Hessian makes V_xx indefinite there and takes no step at all (the cost stays put)."""
+    system = ip.load_system("cart_double_pendulum")
+    x0, S, U0 = uniform_states(system, 4, "half", 3), LQRController(system).S, np.zeros((4, 100, 1))
+    start = ilqr_plans(system, x0, U0, system.effort, 2.0, S, ILQRSettings(iterations=0))[3]
+    after = ilqr_plans(system, x0, U0, system.effort, 2.0, S, ILQRSettings(iterations=6))[3]
+    assert np.all(after <= 0.5 * start)

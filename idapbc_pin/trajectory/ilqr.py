@@ -26,7 +26,9 @@ forward dynamics, one batched call), as A = exp(J dt) and B = ∫exp(J s) ds ∂
 series to 4th order; the line search judges every step on the true rollout, so an approximate
 Jacobian costs iterations, never accuracy.
 
-The solver is iLQR (Li & Todorov 2004) with Levenberg-Marquardt regularisation per problem and the
+The solver is iLQR (Li & Todorov 2004) with Levenberg-Marquardt regularisation per problem (μ·BᵀB
+on Q_uu and Q_ux for the step only; the value's V_x, V_xx come from the plain terms, as in Tassa,
+Erez & Todorov 2012: folded into the value, μ makes V_xx indefinite and the pass refuses) and the
 box limits enforced by clamping in the backward pass (clamped inputs get no feedback: the simplest
 form of Tassa, Mansard & Todorov 2014). The line search tries every step size of `alphas` for every
 problem in one batched rollout. All problems advance together in arrays (N, ...), each with its own
@@ -62,7 +64,7 @@ class ILQRSettings:
     r : weight of the input's ‖u/ū‖² against the state's cost.
     terminal : weight w of the end state's ½ δᵀS_zδ.
     alphas : step sizes the line search tries, largest first.
-    mu0 : initial Levenberg-Marquardt regularisation of the value's Hessian.
+    mu0 : initial Levenberg-Marquardt regularisation of the step (μ I added to V_xx in Q_uu, Q_ux).
     rail : weight ρ of the rail term (module docstring); 0 leaves it out.
     rail_margin : share of a rail's range its limits are pulled in by, on each side.
     end_box : weight b of the end cost's b Q term (module docstring).
@@ -289,20 +291,23 @@ def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None, sig
         Qx = Qx + np.einsum("nij,nj->ni", At, Vx)
         Qu = dt * U[:, k] * r_scaled + np.einsum("nij,nj->ni", Bt, Vx)
         Qxx = Qxx + At @ Vxx @ Ak
-        Quu = R + Bt @ (Vxx + reg) @ Bk
-        Qux = Bt @ (Vxx + reg) @ Ak
+        Quu = R + Bt @ Vxx @ Bk
+        Qux = Bt @ Vxx @ Ak
         Quu = 0.5 * (Quu + np.swapaxes(Quu, 1, 2))
-        finite = np.isfinite(Quu).all((1, 2)) & np.isfinite(Qux).all((1, 2)) & np.isfinite(Qu).all(1) & np.isfinite(Qx).all(1)
+        Quu_r = Quu + Bt @ reg @ Bk  # the step from the regularised terms, the value from the plain ones (Tassa et al. 2012)
+        Qux_r = Qux + Bt @ reg @ Ak
+        finite = np.isfinite(Quu_r).all((1, 2)) & np.isfinite(Qux_r).all((1, 2)) & np.isfinite(Qu).all(1) & np.isfinite(Qx).all(1)
         Quu, Qux = np.where(finite[:, None, None], Quu, np.eye(m)), np.where(finite[:, None, None], Qux, 0.0)
+        Quu_r, Qux_r = np.where(finite[:, None, None], Quu_r, np.eye(m)), np.where(finite[:, None, None], Qux_r, 0.0)
         Qu, Qx, Qxx = np.where(finite[:, None], Qu, 0.0), np.where(finite[:, None], Qx, 0.0), np.where(finite[:, None, None], Qxx, 0.0)
-        pd = np.all(np.linalg.eigvalsh(Quu) > 0, axis=1)
+        pd = np.all(np.linalg.eigvalsh(Quu_r) > 0, axis=1)
         ok &= pd & finite  # a problem whose pass broke down takes no step this iteration
-        Quu = np.where(pd[:, None, None], Quu, np.eye(m))  # its step is not taken; any invertible Quu will do
-        inv = np.linalg.inv(Quu)
+        Quu_r = np.where(pd[:, None, None], Quu_r, np.eye(m))  # its step is not taken; any invertible Quu will do
+        inv = np.linalg.inv(Quu_r)
         target = U[:, k] - np.einsum("nij,nj->ni", inv, Qu)
         clamped = (target > bound) | (target < -bound)
         kk = np.clip(target, -bound, bound) - U[:, k]
-        KK = np.where(clamped[:, :, None], 0.0, -inv @ Qux)
+        KK = np.where(clamped[:, :, None], 0.0, -inv @ Qux_r)
         kff[:, k], gains[:, k] = kk, KK
         KKt = np.swapaxes(KK, 1, 2)
         Vx = Qx + np.einsum("nij,nj->ni", KKt, np.einsum("nij,nj->ni", Quu, kk) + Qu) + np.einsum("nji,nj->ni", Qux, kk)
