@@ -457,7 +457,7 @@ def test_on_a_tie_in_holds_the_gate_takes_a_fit_then_the_candidate_that_keeps_mo
 def test_the_anywhere_gate_keeps_a_library_by_its_own_rule_and_never_a_copy_of_the_law_it_replaces(tiny_swing_run):
     """`anywhere_gate`: the run's law and the library judged on the same states; the verdict is the
     documented rule on the figures it returns. A "library" that is the run's own law again is not
-    kept: it is not 0.25 s sooner (here neither reaches x*: never is not sooner than never)."""
+    kept: its tip is up for the same share of the time, not `ANYWHERE_MARGIN` more."""
     from idapbc_pin.recovery.anywhere_stage import ANYWHERE_MARGIN, LIBRARY_LOSS, anywhere_gate
     from tests.test_swing_tracks import _plan
 
@@ -467,12 +467,12 @@ def test_the_anywhere_gate_keeps_a_library_by_its_own_rule_and_never_a_copy_of_t
     library = tracking_law(run.system, U, Z, tvlqr_gains(run.system, U, Z), 0.1, kept_boxes(run.system, config)["posture"])
     gate = anywhere_gate(run, run.controller, library, config)
     assert gate["states"] == {"near": 3, "anywhere": 3, "box": 4} and len(gate["near"]) == len(gate["anywhere"]) == len(gate["box"]) == 2
-    inf = [math.inf if t is None else t for t in gate["time"]]
-    rule = (gate["anywhere"][1] >= gate["anywhere"][0] and math.isfinite(inf[1]) and inf[1] <= inf[0] - ANYWHERE_MARGIN and gate["near"][1] >= gate["near"][0] - LIBRARY_LOSS
+    assert all(0.0 <= u <= 1.0 for u in gate["up"])
+    rule = (gate["anywhere"][1] >= gate["anywhere"][0] and gate["up"][1] >= gate["up"][0] + ANYWHERE_MARGIN and gate["near"][1] >= gate["near"][0] - LIBRARY_LOSS
             and gate["box"][1] >= gate["box"][0] - config.box_loss)
     assert gate["used"] == rule
     same = anywhere_gate(run, run.box_controller, _NoLaw(), config)
-    assert same["near"][0] == same["near"][1] and same["time"][0] == same["time"][1] and not same["used"]
+    assert same["near"][0] == same["near"][1] and same["time"][0] == same["time"][1] and same["up"][0] == same["up"][1] and not same["used"]
 
 
 class _NoLaw:
@@ -480,3 +480,20 @@ class _NoLaw:
 
     def with_inner(self, inner):
         return inner
+
+
+def test_the_anywhere_gate_counts_the_tip_up_over_the_first_seconds_as_the_uptime_test_does():
+    """`_verdicts`' third figure: 1 for a state held at x*, 0 for a chain left hanging, and for a
+    chain that falls from x* the share of the window before the tip drops below the uptime's line."""
+    from idapbc_pin.model.resting import resting_configuration
+    from idapbc_pin.recovery.anywhere_stage import UP_WINDOW, _verdicts
+    from idapbc_pin.sim.leaderboard import tip_up
+
+    system = ip.load_system("pendubot")
+    zero = lambda x: np.zeros((len(np.atleast_2d(x)), system.m))  # noqa: E731
+    q = np.stack([np.asarray(system.x_star)[:2], resting_configuration(system), [0.05, 0.0]])
+    x0 = system.state_from(q, np.zeros_like(q))
+    held, _, up = _verdicts((system, zero, x0, UP_WINDOW + 1.0))
+    assert up[0] == 1.0 and up[1] == 0.0 and held[0] and not held[1]
+    traj = __import__("idapbc_pin").simulate(system, zero, x0[2:], T=UP_WINDOW)
+    assert 0.0 < up[2] < 1.0 and abs(up[2] - tip_up(system, traj.q[0]).mean()) <= 2.0 / len(traj.t)

@@ -217,3 +217,41 @@ def test_the_tracking_laws_tree_finds_the_same_nearest_point_as_every_point():
                       np.full(n, np.inf))
     x = np.concatenate([rng.uniform(-10, 10, (3000, n)), X[::5] + 1e-3 * rng.normal(size=(P // 5 + 1, n)), 1e3 * rng.normal(size=(20, n))])
     np.testing.assert_array_equal(law.nearest(x)[0], _brute_nearest(x, X, law.weight, mask))
+
+
+def test_a_joined_law_reads_whichever_law_has_the_nearer_knot(pendubot):
+    """`TrackingLaw.join`: over the knots of both laws, each state gets the input of the law whose
+    nearest knot is nearer (the distance of each law alone, by hand), with the first's weights and box."""
+    box = np.full(pendubot.n, np.inf)
+    a, b = (tracking_law(pendubot, U, Z, G, 0.3, box) for U, Z, G in (_plan(pendubot, seed=s) for s in (4, 5)))
+    joined = TrackingLaw.join([a, b])
+    assert len(joined.X) == len(a.X) + len(b.X) and joined.inner is None
+    np.testing.assert_array_equal(joined.weight, a.weight)
+    rng = np.random.default_rng(2)
+    x = np.concatenate([a.X, b.X]) + 0.05 * rng.normal(size=(len(a.X) + len(b.X), pendubot.n))
+
+    def distance(law):
+        k, d = law.nearest(x)
+        return ((d * a.weight) ** 2).sum(axis=1)
+
+    np.testing.assert_allclose(joined.law(x), np.where((distance(a) <= distance(b))[:, None], a.law(x), b.law(x)), rtol=0, atol=1e-12)
+
+
+def test_the_anywhere_step_joins_the_tracking_law_it_would_replace(pendubot, monkeypatch):
+    """Where the run's swing-up law is a tracking law, the library judged by the anywhere gate carries
+    its knots too (and the entry says how many); a run without one is judged on the library alone."""
+    from types import SimpleNamespace
+
+    from idapbc_pin.recovery import anywhere_stage
+    from idapbc_pin.recovery.config import SwingUpConfig
+
+    box = np.full(pendubot.n, np.inf)
+    library, own = (tracking_law(pendubot, U, Z, G, 0.1, box) for U, Z, G in (_plan(pendubot, seed=s) for s in (6, 7)))
+    judged = []
+    monkeypatch.setattr(anywhere_stage, "library_law", lambda *args, **kw: (library, 1, 1))
+    monkeypatch.setattr(anywhere_stage, "anywhere_gate", lambda run, current, law, config: judged.append(law) or {"used": True})
+    for fallback, knots in ((own.with_inner(None), len(library.X) + len(own.X)), (None, len(library.X))):
+        monkeypatch.setattr(anywhere_stage, "resolve_run", lambda path: SimpleNamespace(controller=SimpleNamespace(fallback=fallback)))
+        kept, entry = anywhere_stage.run_anywhere_step(SimpleNamespace(path=None), pendubot, None, box, SwingUpConfig(), progress=False)
+        assert len(kept.X) == knots and entry.get("joined", 0) == knots - len(library.X)
+        np.testing.assert_array_equal(kept.X[: len(library.X)], library.X)

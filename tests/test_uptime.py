@@ -14,7 +14,8 @@ import idapbc_pin as ip
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.evaluation import uptime as uptime_module
 from idapbc_pin.evaluation.swingup import swingup_states
-from idapbc_pin.evaluation.uptime import reset_postures, reset_schedule, tip_up, uptime_test
+from idapbc_pin.evaluation.uptime import reset_postures, reset_schedule, uptime_test
+from idapbc_pin.sim.leaderboard import tip_up
 from idapbc_pin.model.resting import resting_configuration
 from idapbc_pin.sim.integrate import simulate
 

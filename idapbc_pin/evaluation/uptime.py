@@ -7,7 +7,7 @@ apart with a jitter U(−`jitter`, `jitter`) s each (±1 s), the state is put di
 uniformly from the full circle (every angle x*'s + U(−π, π); a linear coordinate at the resting
 posture's), at rest. The law runs on, with no clock and no notice. The score is the **uptime**: the
 share of the episode's samples at which the tip is up (the tip test's normalised height ≥
-`TIP_SHARE`: the leaderboard's 0.9 of the upright height above the pivot, for a chain hanging from
+`sim.leaderboard.tip_up`: the leaderboard's 0.9 of the upright height above the pivot, for a chain hanging from
 it), with a cart on its rail at that sample. A row of a segment that diverged counts as down for the
 whole segment.
 
@@ -31,11 +31,10 @@ import numpy as np
 from .._parallel import process_map
 from ..model.resting import resting_configuration
 from ..sim.integrate import simulate
-from ..sim.leaderboard import TIP_SHARE, tip_share
-from ..sim.metrics import rail_limits
+from ..sim.leaderboard import tip_up
 from ..sim.step import DEFAULT_STEP
 
-__all__ = ["UPTIME_EPISODES", "UPTIME_JITTER", "UPTIME_RESETS", "UPTIME_T", "UptimeResult", "reset_schedule", "reset_postures", "tip_up",
+__all__ = ["UPTIME_EPISODES", "UPTIME_JITTER", "UPTIME_RESETS", "UPTIME_T", "UptimeResult", "reset_schedule", "reset_postures",
            "uptime_test"]
 
 #: The leaderboard's episode: T s, `UPTIME_RESETS` resets with ±`UPTIME_JITTER` s of jitter; the mean over `UPTIME_EPISODES` episodes.
@@ -64,14 +63,6 @@ def reset_postures(system, rng: np.random.Generator, n: int) -> np.ndarray:
     drawn = np.asarray(system.x_star, float)[:nq] + rng.uniform(-np.pi, np.pi, (n, nq))
     q = np.where(angle, drawn, q)
     return system.state_from(q, np.zeros_like(q))
-
-
-def tip_up(system, q: np.ndarray) -> np.ndarray:
-    """(...) bool: the tip is up at configurations q (..., nq): its normalised height
-    (h − h_rest)/(h* − h_rest) ≥ `TIP_SHARE`, and every linear coordinate within its rail."""
-    q = np.asarray(q, float)
-    lower, upper = rail_limits(system)
-    return (tip_share(system, q) >= TIP_SHARE) & ((q >= lower) & (q <= upper)).all(axis=-1)
 
 
 @dataclass(frozen=True)

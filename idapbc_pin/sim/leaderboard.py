@@ -37,10 +37,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..model.resting import resting_configuration, tip_height
-from .metrics import on_rail
+from .metrics import on_rail, rail_limits
 from .trajectory import Trajectory
 
-__all__ = ["NORMALISATION", "TIP_SHARE", "LeaderboardScore", "leaderboard_score", "row_score", "stays_from", "tip_share", "tip_swingup_times"]
+__all__ = ["NORMALISATION", "TIP_SHARE", "LeaderboardScore", "leaderboard_score", "row_score", "stays_from", "tip_share", "tip_swingup_times", "tip_up"]
 
 #: The tip test: normalised tip height ≥ TIP_SHARE (0.95 ⇔ the leaderboard's 0.9 L above the pivot).
 TIP_SHARE = 0.95
@@ -125,6 +125,14 @@ def tip_share(system, q) -> np.ndarray:
     h_rest = float(tip_height(system, resting_configuration(system)))
     h_star = float(tip_height(system, np.asarray(system.x_star, float)[:nq]))
     return ((tip_height(system, q.reshape(-1, nq)) - h_rest) / (h_star - h_rest)).reshape(q.shape[:-1])
+
+
+def tip_up(system, q: np.ndarray) -> np.ndarray:
+    """(...) bool: the tip is up at configurations q (..., nq): its normalised height
+    (h − h_rest)/(h* − h_rest) ≥ `TIP_SHARE`, and every linear coordinate within its rail."""
+    q = np.asarray(q, float)
+    lower, upper = rail_limits(system)
+    return (tip_share(system, q) >= TIP_SHARE) & ((q >= lower) & (q <= upper)).all(axis=-1)
 
 
 def tip_swingup_times(system, traj: Trajectory) -> np.ndarray:

@@ -100,7 +100,4 @@ def plan_library(system, catch, starts: np.ndarray, box: np.ndarray, *, horizon:
     if not nominals:
         return None, 0
     laws = [tracking_law(system, U, Z, tvlqr_gains(system, U, Z), speed_weight, box) for U, Z in nominals]
-    first = laws[0]
-    law = TrackingLaw(np.concatenate([t.X for t in laws]), np.concatenate([t.U for t in laws]), np.concatenate([t.K for t in laws]),
-                      first.weight, first.x_star, first.effort, first.angle_mask, first.box)
-    return law, len(nominals)
+    return TrackingLaw.join(laws), len(nominals)

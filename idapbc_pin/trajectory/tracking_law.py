@@ -105,6 +105,14 @@ class TrackingLaw(KeptBoxLaw):
         k, d = self.nearest(x)
         return np.clip(self.U[k] + np.einsum("nij,nj->ni", self.K[k], d), -self.effort, self.effort)
 
+    @classmethod
+    def join(cls, laws: list["TrackingLaw"]) -> "TrackingLaw":
+        """One law over every knot of `laws` (same system), read with the first's distance weights and
+        kept box, around no inner law."""
+        first = laws[0]
+        return cls(np.concatenate([t.X for t in laws]), np.concatenate([t.U for t in laws]), np.concatenate([t.K for t in laws]),
+                   first.weight, first.x_star, first.effort, first.angle_mask, first.box)
+
     def arrays(self) -> dict:
         """The law as named arrays (swingup.npz of a run, without `inner`): X, U, K, weight, x_star,
         effort, angle_mask, box."""
