@@ -19,11 +19,13 @@ from idapbc_pin.model.zoo import ZOO, ZooEntry, zoo_dir, zoo_entry, zoo_names, z
 EXPECTED = {
     "acrobot": (("shoulder", "elbow"), 2, {"shoulder", "elbow"}),
     "cart_double_pendulum": (("slider", "hinge1", "hinge2"), 3, {"hinge1", "hinge2"}),
+    "cart_double_pendulum_short_rail": (("slider", "hinge1", "hinge2"), 3, {"hinge1", "hinge2"}),
     "cartpole": (("slider", "hinge"), 2, {"hinge"}),
     "double_pendulum": (("shoulder", "elbow"), 2, {"shoulder", "elbow"}),
     "furuta": (("arm", "pendulum"), 2, {"pendulum"}),
     "pendubot": (("shoulder", "elbow"), 2, {"shoulder", "elbow"}),
     "reaction_wheel": (("pivot", "wheel"), 3, {"pivot"}),
+    "triple_pendulum": (("shoulder", "elbow", "wrist"), 3, {"shoulder", "elbow", "wrist"}),
 }
 
 N_RANDOM = 50

@@ -65,6 +65,13 @@ _ENTRIES = (
         description="Double inverted pendulum on a cart pushed by a horizontal force.",
     ),
     ZooEntry(
+        name="cart_double_pendulum_short_rail",
+        urdf="cart_double_pendulum_short_rail.urdf",
+        actuated=("slider",),
+        tags=("underactuated", "underactuation-2", "planar", "prismatic"),
+        description="Double inverted pendulum on a cart with a laboratory rig's short rail (±0.7 m).",
+    ),
+    ZooEntry(
         name="cartpole",
         urdf="cartpole.urdf",
         actuated=("slider",),
@@ -91,6 +98,13 @@ _ENTRIES = (
         actuated=("shoulder",),
         tags=("underactuated", "underactuation-1", "planar"),
         description="Two-link arm actuated at the shoulder only (pendubot), balanced upright.",
+    ),
+    ZooEntry(
+        name="triple_pendulum",
+        urdf="triple_pendulum.urdf",
+        actuated=("shoulder",),
+        tags=("underactuated", "underactuation-2", "planar"),
+        description="Three-link arm actuated at the shoulder only (a three-link pendubot), balanced upright.",
     ),
     ZooEntry(
         name="reaction_wheel",
