@@ -4,7 +4,7 @@ from anywhere and loses nothing near hanging or in the box.
 
 1. **Library.** `SwingUpConfig.library` postures at rest from the full circle (seed `plan_seed` +
    700) and the resting posture, each planned in `library_horizon` s (`library_iterations` iLQR
-   iterations) within `track_share` of the limits and caught by the stage's teacher (`PumpThenRun`)
+   iterations) within `library_share` of the limits and caught by the stage's teacher (`PumpThenRun`)
    into a hold over `judge_T`; the nominals' knots read at the nearest point (speed weight
    `LIBRARY_SPEED_WEIGHT`), around the run's own outer law, outside the training box's angles. Where
    the swing-up gate kept a tracking law (nominals from the resting posture, with horizons long enough
@@ -65,7 +65,7 @@ def library_law(system, catch, box: np.ndarray, config: SwingUpConfig, progress:
     """Step 1 of the module docstring: (the library's `TrackingLaw` with the kept `box`, or None; how
     many of its starts have a nominal; how many starts); with `progress`, a bar over its chunks."""
     starts = library_starts(system, config.library, config.plan_seed + 700)
-    law, found = plan_library(system, catch, starts, box, horizon=config.library_horizon, share=config.track_share,
+    law, found = plan_library(system, catch, starts, box, horizon=config.library_horizon, share=config.library_share,
                               iterations=config.library_iterations, judge_T=config.judge_T, seed=config.plan_seed + 800,
                               speed_weight=LIBRARY_SPEED_WEIGHT, workers=config.workers, progress="swing-up: library" if progress else None)
     return law, found, len(starts)

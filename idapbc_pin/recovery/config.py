@@ -167,7 +167,9 @@ class SwingUpConfig(Settings):
     library : postures at rest from the full circle (and the resting posture) that the anywhere step
         plans from (`recovery.anywhere_stage`, `trajectory.library`): a library of short plans read
         at the nearest point, kept as the swing-up law where it brings the robot up from anywhere
-        sooner and loses nothing near hanging or in the box; 0: no anywhere step.
+        up faster and loses nothing near hanging or in the box; 0: no anywhere step.
+    library_share : share of the effort limits the library's plans use: less than the nominals'
+        `track_share`, so that the gains keep room to recover from a push or a poor knot.
     library_horizon : length of each of the library's plans, s.
     library_iterations : iterations of the iLQR solves of the library's plans.
     workers, ray : as `RecoveryConfig`'s: processes (0: one per core) or Ray tasks; the time only.
@@ -199,13 +201,14 @@ class SwingUpConfig(Settings):
     manoeuvre: bool = True
     manoeuvre_horizons: tuple = (1.5, 2.0)
     library: int = 128
+    library_share: float = 0.6
     library_horizon: float = 1.0
     library_iterations: int = 40
     workers: int = 0
     ray: str | None = None
 
     def __post_init__(self):
-        ok = (all(0 < r <= 1 for r in self.inner_scales) and 0 < self.track_share <= 1
+        ok = (all(0 < r <= 1 for r in self.inner_scales) and 0 < self.track_share <= 1 and 0 < self.library_share <= 1
               and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations, self.library_iterations) >= 1
               and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library) >= 0
               and 0 < self.library_horizon <= self.judge_T - 2.0
@@ -213,5 +216,5 @@ class SwingUpConfig(Settings):
               and all(0 < h <= self.judge_T - 2.0 for h in self.manoeuvre_horizons))
         if not ok:
             raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch, ilqr_iterations, track_iterations and library_iterations "
-                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales and track_share in (0, 1], circle in [0, 10], horizon, "
+                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales, track_share and library_share in (0, 1], circle in [0, 10], horizon, "
                               "manoeuvre_horizons and library_horizon > 0 and judge_T ≥ each of them + 2 s. Fix: pass valid values.")
