@@ -6,9 +6,9 @@ starts at rest in the resting posture (a chain hanging). At `resets` = 15 times,
 apart with a jitter U(−`jitter`, `jitter`) s each (±1 s), the state is put directly at a posture drawn
 uniformly from the full circle (every angle x*'s + U(−π, π); a linear coordinate at the resting
 posture's), at rest. The law runs on, with no clock and no notice. The score is the **uptime**: the
-share of the episode's samples at which the tip is up (the tip test's normalised height ≥
-`sim.leaderboard.tip_up`: the leaderboard's 0.9 of the upright height above the pivot, for a chain hanging from
-it), with a cart on its rail at that sample. A row of a segment that diverged counts as down for the
+share of the episode's samples at which the tip is up (`sim.leaderboard.tip_up`: the tip test's
+normalised height ≥ 0.95, the leaderboard's 0.9 of the upright height above the pivot for a chain
+hanging from it, with a cart on its rail at that sample). A row of a segment that diverged counts as down for the
 whole segment.
 
 `uptime_test` judges several controllers on the same `episodes` schedules (fixed seed); each segment
