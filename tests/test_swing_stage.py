@@ -13,7 +13,7 @@ import idapbc_pin as ip
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.recovery.config import SwingUpConfig
 from idapbc_pin.recovery.swing_law import SwingUpLaw, swing_features
-from idapbc_pin.recovery.swing_stage import fit_swing_law, kept_boxes, swing_up
+from idapbc_pin.recovery.swing_stage import fit_swing_law, kept_boxes, posture_box, swing_up
 from idapbc_pin.trajectory.tracks import tracking_law, tvlqr_gains
 from idapbc_pin.run import SWINGUP_FILE, SWINGUP_REFUSED_FILE
 from idapbc_pin.sim.states import resting_states
@@ -63,6 +63,28 @@ def test_the_swing_up_law_acts_only_where_the_posture_leaves_the_box_and_stays_w
     inside = (np.abs(d) <= boxed.box).all(axis=1)
     np.testing.assert_array_equal(boxed.apply(x, np.full((len(x), system.m), 123.0))[inside], 123.0)
     assert not inside[~posture_in].any() and 0 < inside.sum() < posture_in.sum()
+
+
+def test_the_kept_box_reads_the_box_angles_and_a_multiple_of_its_momenta_and_never_the_cart():
+    """`posture_box`: a state in the box's postures but faster than `kept_momenta` times the box's
+    momenta is left to the swing-up law; a cart's position is never read; 0 reads no momentum."""
+    system = ip.load_system("cartpole")
+    lo, hi = (np.asarray(b, float) for b in system.domain)
+    s, mask = (hi - lo) / 2, np.asarray(system.angle_mask, bool)
+    box = posture_box(system, SwingUpConfig(kept_momenta=3.0))
+    np.testing.assert_array_equal(box[: system.nq], np.where(mask[: system.nq], s[: system.nq], np.inf))
+    np.testing.assert_allclose(box[system.nq:], 3.0 * s[system.nq:])
+    assert np.isinf(posture_box(system, SwingUpConfig(kept_momenta=0.0))[system.nq:]).all()
+    np.testing.assert_array_equal(kept_boxes(system, SwingUpConfig(kept_momenta=3.0))["posture"], box)
+    law = random_swing_law(system, box=box)
+    slow, fast = system.x_star.copy(), system.x_star.copy()
+    slow[system.nq:] = 2.9 * s[system.nq:]
+    fast[system.nq:] = 3.1 * s[system.nq:]
+    far_cart = slow.copy()
+    far_cart[0] = system.x_star[0] + 50.0 * s[0]
+    assert not law.outside(np.stack([slow, far_cart])).any() and law.outside(fast[None]).all()
+    with pytest.raises(ip.IdapbcError, match="kept_momenta"):
+        SwingUpConfig(kept_momenta=-1.0)
 
 
 def test_the_swing_up_law_is_continuous_through_the_hanging_posture(weak_pendubot):

@@ -152,6 +152,10 @@ class SwingUpConfig(Settings):
     inner_scales : kept boxes r·s (every component) the gate tries beside the training box's angles
         alone (`swing_stage.kept_boxes`); none by default: a law acting through the box's postures
         at speed held fewer swing-ups than one that leaves every posture of the box to the run's law.
+    kept_momenta : the kept box's momenta, as a multiple of the training box's (0: not read): beyond
+        them the swing-up law acts even in the box's postures, where the run's law, trained at low
+        speed, would command torques that pump energy (a push through the top at speed can then spin
+        a link up without bound).
     judge_T : horizon of every swing-up rollout (the teacher's, the plans', DAgger's, the gate's), s.
     tracks : tracking laws (`trajectory.tracks`: nominal plans from the exact resting posture,
         each tracked from the nearest point by a time-varying LQR) the gate judges beside the fits; 0:
@@ -194,6 +198,7 @@ class SwingUpConfig(Settings):
     margin: int = 2
     box_loss: int = 2
     inner_scales: tuple = ()
+    kept_momenta: float = 5.0
     judge_T: float = 10.0
     tracks: int = 2
     track_iterations: int = 80
@@ -212,9 +217,9 @@ class SwingUpConfig(Settings):
               and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations, self.library_iterations) >= 1
               and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library) >= 0
               and 0 < self.library_horizon <= self.judge_T - 2.0
-              and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10
+              and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10 and self.kept_momenta >= 0
               and all(0 < h <= self.judge_T - 2.0 for h in self.manoeuvre_horizons))
         if not ok:
             raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch, ilqr_iterations, track_iterations and library_iterations "
-                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales, track_share and library_share in (0, 1], circle in [0, 10], horizon, "
+                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales, track_share and library_share in (0, 1], circle in [0, 10], kept_momenta ≥ 0, horizon, "
                               "manoeuvre_horizons and library_horizon > 0 and judge_T ≥ each of them + 2 s. Fix: pass valid values.")

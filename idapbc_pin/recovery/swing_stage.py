@@ -18,22 +18,24 @@ holds every number.
    swing-up's) join them, so that the law also knows the box.
 2. **Fit.** A `SwingUpLaw` MLP (features: sin and cos of every angle, the other components scaled
    by the labels' spread) by least squares on u/ū (`trajectory.fit.fit_mlp`).
-3. **DAgger**, `dagger` rounds: the run's law with the fitted swing-up law (outside the training
-   box's angles) runs from `dagger_starts` new near-resting starts (and `circle` times as many from
-   the circle); the states its failures visit at 1, 2.5 and 4 s are labelled as in step 1, with
-   that law as the teacher (its own rollouts label the states it brings to x*, and its failed
-   inputs warm-start the plans of the others), and a fresh law is fitted on all labels. Where the
-   first fit holds none of the first round's starts, the rounds end there (`stop_when_lost`).
+3. **DAgger**, `dagger` rounds: the run's law with the fitted swing-up law (outside its kept box,
+   `posture_box`: the training box's angles and a multiple of its momenta) runs from `dagger_starts`
+   new near-resting starts (and `circle` times as many from the circle); the states its failures
+   visit at 1, 2.5 and 4 s are labelled as in step 1, with that law as the teacher (its own rollouts
+   label the states it brings to x*, and its failed inputs warm-start the plans of the others), and
+   a fresh law is fitted on all labels. Where the first fit holds none of the first round's starts,
+   the rounds end there (`stop_when_lost`).
 4. **Gate.** The run's law as it is and with each fitted swing-up law (the first fit's and each
    DAgger round's, then the `tracks` best tracking laws of `swing_tracks`: nominal plans from the
-   exact resting posture read at the nearest point) outside each candidate kept box (the training box's angles alone, and r·s for r
-   in `inner_scales`, none by default), judged from `gate_states` near-resting states of their own
-   and `circle` times as many from the circle ("holds" over `judge_T`, `sim.metrics.holds`), and
-   from `box_states` states of the half box and the training box (success over 20 s). Among the
-   candidates that lose at most `box_loss` of the box states the run's law brings to x* (all of
-   them, where none does), the one that holds the most swing-up states is chosen (ties: a fit before
-   a tracking law, then the one that brings more box states to x*, the later, the larger kept box); it is kept when it holds at least `margin` more than the run's law and
-   keeps the box.
+   exact resting posture read at the nearest point) outside each candidate kept box (`posture_box`,
+   and r·s for r in `inner_scales`, none by default), judged from `gate_states` near-resting states
+   of their own and `circle` times as many from the circle ("holds" over `judge_T`,
+   `sim.metrics.holds`), and from `box_states` states of the half box and the training box (success
+   over 20 s). Among the candidates that lose at most `box_loss` of the box states the run's law
+   brings to x* (all of them, where none does), the one that holds the most swing-up states is
+   chosen (ties: a fit before a tracking law, then the one that brings more box states to x*, the
+   later, the larger kept box); it is kept when it holds at least `margin` more than the run's law
+   and keeps the box.
 
 5. **Anywhere** (`library` > 0; `anywhere_stage`): a library of short plans from postures all
    round the circle, read at the nearest point, replaces the law the gate left where it brings the
@@ -94,11 +96,20 @@ def _box_half_widths(system) -> np.ndarray:
     return (hi - lo) / 2
 
 
-def kept_boxes(system, config: SwingUpConfig) -> dict:
-    """The candidate kept boxes of the gate, {name: (n,) half-widths}: "posture" (the training box's
-    angles, ∞ elsewhere), and "r = …" (r·s on every component) for r in `config.inner_scales`."""
+def posture_box(system, config: SwingUpConfig) -> np.ndarray:
+    """(n,) the kept box of a swing-up law: the training box's angles, its momenta × `kept_momenta`
+    (∞ where 0), every other coordinate not read (∞)."""
     s, mask = _box_half_widths(system), np.asarray(system.angle_mask, dtype=bool)
-    return {"posture": np.where(mask, s, np.inf)} | {f"r = {r:g}": float(r) * s for r in config.inner_scales}
+    momenta = np.arange(s.size) >= system.nq
+    k = float(config.kept_momenta)
+    return np.where(mask, s, np.where(momenta & (k > 0), k * s, np.inf))
+
+
+def kept_boxes(system, config: SwingUpConfig) -> dict:
+    """The candidate kept boxes of the gate, {name: (n,) half-widths}: "posture" (`posture_box`),
+    and "r = …" (r·s on every component) for r in `config.inner_scales`."""
+    s = _box_half_widths(system)
+    return {"posture": posture_box(system, config)} | {f"r = {r:g}": float(r) * s for r in config.inner_scales}
 
 
 def _labels_config(config: SwingUpConfig) -> RecoveryConfig:
@@ -110,7 +121,7 @@ def _labels_config(config: SwingUpConfig) -> RecoveryConfig:
 def fit_swing_law(system, X: np.ndarray, U: np.ndarray, config: SwingUpConfig, seed: int | None = None,
                   progress: str | None = None) -> tuple[SwingUpLaw, float]:
     """Least-squares fit of a `SwingUpLaw` to labels X (K, n), U (K, m) (within ±ū) around no inner
-    law, with the training box's angles as its kept box; returns (law, the last minibatch's mean
+    law, with `posture_box` as its kept box; returns (law, the last minibatch's mean
     squared error in units of ū)."""
     effort = np.asarray(system.effort, dtype=np.float64)
     x_star, mask = np.asarray(system.x_star, dtype=np.float64), np.asarray(system.angle_mask, dtype=bool)
@@ -120,7 +131,7 @@ def fit_swing_law(system, X: np.ndarray, U: np.ndarray, config: SwingUpConfig, s
     F = swing_features(delta, mask, scale)
     (weights, biases), mse = fit_mlp(F, U / effort, config.width, config.steps, config.fit_seed if seed is None else seed,
                                      None, progress, config.batch)
-    return SwingUpLaw(weights, biases, x_star, scale, effort, mask, np.where(mask, box, np.inf)), mse
+    return SwingUpLaw(weights, biases, x_star, scale, effort, mask, posture_box(system, config)), mse
 
 
 def _box_labels(run, system, limit: int) -> tuple[np.ndarray, np.ndarray]:
@@ -288,7 +299,7 @@ def _dagger_round(system, teacher, law: SwingUpLaw, X: np.ndarray, U: np.ndarray
     where the first round's law holds none of its starts and `stop_when_lost`, nothing is labelled
     and the counts say "stopped"."""
     xd = swing_starts(system, config.dagger_starts, config.circle, config.plan_seed + 300 + r)
-    ctrl = teacher.with_fallback(law.with_inner(teacher.fallback))  # its kept box: the training box's angles
+    ctrl = teacher.with_fallback(law.with_inner(teacher.fallback))  # its kept box: `posture_box`
     traj = simulate(system, ctrl, xd, T=config.judge_T, dt=PLAN_STEP)
     failed = np.flatnonzero(~holds(traj, system))
     if r == 0 and config.stop_when_lost and failed.size == len(xd):
