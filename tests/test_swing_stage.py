@@ -424,6 +424,7 @@ def test_the_stage_judges_tracking_laws_and_a_manoeuvre_from_its_nominals_and_a_
     assert entry["gate"]["fitted"] == fits and all(len(held) == fits + 2 for held in entry["gate"]["candidates"].values())
     run = ip.load_run(path)
     judged = run.summary["swing_manoeuvre"]
+    assert "anywhere" in run.summary["swing_up"]  # the anywhere step, after the manoeuvre, keeps its entry
     assert judged["states"] == TINY["gate_states"] and judged["horizons"] == [0.5, 0.25] and judged["choice"] == 0  # one nominal of each horizon
     own, run_score = judged["rest_score"]["manoeuvre"], judged["rest_score"]["run"]
     assert own is not None and run_score is not None and len(judged["picked_score"]) == 2  # a URDF robot: v2 scores from rest

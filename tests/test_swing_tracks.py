@@ -237,21 +237,29 @@ def test_a_joined_law_reads_whichever_law_has_the_nearer_knot(pendubot):
     np.testing.assert_allclose(joined.law(x), np.where((distance(a) <= distance(b))[:, None], a.law(x), b.law(x)), rtol=0, atol=1e-12)
 
 
-def test_the_anywhere_step_joins_the_tracking_law_it_would_replace(pendubot, monkeypatch):
-    """Where the run's swing-up law is a tracking law, the library judged by the anywhere gate carries
-    its knots too (and the entry says how many); a run without one is judged on the library alone."""
+def test_the_anywhere_step_joins_the_manoeuvre_else_the_tracking_law_it_would_replace(pendubot, monkeypatch):
+    """The library judged by the anywhere gate carries the knots of a nominal from hanging: the run's
+    manoeuvre where it keeps one, else its swing-up law where that is a tracking law (and the entry
+    says which, and how many); a run with neither is judged on the library alone."""
     from types import SimpleNamespace
 
     from idapbc_pin.recovery import anywhere_stage
     from idapbc_pin.recovery.config import SwingUpConfig
 
     box = np.full(pendubot.n, np.inf)
-    library, own = (tracking_law(pendubot, U, Z, G, 0.1, box) for U, Z, G in (_plan(pendubot, seed=s) for s in (6, 7)))
+    library, own, fast = (tracking_law(pendubot, U, Z, G, 0.1, box) for U, Z, G in (_plan(pendubot, seed=s) for s in (6, 7, 8)))
+    fast = fast.with_box(box)
     judged = []
     monkeypatch.setattr(anywhere_stage, "library_law", lambda *args, **kw: (library, 1, 1))
     monkeypatch.setattr(anywhere_stage, "anywhere_gate", lambda run, current, law, config: judged.append(law) or {"used": True})
-    for fallback, knots in ((own.with_inner(None), len(library.X) + len(own.X)), (None, len(library.X))):
-        monkeypatch.setattr(anywhere_stage, "resolve_run", lambda path: SimpleNamespace(controller=SimpleNamespace(fallback=fallback)))
+    cases = ((own.with_inner(None), SimpleNamespace(track=fast), fast, "manoeuvre"), (own.with_inner(None), None, own, "tracking law"),
+             (None, None, None, None))
+    for fallback, manoeuvre, joined, source in cases:
+        now = SimpleNamespace(controller=SimpleNamespace(fallback=fallback), manoeuvre=manoeuvre)
+        monkeypatch.setattr(anywhere_stage, "resolve_run", lambda path: now)
         kept, entry = anywhere_stage.run_anywhere_step(SimpleNamespace(path=None), pendubot, None, box, SwingUpConfig(), progress=False)
-        assert len(kept.X) == knots and entry.get("joined", 0) == knots - len(library.X)
+        extra = 0 if joined is None else len(joined.X)
+        assert len(kept.X) == len(library.X) + extra and entry.get("joined", 0) == extra and entry.get("joined_from") == source
         np.testing.assert_array_equal(kept.X[: len(library.X)], library.X)
+        if joined is not None:
+            np.testing.assert_array_equal(kept.X[len(library.X):], joined.X)

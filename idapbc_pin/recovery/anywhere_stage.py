@@ -6,10 +6,10 @@ from anywhere and loses nothing near hanging or in the box.
    700) and the resting posture, each planned in `library_horizon` s (`library_iterations` iLQR
    iterations) within `library_share` of the limits and caught by the stage's teacher (`PumpThenRun`)
    into a hold over `judge_T`; the nominals' knots read at the nearest point (speed weight
-   `LIBRARY_SPEED_WEIGHT`), around the run's own outer law, outside the training box's angles. Where
-   the swing-up gate kept a tracking law (nominals from the resting posture, with horizons long enough
-   to pump), its knots join the library's: a 1-s plan from hanging must lean on its catch, so without
-   them the library reads poor knots near hanging.
+   `LIBRARY_SPEED_WEIGHT`), around the run's own outer law, outside its kept box. A 1-s plan from
+   hanging must lean on its catch, so the library alone reads poor knots near hanging: the knots of
+   a nominal from the resting posture join it, the run's manoeuvre's where it keeps one (its
+   fastest swing-up from rest), else those of the tracking law the swing-up gate kept.
 2. **Gate.** The run's law as the swing-up gate left it (with its swing-up law, if kept) and with the
    library instead, from states of their own (`ANYWHERE_GATE_SEED`): `gate_states` near-resting
    states ("holds" over `judge_T`), `gate_states` states anywhere on the torus, moving
@@ -121,11 +121,22 @@ def format_anywhere(entry: dict, seconds: float) -> str:
     verdict = "kept" if entry["used"] else (f"not kept (needs as many held from anywhere, the tip up for a share {ANYWHERE_MARGIN:g} larger, "
                                             f"at most {LIBRARY_LOSS} fewer near hanging and the box kept)")
     up = entry.get("up", [math.nan, math.nan])
-    joined = f" and the swing-up law's {entry['joined']} knots" if entry.get("joined") else ""
+    source = "the manoeuvre's" if entry.get("joined_from") == "manoeuvre" else "the swing-up law's"
+    joined = f" and {source} {entry['joined']} knots" if entry.get("joined") else ""
     return (f"swing-up library: nominals from {entry['nominals']} of {entry['starts']} postures round the circle{joined}; of {s['anywhere']} states "
             f"from anywhere the run's law holds {entry['anywhere'][0]} (tip up {up[0]:.0%} of their first {UP_WINDOW:g} s, median time to x* "
             f"{t[0]}), with the library {entry['anywhere'][1]} ({up[1]:.0%}, {t[1]}); near hanging {entry['near'][0]} and {entry['near'][1]} of {s['near']}; box {entry['box'][0]} and {entry['box'][1]} of "
             f"{s['box']}: {verdict}  [{seconds:.0f} s]")
+
+
+def _from_hanging(run) -> tuple[TrackingLaw | None, str | None]:
+    """The knots from hanging the library joins (step 1): (the run's manoeuvre's nominal, or else
+    its swing-up law where that is a tracking law, or None; which one)."""
+    manoeuvre = run.manoeuvre
+    if manoeuvre is not None:
+        return manoeuvre.track, "manoeuvre"
+    fallback = run.controller.fallback
+    return (fallback, "tracking law") if isinstance(fallback, TrackingLaw) else (None, None)
 
 
 def run_anywhere_step(run, system, catch, box: np.ndarray, config: SwingUpConfig, progress: bool) -> tuple[object | None, dict]:
@@ -134,10 +145,12 @@ def run_anywhere_step(run, system, catch, box: np.ndarray, config: SwingUpConfig
     law, found, starts = library_law(system, catch, box, config, progress)
     entry = {"nominals": found, "starts": starts, "horizon": config.library_horizon}
     if law is not None:
-        current = resolve_run(run.path).controller  # with the swing-up law the gate kept, if any
-        if isinstance(current.fallback, TrackingLaw):
-            law = TrackingLaw.join([law, current.fallback])
-            entry["joined"] = len(current.fallback.X)
+        now = resolve_run(run.path)  # with the swing-up law and manoeuvre the stage kept, if any
+        current = now.controller
+        hanging, source = _from_hanging(now)
+        if hanging is not None:
+            law = TrackingLaw.join([law, hanging])
+            entry |= {"joined": len(hanging.X), "joined_from": source}
         entry |= anywhere_gate(run, current, law, config)
     else:
         entry["used"] = False

@@ -37,17 +37,17 @@ holds every number.
    later, the larger kept box); it is kept when it holds at least `margin` more than the run's law
    and keeps the box.
 
-5. **Anywhere** (`library` > 0; `anywhere_stage`): a library of short plans from postures all
-   round the circle, read at the nearest point, replaces the law the gate left where it brings the
-   robot to x* sooner from anywhere, holds as many from anywhere, and loses nothing near hanging or
-   in the box (summary.json → "swing_up" → "anywhere").
-6. **Manoeuvre.** Each nominal plan (those of `horizon`, and as many of each `manoeuvre_horizons`)
+5. **Manoeuvre.** Each nominal plan (those of `horizon`, and as many of each `manoeuvre_horizons`)
    as a manoeuvre from a command at rest (`manoeuvre`: tracked in time, then the run's law as the
-   gate leaves it); among those that hold nearly the most of
-   near-resting starts of their own, the one whose swing-up from exact rest scores best (RealAIGym
-   v2) is kept when it holds `margin` more of the gate's near-resting states than the run's law, or
-   as many and scores higher from the exact resting state (``swingup-manoeuvre.npz``, summary.json →
-   "swing_manoeuvre").
+   gate leaves it); among those that hold nearly the most of near-resting starts of their own, the
+   one whose swing-up from exact rest scores best (RealAIGym v2) is kept when it holds `margin` more
+   of the gate's near-resting states than the run's law, or as many and scores higher from the exact
+   resting state (``swingup-manoeuvre.npz``, summary.json → "swing_manoeuvre").
+6. **Anywhere** (`library` > 0; `anywhere_stage`): a library of short plans from postures all
+   round the circle, joined by the kept manoeuvre's nominal (else the kept tracking law's), read at
+   the nearest point, replaces the law the gate left where it brings the robot up sooner from
+   anywhere, holds as many from anywhere, and loses nothing near hanging or in the box
+   (summary.json → "swing_up" → "anywhere").
 
 The law goes to ``swingup.npz`` when kept (every command on the run then applies it), else to
 ``swingup-refused.npz``, and the entry to summary.json → "swing_up"; each write atomic.
@@ -218,20 +218,21 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
         if progress:
             print(f"{format_swing_gate(entry['gate'], config)}  [{time.perf_counter() - start:.0f} s]", flush=True)
     store.clear()
-    if config.library:
-        entry = _anywhere(run, system, catch, entry, config, progress)
     if config.manoeuvre:
         candidates = [(plan, config.horizon) for plan in plans[:MANOEUVRE_NOMINALS]]
         for h in (h for h in config.manoeuvre_horizons if h != config.horizon):
             candidates += [(plan, h) for plan in nominals(system, catch, config.replace(horizon=h), MANOEUVRE_NOMINALS)]
         if candidates:
             _manoeuvre(run, system, candidates, config, progress, start)
+    if config.library:
+        entry = _anywhere(run, system, catch, entry, config, progress)
     return entry
 
 
 def _anywhere(run, system, catch, entry: dict, config: SwingUpConfig, progress: bool) -> dict:
-    """Step 5 of the module docstring (`anywhere_stage`): the library kept as the swing-up law, or its
+    """Step 6 of the module docstring (`anywhere_stage`): the library kept as the swing-up law, or its
     gate recorded beside the law the swing-up gate left; returns the stage's summary entry."""
+    run = resolve_run(run.path)  # with the manoeuvre the stage kept, if any
     kept, anywhere = run_anywhere_step(run, system, catch, kept_boxes(system, config)["posture"], config, progress)
     recorded = dict(run.summary.get("swing_up") or {}) | {"anywhere": anywhere}
     if kept is not None:
@@ -266,7 +267,7 @@ def _fit_and_gate(run, system, teacher, labels: tuple, box_labels: tuple, tracks
 
 
 def _manoeuvre(run, system, candidates: list, config: SwingUpConfig, progress: bool, start: float) -> dict:
-    """Step 6 of the module docstring: the manoeuvre of each nominal plan of `candidates` [(plan, its
+    """Step 5 of the module docstring: the manoeuvre of each nominal plan of `candidates` [(plan, its
     horizon s)] judged against the run's law as the stage leaves it; written to summary.json →
     "swing_manoeuvre" and its file."""
     run = resolve_run(run.path)  # with the swing-up law the stage kept, if any
