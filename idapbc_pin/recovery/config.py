@@ -149,8 +149,8 @@ class SwingUpConfig(Settings):
         20 s: the law is kept only if it loses at most `box_loss` of those the run's law brings to x*.
     margin : near-resting states the law must hold beyond the run's law to be kept.
     box_loss : see `box_states`.
-    inner_scales : kept boxes r·s (every component) the gate tries beside the training box's angles
-        alone (`swing_stage.kept_boxes`); none by default: a law acting through the box's postures
+    inner_scales : kept boxes r·s (every component) the gate tries beside the box's angles and
+        `kept_momenta` (`swing_stage.kept_boxes`); none by default: a law acting through the box's postures
         at speed held fewer swing-ups than one that leaves every posture of the box to the run's law.
     kept_momenta : the kept box's momenta, as a multiple of the training box's (0: not read): beyond
         them the swing-up law acts even in the box's postures, where the run's law, trained at low
