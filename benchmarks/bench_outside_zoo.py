@@ -58,6 +58,8 @@ VARIANTS = (
     Variant("pendubot_heavy_30nm", "double_pendulum.urdf", ("shoulder",), {"link1": 1.5, "link2": 1.5}, effort={"shoulder": 30.0}),
     Variant("realaigym_pendubot", "realaigym_double_pendulum.urdf", ("shoulder",), target={"shoulder": math.pi}),
     Variant("realaigym_acrobot", "realaigym_double_pendulum.urdf", ("elbow",), target={"shoulder": math.pi}),
+    Variant("cart_double_pendulum_heavy_poles", "cart_double_pendulum.urdf", ("slider",), {"pole1": 1.3, "pole2": 1.3}),
+    Variant("triple_pendulum_light_tip", "triple_pendulum.urdf", ("shoulder",), {"link3": 0.7}),
 )
 
 

@@ -81,14 +81,14 @@ def train_command(name: str, out: str, seed: int) -> list[str]:
 
 
 def trained_run(name: str, out: str, seed: int):
-    """Train `name` through the default path with --swing-up; -> (its `Run`, wall time s, the stage's gate and manoeuvre lines)."""
+    """Train `name` through the default path with --swing-up; -> (its `Run`, wall time s, the stage's gate, manoeuvre and library lines)."""
     t0 = time.perf_counter()
     done = subprocess.run(train_command(name, out, seed), capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if done.returncode != 0:
         raise SystemExit(f"training {name} failed:\n{done.stderr[-2000:]}")
     lines = done.stdout.splitlines()
-    gate = "; ".join(next((line for line in lines if line.startswith(head)), f"{head}: none") for head in ("swing-up gate", "swing-up manoeuvre"))
+    gate = "; ".join(next((line for line in lines if line.startswith(head)), f"{head}: none") for head in ("swing-up gate", "swing-up manoeuvre", "swing-up library"))
     (path,) = [p for p in Path(out).iterdir() if p.is_dir()]
     return ip.load_run(path), wall, gate
 

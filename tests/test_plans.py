@@ -12,6 +12,9 @@ Claims:
   without it runs off; its gradient is that of its value;
 * tracked iLQR candidates bring a pendubot with an 8 N·m shoulder to x* from half-box states saturated
   LQR loses, in the judge (Pinocchio's aba at 2 ms, the limits applied);
+* a plan tracked with its input held over each knot applies one input per knot, U_0 from the plan's
+  own start, and ends nearer the plan's end than the same plan tracked at every tick against the
+  knot's start state; the reach plans get more iterations at three joints than at two;
 * a chunk store gives back exactly what was written, and nothing for another key or a damaged file;
   a labelling step started again after an interruption plans only the chunks it had not finished,
   and ends with the labels of an uninterrupted step;
@@ -31,7 +34,8 @@ from idapbc_pin.recovery import stage as stage_module
 from idapbc_pin.trajectory.chunks import CHUNKS_DIR, ChunkStore, chunk_key
 from idapbc_pin.trajectory.ilqr import (ILQRSettings, _knot_jacobians, _rail, _rail_terms, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout,
                                       settle_weights)
-from idapbc_pin.trajectory.plans import PERIODS, PLAN_STEP, PlanSettings, TrackThenLaw, plan_candidates
+from idapbc_pin.errors import IdapbcError
+from idapbc_pin.trajectory.plans import AUTO_ITERATIONS, PERIODS, PLAN_STEP, PlanSettings, TrackThenLaw, plan_candidates
 from idapbc_pin.recovery.stage import RecoveryConfig, collect_labels
 from idapbc_pin.sim.integrate import simulate
 from idapbc_pin.sim.metrics import success
@@ -166,6 +170,35 @@ def test_tracked_ilqr_candidates_recover_states_saturated_lqr_loses(weak_pendubo
     assert tracker.horizon == pytest.approx(settings.horizon)
     ok = success(simulate(system, tracker, starts, T=20.0, dt=PLAN_STEP), system).reshape(-1, len(x0))
     assert ok.any(0).sum() >= len(x0) // 2  # starts saturated LQR lost, brought to x* by a tracked plan, then LQR
+
+
+def test_a_plan_held_over_each_knot_is_tracked_as_the_solver_rolled_it_out(weak_pendubot, lost):
+    system = weak_pendubot
+    x0, failed_u = lost
+    settings = PlanSettings(horizon=1.0, ilqr_iterations=20)
+    starts, U, Z, gains = plan_candidates(system, x0[:1], failed_u[:1], np.array([8.0]), settings)
+    lqr, per_knot = LQRController(system), int(round(settings.knot_step / PLAN_STEP))
+    ends = {}
+    for hold in (True, False):
+        tracker = TrackThenLaw(U, Z, gains, settings.knot_step, lqr, system, hold=hold)
+        traj = simulate(system, tracker, starts, T=tracker.horizon, dt=PLAN_STEP)
+        u = traj.u[:, : U.shape[1] * per_knot].reshape(len(starts), U.shape[1], per_knot, -1)
+        if hold:
+            np.testing.assert_array_equal(u, np.repeat(u[:, :, :1], per_knot, axis=2))  # one input per knot
+            np.testing.assert_allclose(u[:, 0, 0], U[:, 0], atol=1e-12)  # on the plan at its start: no correction
+        z_end = np.concatenate(system.split(traj.x[:, -1]), axis=1)
+        ends[hold] = np.abs(wrap_angles(z_end - Z[:, -1], np.r_[system.angle_mask[: system.nq], np.zeros(system.nq, bool)])).max(1)
+    assert np.median(ends[True]) < np.median(ends[False])
+
+
+def test_the_reach_plans_get_more_iterations_at_three_joints_and_refuse_bad_step_sizes():
+    auto = PlanSettings()
+    assert auto.solver(ip.load_system("pendubot")).iterations == AUTO_ITERATIONS[0]
+    assert auto.solver(ip.load_system("triple_pendulum")).iterations == AUTO_ITERATIONS[1] > AUTO_ITERATIONS[0]
+    assert PlanSettings(ilqr_iterations=7).solver(ip.load_system("triple_pendulum")).iterations == 7
+    for bad in ({"alphas": ()}, {"alphas": (1.0, 0.0)}, {"q": -1.0}, {"ilqr_iterations": -1}):
+        with pytest.raises(IdapbcError, match="bad plan setting"):
+            PlanSettings(**bad)
 
 
 def test_a_chunk_store_gives_back_what_it_kept_and_nothing_else(tmp_path):

@@ -13,7 +13,8 @@ import idapbc_pin as ip
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.recovery.config import SwingUpConfig
 from idapbc_pin.recovery.swing_law import SwingUpLaw, swing_features
-from idapbc_pin.recovery.swing_stage import fit_swing_law, kept_boxes, posture_box, swing_up
+from idapbc_pin.recovery import swing_stage as stage
+from idapbc_pin.recovery.swing_stage import ANY_SPEED, any_speed_boxes, chosen_box, fit_swing_law, kept_boxes, posture_box, swing_up
 from idapbc_pin.trajectory.tracks import tracking_law, tvlqr_gains
 from idapbc_pin.run import SWINGUP_FILE, SWINGUP_REFUSED_FILE
 from idapbc_pin.sim.states import resting_states
@@ -85,6 +86,41 @@ def test_the_kept_box_reads_the_box_angles_and_a_multiple_of_its_momenta_and_nev
     assert not law.outside(np.stack([slow, far_cart])).any() and law.outside(fast[None]).all()
     with pytest.raises(ip.IdapbcError, match="kept_momenta"):
         SwingUpConfig(kept_momenta=-1.0)
+
+
+def test_where_the_bounded_box_keeps_nothing_a_second_gate_reads_no_momentum(monkeypatch):
+    """A gate that keeps no law with the bounded box runs again with the box's angles and no momentum
+    read (`any_speed_boxes`); a law that second gate keeps carries that box, the entry records both
+    gates, and `chosen_box` gives the library that box. Where the first gate keeps one, there is no
+    second gate."""
+    system = ip.load_system("reaction_wheel")
+    config = SwingUpConfig()
+    second = any_speed_boxes(system, config)
+    np.testing.assert_array_equal(second[ANY_SPEED][: system.nq], posture_box(system, config)[: system.nq])
+    assert np.isinf(second[ANY_SPEED][system.nq:]).all() and any_speed_boxes(system, SwingUpConfig(kept_momenta=0.0)) == {}
+    law = random_swing_law(system)
+    run = type("Run", (), {"system": system, "summary": {}})()
+    calls = []
+
+    def gate(run_, laws, config_, progress=False, fitted=None, boxes=None):
+        calls.append(boxes)
+        name = "posture" if boxes is None else next(iter(boxes))
+        return (0, name), {"box": name, "used": boxes is not None or first_used}
+
+    monkeypatch.setattr(stage, "swing_gate", gate)
+    for first_used in (False, True):
+        calls.clear()
+        entry = stage._fit_and_gate(run, system, None, (np.empty((0, system.n)), np.empty((0, system.m))), (None, None), [law], config, None, False, 0.0)
+        assert len(calls) == (1 if first_used else 2) and entry["used"]
+        if first_used:
+            np.testing.assert_array_equal(entry["_law"].box, posture_box(system, config))
+        else:
+            assert entry["gate"]["box"] == ANY_SPEED and entry["gate"]["bounded"]["used"] is False
+            np.testing.assert_array_equal(entry["_law"].box, second[ANY_SPEED])
+            run.summary = {"swing_up": {"gate": entry["gate"]}}
+            np.testing.assert_array_equal(chosen_box(run, system, config), second[ANY_SPEED])
+    run.summary = {}
+    np.testing.assert_array_equal(chosen_box(run, system, config), posture_box(system, config))
 
 
 def test_the_swing_up_law_is_continuous_through_the_hanging_posture(weak_pendubot):

@@ -123,7 +123,7 @@ def _ilqr_labels(system, law, x0, failed_u, ids, plan_seed, bound, settings, T):
     candidate tracked and then caught by `law` in one simulation; per start, the reaching candidate
     of the lowest warm-start index labels it. Deterministic: no random stream is drawn."""
     starts, Uc, Zc, gains = plan_candidates(system, x0, failed_u, bound, settings)
-    tracker = TrackThenLaw(Uc, Zc, gains, settings.knot_step, law, system)
+    tracker = TrackThenLaw(Uc, Zc, gains, settings.knot_step, law, system, hold=settings.hold)
     t = simulate(system, tracker, starts, T=T, dt=PLAN_STEP, stop_converged=law if tracker.horizon <= LABEL_TIME else False,
                  stop_from=LABEL_TIME)
     ok = _labels_ok(t, system).reshape(-1, len(x0))  # (C, S)

@@ -35,7 +35,10 @@ holds every number.
    brings to x* (all of them, where none does), the one that holds the most swing-up states is
    chosen (ties: a fit before a tracking law, then the one that brings more box states to x*, the
    later, the larger kept box); it is kept when it holds at least `margin` more than the run's law
-   and keeps the box.
+   and keeps the box. Where none is kept, the same gate runs once more with the box's angles and no
+   momentum read (`any_speed_boxes`): a robot whose training box allows far less momentum than a
+   swing-up arrives with (a reaction wheel, a rotary arm) never leaves a bounded box to its law.
+   The library of step 6 reads the kept box the gate chose (`chosen_box`).
 
 5. **Manoeuvre.** Each nominal plan (those of `horizon`, and as many of each `manoeuvre_horizons`)
    as a manoeuvre from a command at rest (`manoeuvre`: tracked in time, then the run's law as the
@@ -82,12 +85,18 @@ from .swing_law import SwingUpLaw, swing_features
 from ..trajectory.manoeuvre import MANOEUVRE_NOMINALS, SwingManoeuvre, choose_manoeuvre
 from ..trajectory.tracks import KNOT, NOMINALS, nominals, tracking_law, tracking_laws
 
-__all__ = ["SWING_GATE_SEED", "fit_swing_law", "kept_boxes", "swing_gate", "swing_starts", "swing_up"]
+__all__ = ["ANY_SPEED", "SWING_GATE_SEED", "any_speed_boxes", "chosen_box", "fit_swing_law", "kept_boxes", "swing_gate", "swing_starts", "swing_up"]
 
 #: Seed offset of the swing-up gate's states (neither the plans', DAgger's nor an evaluation's).
 SWING_GATE_SEED = RECOVERY_GATE_SEED + 5_000
 #: Times (s) of a failed DAgger rollout whose states are labelled.
 DAGGER_TIMES = (1.0, 2.5, 4.0)
+#: Name of the kept box that reads the training box's angles and no momentum (`any_speed_boxes`).
+ANY_SPEED = "posture, any speed"
+#: The swing-up labels' plans (`PlanSettings` fields): LQR's end cost alone, the former step sizes and
+#: the input computed at every tick, as before the reach plans gained their running cost and held
+#: inputs (not yet measured on the swing-up stage).
+SWING_LABEL_PLANS = {"q": 0.0, "end_box": 0.0, "alphas": (1.0, 0.3, 0.1), "hold": False}
 
 
 def _box_half_widths(system) -> np.ndarray:
@@ -112,9 +121,23 @@ def kept_boxes(system, config: SwingUpConfig) -> dict:
     return {"posture": posture_box(system, config)} | {f"r = {r:g}": float(r) * s for r in config.inner_scales}
 
 
+def any_speed_boxes(system, config: SwingUpConfig) -> dict:
+    """The second gate's kept box, {ANY_SPEED: (n,)}: the training box's angles with no momentum read
+    (`posture_box` with `kept_momenta` 0); empty where the posture box reads no momentum anyway."""
+    return {ANY_SPEED: posture_box(system, config.replace(kept_momenta=0.0))} if config.kept_momenta > 0 else {}
+
+
+def chosen_box(run, system, config: SwingUpConfig) -> np.ndarray:
+    """(n,) the kept box of the swing-up law the stage's gate chose (summary.json → "swing_up" →
+    "gate" → "box"; "posture" where the run has no gate)."""
+    name = ((run.summary.get("swing_up") or {}).get("gate") or {}).get("box", "posture")
+    boxes = kept_boxes(system, config) | any_speed_boxes(system, config)
+    return boxes.get(name, boxes["posture"])
+
+
 def _labels_config(config: SwingUpConfig) -> RecoveryConfig:
     """The reach stage's settings `collect_labels` reads, for swing-up plans."""
-    plan = PlanSettings(horizon=config.horizon, ilqr_iterations=config.ilqr_iterations)
+    plan = PlanSettings(horizon=config.horizon, ilqr_iterations=config.ilqr_iterations, **SWING_LABEL_PLANS)
     return RecoveryConfig(plan=plan, judge_T=max(config.judge_T, 8.0), workers=config.workers, ray=config.ray, teacher="run")
 
 
@@ -233,7 +256,7 @@ def _anywhere(run, system, catch, entry: dict, config: SwingUpConfig, progress: 
     """Step 6 of the module docstring (`anywhere_stage`): the library kept as the swing-up law, or its
     gate recorded beside the law the swing-up gate left; returns the stage's summary entry."""
     run = resolve_run(run.path)  # with the manoeuvre the stage kept, if any
-    kept, anywhere = run_anywhere_step(run, system, catch, kept_boxes(system, config)["posture"], config, progress)
+    kept, anywhere = run_anywhere_step(run, system, catch, chosen_box(run, system, config), config, progress)
     recorded = dict(run.summary.get("swing_up") or {}) | {"anywhere": anywhere}
     if kept is not None:
         recorded |= {"used": True, "law": "library"}
@@ -261,9 +284,14 @@ def _fit_and_gate(run, system, teacher, labels: tuple, box_labels: tuple, tracks
                 break
             laws.append(law)
     (k, box), gate = swing_gate(run, laws + tracks, config, progress, fitted=len(laws))
+    second = any_speed_boxes(system, config)
+    if not gate["used"] and second:  # a robot whose box momenta are far below a swing's (a wheel, a rotor arm)
+        (k2, box2), gate2 = swing_gate(run, laws + tracks, config, progress, fitted=len(laws), boxes=second)
+        if gate2["used"]:
+            (k, box), gate = (k2, box2), gate2 | {"bounded": gate}
     return {"used": gate["used"], "gate": gate, "fit": k, "law": "fitted" if k < len(laws) else "tracking", "labels": int(len(X)),
             "first_fit_mse": first_mse, "dagger": rounds, "seconds": round(time.perf_counter() - start, 1), "config": asdict(config),
-            "_law": (laws + tracks)[k].with_box(kept_boxes(system, config)[box])}
+            "_law": (laws + tracks)[k].with_box((kept_boxes(system, config) | second)[box])}
 
 
 def _manoeuvre(run, system, candidates: list, config: SwingUpConfig, progress: bool, start: float) -> dict:
@@ -324,16 +352,17 @@ def _dagger_round(system, teacher, law: SwingUpLaw, X: np.ndarray, U: np.ndarray
     return law, X, U, {"failed": int(failed.size), "visited": int(len(visited)), "plans": int(planned), "labels": int(len(X)), "mse": mse}
 
 
-def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, fitted: int | None = None) -> tuple[tuple[int, str], dict]:
+def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, fitted: int | None = None,
+               boxes: dict | None = None) -> tuple[tuple[int, str], dict]:
     """The run's law with and without each of `laws` (around the run's own outer law) outside each
-    candidate kept box (`kept_boxes`), from the gate's states: ((k, box name) of the candidate judged,
+    candidate kept box (`boxes`, {name: (n,)}; default `kept_boxes`), from the gate's states: ((k, box name) of the candidate judged,
     {"states", "run", "law": near-resting starts each holds, "candidates": {box name: holds of each
     law}; "box_states", "run_box", "law_box": box states the run's law and the candidate bring to x*;
     "fit", "box", "used": the verdict; "fitted": how many of `laws` are fitted laws, the others
     tracking laws}) (see the module docstring)."""
     system, seed = run.system, SWING_GATE_SEED + run.config.seed
     ctrl = run.box_controller
-    boxes = kept_boxes(system, config)
+    boxes = kept_boxes(system, config) if boxes is None else boxes
     cands = [(k, name) for name in boxes for k in range(len(laws))]
     with_laws = [ctrl.with_fallback(laws[k].with_box(boxes[name]).with_inner(ctrl.fallback)) for k, name in cands]
     x_swing = swing_starts(system, config.gate_states, config.circle, seed)
@@ -362,7 +391,10 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
 
 
 def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
-    """The swing-up gate's figures and verdict in one line."""
+    """The swing-up gate's figures and verdict in one line (the bounded box's gate first, where a
+    second gate with no momentum read kept the law)."""
+    if "bounded" in gate:
+        return f"{format_swing_gate(gate['bounded'], config)}; again with no momentum read: {format_swing_gate({k: v for k, v in gate.items() if k != 'bounded'}, config)}"
     verdict = "kept" if gate["used"] else (f"not kept (needs {config.margin} more held than the run's law, and at most "
                                             f"{config.box_loss} fewer box states)")
     boxed = gate.get("candidates_box", {})

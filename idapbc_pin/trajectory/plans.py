@@ -7,8 +7,14 @@ Where a saturated law loses a state, a short plan may still bring it to x*: inpu
 * ``"ilqr"`` (the default): iterative LQR on the model's exact derivatives (`trajectory.ilqr`), with
   knots of `knot_step` seconds, from ten warm starts per state (the feedback law's own failed
   inputs, no input, and swings at ±ū of four periods), all states and warm starts solved together.
+  The cost prices the distance to x* along the way (`q`) and pins the end (`end_box`), beside the
+  end cost of LQR's Riccati matrix: with the end cost alone, the solves from starts far from x* stall
+  where the pendulums hang. The line search tries six step sizes down to 0.01, and a chain of three
+  joints gets more iterations (`PlanSettings.iterations`).
   Each candidate runs as a time-varying LQR along its planned trajectory (`TrackThenLaw`), which
-  absorbs the model's coarser integration; the judge keeps the best candidate that reaches x*.
+  absorbs the model's coarser integration; with `hold`, the tracked input is computed at each
+  knot's start and held over the knot, the policy the solver's line search rolled out (its gains are
+  those of the knot-to-knot map); the judge keeps the best candidate that reaches x*.
 * ``"cem"``: a cross-entropy search (Rubinstein 1999) of piecewise-constant open-loop inputs over
   `knots` intervals: `population` plans per iteration drawn around a mean, the best eighth refits
   the mean and spread, `iterations` times, each plan scored by the distance to x* after `score_T`
@@ -42,6 +48,10 @@ METHODS = ("ilqr", "cem")
 
 #: The control period of a plan and of the law after it, s: the judge's (the law held at 500 Hz).
 PLAN_STEP = 0.002
+#: Step sizes of the line search of the reach plans, largest first.
+REACH_ALPHAS = (1.0, 0.5, 0.25, 0.1, 0.03, 0.01)
+#: iLQR iterations of a reach plan when `PlanSettings.ilqr_iterations` is 0: (at most two joints, three or more).
+AUTO_ITERATIONS = (30, 100)
 
 
 @dataclass(frozen=True)
@@ -53,8 +63,12 @@ class PlanSettings:
     method : ``"ilqr"`` (iterative LQR from warm starts, tracked) or ``"cem"`` (cross-entropy search).
     horizon : length of the plan, s; the feedback law acts after it.
     knot_step : ilqr: length of a knot, s (a multiple of PLAN_STEP).
-    ilqr_iterations : ilqr: iterations of each solve.
+    ilqr_iterations : ilqr: iterations of each solve; 0: `AUTO_ITERATIONS` by the number of joints.
     substeps : ilqr: RK4 steps of the model per knot.
+    q : ilqr: weight of the running state cost (`ilqr.ILQRSettings.q`).
+    end_box : ilqr: weight of the end cost's box term (`ilqr.ILQRSettings.end_box`).
+    alphas : ilqr: step sizes of the line search, largest first.
+    hold : ilqr: track each candidate with its input held over each knot (`TrackThenLaw`).
     knots : cem: pieces of the piecewise-constant plan.
     population : cem: plans simulated per iteration.
     iterations : cem: cross-entropy iterations.
@@ -64,8 +78,12 @@ class PlanSettings:
     method: str = "ilqr"
     horizon: float = 2.0
     knot_step: float = 0.02
-    ilqr_iterations: int = 12
+    ilqr_iterations: int = 0
     substeps: int = 1
+    q: float = 1.0
+    end_box: float = 100.0
+    alphas: tuple = REACH_ALPHAS
+    hold: bool = True
     knots: int = 20
     population: int = 48
     iterations: int = 8
@@ -73,9 +91,18 @@ class PlanSettings:
 
     def __post_init__(self):
         ticks = self.knot_step / PLAN_STEP
-        if self.method not in METHODS or not (self.horizon > 0 and ticks >= 1 and abs(ticks - round(ticks)) < 1e-9) or min(self.knots, self.population, self.iterations, self.ilqr_iterations, self.substeps) < 1:
+        if (self.method not in METHODS or not (self.horizon > 0 and ticks >= 1 and abs(ticks - round(ticks)) < 1e-9)
+                or min(self.knots, self.population, self.iterations, self.substeps) < 1 or self.ilqr_iterations < 0
+                or min(self.q, self.end_box) < 0 or not self.alphas or not all(0 < a <= 1 for a in self.alphas)):
             raise IdapbcError(f"bad plan setting: method must be one of {', '.join(METHODS)}, horizon > 0, knot_step a multiple of "
-                              f"{PLAN_STEP} s, knots, population, iterations, ilqr_iterations and substeps ≥ 1. Fix: pass valid values.")
+                              f"{PLAN_STEP} s, knots, population, iterations and substeps ≥ 1, ilqr_iterations, q and end_box ≥ 0, "
+                              "alphas step sizes in (0, 1]. Fix: pass valid values.")
+
+    def solver(self, system) -> ILQRSettings:
+        """The `ILQRSettings` of the solves for `system`: this plan's iterations (`AUTO_ITERATIONS`
+        by its joints when 0), substeps, running cost, end box and step sizes."""
+        its = self.ilqr_iterations or AUTO_ITERATIONS[int(system.nq > 2)]
+        return ILQRSettings(iterations=its, substeps=self.substeps, q=self.q, end_box=self.end_box, alphas=tuple(self.alphas))
 
     @property
     def ilqr_knots(self) -> int:
@@ -173,13 +200,16 @@ class TrackThenLaw:
     default), which advances the tick: use a fresh instance per simulation.
 
     U (N, K, m) inputs, Z (N, K + 1, n) planned states in (q, v), gains (N, K, m, n); `system`
-    splits the states (q, p) the judge passes into (q, v).
+    splits the states (q, p) the judge passes into (q, v). `hold`: the input is computed at the first
+    tick of each knot and held over the knot, as the solver rolled the plan out (else at every tick,
+    against Z[:, k] all knot long, so the plan's own motion within a knot reads as an error).
     """
 
-    def __init__(self, U, Z, gains, knot_step: float, law, system):
+    def __init__(self, U, Z, gains, knot_step: float, law, system, hold: bool = False):
         self.U, self.Z, self.gains, self.law, self.system, self.tick = U, Z, gains, law, system, 0
         self.per_knot = int(round(knot_step / PLAN_STEP))
         self.mask = np.asarray(system.angle_mask, bool)
+        self.hold, self._held = bool(hold), None
 
     @property
     def horizon(self) -> float:
@@ -187,11 +217,15 @@ class TrackThenLaw:
         return self.U.shape[1] * self.per_knot * PLAN_STEP
 
     def __call__(self, x):
-        k = self.tick // self.per_knot
+        k, first = divmod(self.tick, self.per_knot)[0], self.tick % self.per_knot == 0
         self.tick += 1
         if k < self.U.shape[1]:
+            if self.hold and not first and self._held is not None:
+                return self._held.copy()
             z = np.concatenate(self.system.split(x), axis=1)
-            return self.U[:, k] + np.einsum("nij,nj->ni", self.gains[:, k], wrap_angles(z - self.Z[:, k], self.mask))
+            u = self.U[:, k] + np.einsum("nij,nj->ni", self.gains[:, k], wrap_angles(z - self.Z[:, k], self.mask))
+            self._held = u
+            return u.copy() if self.hold else u
         return self.law(x)
 
 
@@ -220,5 +254,5 @@ def plan_candidates(system, x0: np.ndarray, failed_u: np.ndarray, bound: np.ndar
     W = _warm_starts(failed_u, bound, K, settings.knot_step)
     starts = np.concatenate([x0] * len(W))
     S = LQRController(system).S
-    U, Z, gains, _ = ilqr_plans(system, starts, np.concatenate(W), bound, K * settings.knot_step, S, ILQRSettings(iterations=settings.ilqr_iterations, substeps=settings.substeps))
+    U, Z, gains, _ = ilqr_plans(system, starts, np.concatenate(W), bound, K * settings.knot_step, S, settings.solver(system))
     return starts, U, Z, gains
