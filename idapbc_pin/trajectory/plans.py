@@ -217,10 +217,10 @@ class TrackThenLaw:
         return self.U.shape[1] * self.per_knot * PLAN_STEP
 
     def __call__(self, x):
-        k, first = divmod(self.tick, self.per_knot)[0], self.tick % self.per_knot == 0
+        k, within = divmod(self.tick, self.per_knot)
         self.tick += 1
         if k < self.U.shape[1]:
-            if self.hold and not first and self._held is not None:
+            if self.hold and within and self._held is not None:
                 return self._held.copy()
             z = np.concatenate(self.system.split(x), axis=1)
             u = self.U[:, k] + np.einsum("nij,nj->ni", self.gains[:, k], wrap_angles(z - self.Z[:, k], self.mask))
