@@ -158,6 +158,21 @@ def test_push_profiles_keep_their_spacing_widths_and_amplitudes():
     assert peak[0, 0] == pytest.approx(prof[0, 0, 0, 2])
 
 
+def test_pushes_on_the_actuated_joints_drop_only_the_others_pulses(pendubot):
+    """As the leaderboard's simulator: the same draws, the unactuated joints' pulses never reach the robot."""
+    every = suite_rows(pendubot, SuiteConfig(levels=3, repetitions=2, pushes=4))
+    acted = suite_rows(pendubot, SuiteConfig(levels=3, repetitions=2, pushes=4, push_joints="actuated"))
+    actuated = (np.abs(np.asarray(pendubot.B)) > 0).any(axis=1)
+    assert actuated.sum() == 1
+    a, e = acted.dist.pulses[acted.test == 5], every.dist.pulses[every.test == 5]
+    assert (a[:, ~actuated, :, 2] == 0).all() and (e[:, ~actuated, :, 2] != 0).all()
+    np.testing.assert_array_equal(a[:, actuated], e[:, actuated])
+    np.testing.assert_array_equal(a[..., :2], e[..., :2])
+    assert np.abs(pulse_torques(a[:, :, :], a[0, ~actuated, 0, 0][0]))[:, ~actuated].max() == 0.0
+    with pytest.raises(ValueError, match="push_joints"):
+        SuiteConfig(push_joints="elbow")
+
+
 def test_the_scores_follow_the_leaderboards_rules(pendubot):
     config = SuiteConfig(levels=3, repetitions=4, pushes=2)
     rows = suite_rows(pendubot, config)
@@ -205,10 +220,12 @@ def urdf_run(tmp_path_factory):
 
 
 def test_the_robustness_command_runs_the_suite_beside_lqr_and_the_pump(urdf_run, cli):
-    out = cli("robustness", urdf_run.path, "--levels", "2", "--repetitions", "2", "--pushes", "1", "--T", "0.1", "--workers", "1")
+    out = cli("robustness", urdf_run.path, "--levels", "2", "--repetitions", "2", "--pushes", "1", "--T", "0.1", "--workers", "1",
+              "--push-joints", "actuated")
     assert out.returncode == 0, out.stderr
-    assert "| NIDA-PBC |" in out.stdout and "| LQR |" in out.stdout and "model test" in out.stdout
+    assert "| NIDA-PBC |" in out.stdout and "| LQR |" in out.stdout and "model test" in out.stdout and "the actuated joints" in out.stdout
     data = json.loads((urdf_run.path / SUITE_FILE).read_text())
+    assert data["config"]["push_joints"] == "actuated"
     assert data["start"] == "box" and set(data["scores"]) == {"NIDA-PBC", "NIDA-PBC + speed filter", "LQR", "energy pump + LQR"}
     assert len(data["rows"]["test"]) == 10 * 2 + 2 * 2 * 2 + 2 + 2 + 1
     assert all(set(s) == set(SUITE_TESTS) | {"overall"} for s in data["scores"].values())

@@ -114,3 +114,35 @@ def test_anywhere_states_move_from_the_whole_circle():
 
 def test_the_uptime_constants_are_the_leaderboards():
     assert (uptime_module.UPTIME_T, uptime_module.UPTIME_RESETS, uptime_module.UPTIME_JITTER, uptime_module.UPTIME_EPISODES) == (60.0, 15, 1.0, 5)
+
+
+def test_a_drive_reset_holds_a_posture_against_gravity_and_pushes_towards_the_drawn_one(pendubot):
+    """The leaderboard's reset: PD + gravity compensation on every joint within its URDF limit. Aimed
+    at the posture it starts in, at rest, it holds it (∇U from Pinocchio's generalised gravity);
+    aimed at hanging from upright, it swings the shoulder down and leaves the robot moving."""
+    from idapbc_pin.evaluation.uptime import DRIVE_T, _drive, drive_bound
+
+    np.testing.assert_array_equal(drive_bound(pendubot), [6.0, 6.0])  # both joints' URDF effort, the passive one too
+    q0 = np.array([[1.0, 0.5], [-2.0, 1.2]])
+    assert np.abs(pendubot.plant.gravity(q0)).max() < 6.0  # compensable within the limit
+    x0 = pendubot.state_from(q0, np.zeros_like(q0))
+    qs, x = _drive(pendubot, x0, q0, int(round(DRIVE_T / 0.002)), 0.002)
+    q, v = pendubot.split(x)
+    assert qs.shape == (2, 100, 2) and np.abs(q - q0).max() < 1e-6 and np.abs(v).max() < 1e-5
+    up = np.asarray(pendubot.x_star)[None, :2]
+    qs, x = _drive(pendubot, pendubot.state_from(up, np.zeros_like(up)), np.zeros_like(up), 100, 0.002)
+    q, v = pendubot.split(x)
+    assert ((q - up) * (0.0 - up) >= 0).all() and np.abs(q - up).max() > 0.1 and np.abs(v).max() > 1.0
+
+
+def test_uptime_with_drive_resets_is_recorded_reproducible_and_differs_from_put(pendubot):
+    laws = {"LQR": LQRController(pendubot)}
+    kw = dict(episodes=2, seed=1, T=6.0, resets=3, jitter=0.5)
+    drive = uptime_test(pendubot, laws, reset="drive", **kw)
+    again = uptime_test(pendubot, laws, reset="drive", **kw)
+    put = uptime_test(pendubot, laws, **kw)
+    np.testing.assert_array_equal(drive.uptime["LQR"], again.uptime["LQR"])
+    assert drive.reset == "drive" and drive.to_dict()["reset"] == "drive" and put.reset == "put"
+    assert not np.array_equal(drive.uptime["LQR"], put.uptime["LQR"])
+    with pytest.raises(ValueError, match="reset"):
+        uptime_test(pendubot, laws, reset="teleport", **kw)

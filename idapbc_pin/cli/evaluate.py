@@ -8,8 +8,9 @@ from pathlib import Path
 
 from ..certificate.certify import certify
 from ..evaluation.anywhere import evaluate_run_anywhere
+from ..evaluation.uptime import RESETS
 from ..evaluation.closed_loop import JUDGES, simulate_run
-from ..evaluation.robust_suite import SUITE_FILE, SuiteConfig, evaluate_run_suite
+from ..evaluation.robust_suite import PUSH_JOINTS, SUITE_FILE, SuiteConfig, evaluate_run_suite
 from ..evaluation.robustness import default_conditions, robustness_table
 from ..reporting.report import report
 from ..reporting.simulation_figure import simulation_figure
@@ -83,7 +84,8 @@ def _simulate_anywhere(args: argparse.Namespace, run, seed: int) -> int:
     T = 10.0 if args.T == library_default(simulate_run, "T") else args.T
     if args.episodes < 1:
         raise IdapbcError(f"--episodes must be at least 1, got {args.episodes}. Fix: e.g. --episodes 5.")
-    result = evaluate_run_anywhere(run, n=n, T=T, seed=seed, episodes=args.episodes, workers=workers_of(args), judge=args.judge)
+    result = evaluate_run_anywhere(run, n=n, T=T, seed=seed, episodes=args.episodes, workers=workers_of(args), judge=args.judge,
+                                   reset=args.reset)
     print(f"{run.system.name} from anywhere, judged by {args.judge}, RK4 at 2 ms, the law held at 500 Hz, effort limits on every controller.")
     print(result.table())
     print(f"wrote {Path(args.run) / ANYWHERE_FILE}")
@@ -110,11 +112,12 @@ def _cmd_report(args: argparse.Namespace) -> int:
 def _cmd_robustness(args: argparse.Namespace) -> int:
     seed = seed_of(args)
     if not args.roa:
-        sizes = {k: getattr(args, k) for k in ("levels", "repetitions", "pushes")} | ({} if args.T is None else {"T": args.T})
+        sizes = {k: getattr(args, k) for k in ("levels", "repetitions", "pushes", "push_joints")} | ({} if args.T is None else {"T": args.T})
         run = _run(args)
         result = evaluate_run_suite(run, SuiteConfig(**sizes), start=args.start, seed=seed, workers=workers_of(args), limits=not args.no_limits)
         start = "exactly hanging" if result.start == "hanging" else "states of the half box, one per rollout"
-        print(f"robustness suite of {result.system} from {start}, {result.config.T:g} s per rollout, {result.rows.N} rollouts per law:\n")
+        print(f"robustness suite of {result.system} from {start}, {result.config.T:g} s per rollout, {result.rows.N} rollouts per law, "
+              f"pushes on {'every joint' if result.config.push_joints == 'all' else 'the actuated joints'}:\n")
         print(result.table())
         print(f"wrote {Path(args.run) / SUITE_FILE}")
         return 0
@@ -159,6 +162,9 @@ def add_eval_commands(subparsers) -> None:
     add_workers_argument(p)
     p.add_argument("--episodes", type=int, default=library_default(evaluate_run_anywhere, "episodes"), metavar="E",
                    help="with --from anywhere: uptime episodes of 60 s, each with 15 resets (default %(default)s)")
+    p.add_argument("--reset", choices=RESETS, default=library_default(evaluate_run_anywhere, "reset"),
+                   help="with --from anywhere: how the uptime test resets: put the state at a posture at rest (default), or drive "
+                        "towards it for 0.2 s with a PD law on every joint, as the leaderboard's own test")
     p.add_argument("--from", dest="start", choices=("box", "hanging", "circle", "anywhere"), default="box",
                    help="box (default): states uniform in the box; hanging: the swing-up evaluation from 20 near-resting states "
                         "(the first exactly at rest) over 10 s, beside saturated LQR and the energy-pumping law (swingup.json, "
@@ -206,6 +212,8 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--repetitions", type=positive_int, default=suite.repetitions, metavar="R",
                    help=f"rollouts per noise level (default {suite.repetitions})")
     p.add_argument("--pushes", type=positive_int, default=suite.pushes, metavar="P", help=f"push profiles (default {suite.pushes})")
+    p.add_argument("--push-joints", choices=PUSH_JOINTS, default=suite.push_joints,
+                   help=f"joints the pushes reach (default {suite.push_joints}; actuated: as the leaderboard's own simulator, which drops the others')")
     p.add_argument("--roa", action="store_true", help="the older table instead: success from the box under mass ×0.8/×1.2, saturation and noise")
     add_box_argument(p, robustness_table)
     factor = library_default(robustness_table, "saturation_factor")

@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from .swingup import DT, SwingupResult, evaluate_swingup
-from .uptime import UPTIME_EPISODES, UPTIME_RESETS, UPTIME_T, UptimeResult, uptime_test
+from .uptime import DRIVE_T, UPTIME_EPISODES, UPTIME_RESETS, UPTIME_T, UptimeResult, uptime_test
 
 __all__ = ["ANYWHERE_FILE", "AnywhereResult", "anywhere_controllers", "evaluate_run_anywhere"]
 
@@ -40,7 +40,9 @@ class AnywhereResult:
         return "\n".join([
             f"from {N} states anywhere on the torus (the first hanging at rest; every angle from the full circle, speeds U(−1, 1) rad/s), "
             f"T = {T:g} s:", self.torus.table(), "",
-            f"uptime test: {E} episodes of {self.uptime.T:g} s, {self.uptime.resets} resets to postures at rest from the full circle "
+            f"uptime test: {E} episodes of {self.uptime.T:g} s, {self.uptime.resets} resets "
+            + ("to postures at rest from the full circle " if self.uptime.reset == "put" else
+               f"by a {DRIVE_T:g}-s PD drive towards postures from the full circle, as the leaderboard's own test ") +
             f"(±{self.uptime.jitter:g} s of jitter); the share of time with the tip up:", self.uptime.table()])
 
     def to_dict(self) -> dict:
@@ -59,11 +61,13 @@ def anywhere_controllers(run) -> dict:
 
 
 def evaluate_run_anywhere(run, n: int = 20, T: float = 10.0, seed: int = 0, episodes: int = UPTIME_EPISODES, workers: int = 1,
-                          judge: str = "pinocchio", uptime_T: float | None = None, resets: int | None = None) -> AnywhereResult:
+                          judge: str = "pinocchio", uptime_T: float | None = None, resets: int | None = None,
+                          reset: str = "put") -> AnywhereResult:
     """The global evaluation of `run` (module docstring): `n` states from the torus over `T` s and
     `episodes` uptime episodes of `uptime_T` s with `resets` resets (None: the leaderboard's 60 s
-    and 15), both drawn with `seed`, on the judge plant (``"pinocchio"``, or ``"mujoco"``:
-    `sim.mujoco_plant.mujoco_judge`); written to ``anywhere.json`` in the run directory."""
+    and 15, each reset as `reset` says: `uptime.RESETS`), both drawn with `seed`, on the judge plant
+    (``"pinocchio"``, or ``"mujoco"``: `sim.mujoco_plant.mujoco_judge`); written to ``anywhere.json``
+    in the run directory."""
     from .._io import write_json
     from .closed_loop import _judged
 
@@ -71,7 +75,7 @@ def evaluate_run_anywhere(run, n: int = 20, T: float = 10.0, seed: int = 0, epis
     laws = anywhere_controllers(run)
     torus = evaluate_swingup(plant, laws, n=n, T=T, dt=DT, seed=seed, workers=workers, starts="anywhere")
     uptime = uptime_test(plant, laws, episodes=episodes, seed=seed, dt=DT, workers=workers,
-                         T=UPTIME_T if uptime_T is None else uptime_T, resets=UPTIME_RESETS if resets is None else resets)
+                         T=UPTIME_T if uptime_T is None else uptime_T, resets=UPTIME_RESETS if resets is None else resets, reset=reset)
     result = AnywhereResult(torus=torus, uptime=uptime)
     write_json(run.path / ANYWHERE_FILE, result.to_dict() | {"judge": judge, "swing_up_law": bool(getattr(run, "uses_swing_up", False))})
     return result

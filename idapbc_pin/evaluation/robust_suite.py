@@ -16,7 +16,11 @@ x*'s, every speed within `SuiteConfig.speed`, and a cart stayed on its rail:
 4. **lag**: the actuator's responsiveness k from 0.1 to 2.0 (`idapbc_pin.sim.disturbed`);
 5. **delay**: the measured state 0 to 40 ms late (rounded to the tick);
 6. **pushes**: `pushes` random profiles, each `pulses` Gaussian torque pulses per joint (0.5 to 5 N·m,
-   0.05 to 0.1 s wide, centres at least 1 s apart), added after the clip.
+   0.05 to 0.1 s wide, centres at least 1 s apart), added after the clip. `SuiteConfig.push_joints`
+   says which joints they reach: every joint (a hand on any link), or only the actuated ones. The
+   leaderboard's own simulator draws pulses for every joint but passes the applied torques through
+   its plant's actuation matrix, so there the pulses on unactuated joints never reach the robot:
+   ``"actuated"`` reproduces that, and its published push scores.
 
 The suite's score is the mean of the six. All rows of all tests are simulated as one batch per law
 (`simulate_disturbed`); the noise draws and push profiles are the same for every law.
@@ -37,12 +41,14 @@ from ..model.variations import Family, RowPlants, plant_families, varied_model
 from ..sim.disturbed import Disturbances, simulate_disturbed
 from ..sim.states import uniform_states
 
-__all__ = ["FILTERED", "SUITE_FILE", "SUITE_TESTS", "SuiteConfig", "SuiteResult", "SuiteRows", "evaluate_run_suite", "judge_suite", "push_profiles", "suite_rows", "suite_start"]
+__all__ = ["FILTERED", "PUSH_JOINTS", "SUITE_FILE", "SUITE_TESTS", "SuiteConfig", "SuiteResult", "SuiteRows", "evaluate_run_suite", "judge_suite", "push_profiles", "suite_rows", "suite_start"]
 
 #: The six tests, in the leaderboard's order.
 SUITE_TESTS = ("model", "speed noise", "torque noise", "lag", "delay", "pushes")
 #: Seed offset of the suite's noise and pushes (apart from the other evaluations').
 SUITE_SEED = 70_000
+#: Which joints the pushes reach (`SuiteConfig.push_joints`).
+PUSH_JOINTS = ("all", "actuated")
 
 
 @dataclass(frozen=True)
@@ -60,6 +66,8 @@ class SuiteConfig:
     delay : largest delay, s.  pushes : push profiles.  pulses : pulses per joint in a profile.
     pulse_width : range of a pulse's σ, s.  pulse_amplitude : range of |A|, N·m.
     spacing : least time between two pulse centres, s.
+    push_joints : joints the pulses reach: ``"all"``, or ``"actuated"`` (the pulses drawn for the
+        others are dropped, as the leaderboard's simulator drops them; module docstring).
     """
 
     T: float = 10.0
@@ -81,6 +89,11 @@ class SuiteConfig:
     pulse_width: tuple = (0.05, 0.1)
     pulse_amplitude: tuple = (0.5, 5.0)
     spacing: float = 1.0
+    push_joints: str = "all"
+
+    def __post_init__(self):
+        if self.push_joints not in PUSH_JOINTS:
+            raise ValueError(f"unknown push_joints {self.push_joints!r}: one of {', '.join(PUSH_JOINTS)}")
 
 
 def push_profiles(rng: np.random.Generator, n: int, nv: int, config: SuiteConfig) -> np.ndarray:
@@ -171,6 +184,8 @@ def suite_rows(system, config: SuiteConfig = SuiteConfig(), start: str = "hangin
         add(4, j, -1, late, None, D0, np.zeros(nv), Disturbances(np.zeros(1), np.zeros(1), np.ones(1), np.array([ticks]), np.zeros((1, nv, 0, 3))))
     rng = np.random.default_rng(SUITE_SEED + int(seed))
     profiles = push_profiles(rng, int(config.pushes), nv, config)
+    if config.push_joints == "actuated":  # the same draws, the unactuated joints' pulses dropped
+        profiles[:, ~(np.abs(np.asarray(system.B, float)) > 0).any(axis=1), :, 2] = 0.0
     for j in range(int(config.pushes)):
         add(5, j, -1, float(j), None, D0, np.zeros(nv), Disturbances(np.zeros(1), np.zeros(1), np.ones(1), np.zeros(1, int), profiles[j: j + 1]))
     N = len(test)
