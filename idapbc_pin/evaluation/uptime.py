@@ -102,7 +102,7 @@ def drive_bound(system) -> np.ndarray:
     else the largest finite limit of the robot's inputs."""
     effort = np.asarray(system.effort, float)
     fallback = float(effort[np.isfinite(effort)].max()) if np.isfinite(effort).any() else np.inf
-    own = np.array([float(getattr(j, "effort", math.inf)) for j in system.joints])
+    own = np.array([float(j.effort) for j in system.joints])
     return np.where(np.isfinite(own) & (own > 0), own, fallback)
 
 
@@ -154,8 +154,9 @@ def _episode_uptime(job) -> np.ndarray:
             D = int(min(round(DRIVE_T / dt), (bounds[:, j + 1] - bounds[:, j]).min()))
             x_end = np.where(np.isfinite(x_end).all(axis=1, keepdims=True), x_end, sched.states[:, j - 1])
             qd, x0 = _drive(system, x_end, targets[:, j - 1], D, dt)
+            driven = tip_up(system, qd)  # (E, D)
             for e in range(E):
-                up[e, first[e]: first[e] + D] = tip_up(system, qd[e])
+                up[e, first[e]: first[e] + D] = driven[e]
             first += D
         lengths = bounds[:, j + 1] - first
         L = int(lengths.max())
