@@ -8,10 +8,11 @@ robot is first trained as a user would (``idapbc-pin train ROBOT --fast --swing-
 feedback and manoeuvre are judged beside them; ``--run RUN`` adds run directories (from hanging for
 a swing-up run, else from half-box states). The RealAIGym rows quote the leaderboard's published
 figures, measured by the leaderboard's simulator, where pushes reach the actuated joints only
-(``--push-joints actuated`` judges the same way). ``--roa`` prints the older table instead (success
+(``--push-joints actuated`` judges the same way). ``--judge mujoco`` integrates the same varied
+plants in MuJoCo. ``--roa`` prints the older table instead (success
 from the half box under mass ×0.8/×1.2, saturation and measurement noise) for the runs given.
 Run: python benchmarks/bench_robustness.py [--only [NAME ...]] [--run RUN ...] [--train] [--levels 21] [--repetitions 10]
-         [--pushes 50] [--push-joints all|actuated] [--workers 0] [--roa]
+         [--pushes 50] [--push-joints all|actuated] [--judge pinocchio|mujoco] [--workers 0] [--roa]
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import idapbc_pin as ip
 from bench_swingup import ROBOTS, load, trained_run
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.control.energy_pump import EnergyPumpLaw
-from idapbc_pin.evaluation.robust_suite import PUSH_JOINTS, SuiteConfig, evaluate_run_suite, judge_suite
+from idapbc_pin.evaluation.robust_suite import PUSH_JOINTS, SUITE_JUDGES, SuiteConfig, evaluate_run_suite, judge_suite
 from idapbc_pin.evaluation.robustness import default_conditions, robustness_table
 
 #: The robustness leaderboard v2's published scores (overall; model / speed noise / torque noise / lag / delay / pushes for TVLQR).
@@ -49,6 +50,7 @@ def main() -> None:
     parser.add_argument("--pushes", type=int, default=SuiteConfig.pushes)
     parser.add_argument("--push-joints", choices=PUSH_JOINTS, default=SuiteConfig.push_joints,
                         help="joints the pushes reach (actuated: as the leaderboard's own simulator, whose published push scores drop the others')")
+    parser.add_argument("--judge", choices=SUITE_JUDGES, default="pinocchio", help="the engine of the true plants (mujoco: an independent check)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=0, help="worker processes, one law each (0: one per core)")
     parser.add_argument("--roa", action="store_true", help="the older table (success from the half box under mismatch) for the runs given")
@@ -66,19 +68,19 @@ def main() -> None:
             with tempfile.TemporaryDirectory() as out:
                 run, wall, gate = trained_run(name, out, args.train_seed)
                 print(f"\n{name}: `idapbc-pin train --fast --swing-up` took {wall:.0f} s; {gate}")
-                result = evaluate_run_suite(run, config, seed=args.seed, workers=args.workers)
+                result = evaluate_run_suite(run, config, seed=args.seed, workers=args.workers, judge=args.judge)
         else:
             system = load(name)
             laws = {"LQR": LQRController(system), "energy pump + LQR": EnergyPumpLaw(system)}
-            result = judge_suite(system, laws, config, "hanging", args.seed, args.workers)
-        print(f"\n### {name}, from {result.start} ({result.rows.N} rollouts per law, {time.perf_counter() - t0:.0f} s)\n")
+            result = judge_suite(system, laws, config, "hanging", args.seed, args.workers, judge=args.judge)
+        print(f"\n### {name}, from {result.start}, judged by {result.judge} ({result.rows.N} rollouts per law, {time.perf_counter() - t0:.0f} s)\n")
         print(result.table())
         if name in PUBLISHED:
             print(f'\n> published: {PUBLISHED[name]} — "{SOURCE}"')
     for path in args.run:
         t0 = time.perf_counter()
-        result = evaluate_run_suite(ip.load_run(path), config, seed=args.seed, workers=args.workers)
-        print(f"\n### run {path} ({result.system}), from {result.start} ({result.rows.N} rollouts per law, {time.perf_counter() - t0:.0f} s)\n")
+        result = evaluate_run_suite(ip.load_run(path), config, seed=args.seed, workers=args.workers, judge=args.judge)
+        print(f"\n### run {path} ({result.system}), from {result.start}, judged by {result.judge} ({result.rows.N} rollouts per law, {time.perf_counter() - t0:.0f} s)\n")
         print(result.table())
 
 

@@ -10,7 +10,7 @@ from ..certificate.certify import certify
 from ..evaluation.anywhere import evaluate_run_anywhere
 from ..evaluation.uptime import RESETS
 from ..evaluation.closed_loop import JUDGES, simulate_run
-from ..evaluation.robust_suite import PUSH_JOINTS, SUITE_FILE, SuiteConfig, evaluate_run_suite
+from ..evaluation.robust_suite import PUSH_JOINTS, SUITE_FILE, SUITE_JUDGES, SuiteConfig, evaluate_run_suite
 from ..evaluation.robustness import default_conditions, robustness_table
 from ..reporting.report import report
 from ..reporting.simulation_figure import simulation_figure
@@ -114,13 +114,16 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     if not args.roa:
         sizes = {k: getattr(args, k) for k in ("levels", "repetitions", "pushes", "push_joints")} | ({} if args.T is None else {"T": args.T})
         run = _run(args)
-        result = evaluate_run_suite(run, SuiteConfig(**sizes), start=args.start, seed=seed, workers=workers_of(args), limits=not args.no_limits)
+        result = evaluate_run_suite(run, SuiteConfig(**sizes), start=args.start, seed=seed, workers=workers_of(args), limits=not args.no_limits,
+                                    judge=args.judge)
         start = "exactly hanging" if result.start == "hanging" else "states of the half box, one per rollout"
-        print(f"robustness suite of {result.system} from {start}, {result.config.T:g} s per rollout, {result.rows.N} rollouts per law, "
-              f"pushes on {'every joint' if result.config.push_joints == 'all' else 'the actuated joints'}:\n")
+        print(f"robustness suite of {result.system} from {start}, judged by {result.judge}, {result.config.T:g} s per rollout, "
+              f"{result.rows.N} rollouts per law, pushes on {'every joint' if result.config.push_joints == 'all' else 'the actuated joints'}:\n")
         print(result.table())
         print(f"wrote {Path(args.run) / SUITE_FILE}")
         return 0
+    if args.judge != "pinocchio":
+        raise IdapbcError("robustness --roa is judged by Pinocchio only. Fix: drop --judge, or drop --roa for the suite.")
     conds = default_conditions(**{k: getattr(args, k) for k in ("saturation", "noise") if hasattr(args, k)})  # unset: the library's
     T = library_default(robustness_table, "T") if args.T is None else args.T
     result = robustness_table(_run(args), n=args.n, T=T, seed=seed, box=args.box, conditions=conds, rho=args.rho, limits=not args.no_limits,
@@ -214,6 +217,8 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--pushes", type=positive_int, default=suite.pushes, metavar="P", help=f"push profiles (default {suite.pushes})")
     p.add_argument("--push-joints", choices=PUSH_JOINTS, default=suite.push_joints,
                    help=f"joints the pushes reach (default {suite.push_joints}; actuated: as the leaderboard's own simulator, which drops the others')")
+    p.add_argument("--judge", choices=SUITE_JUDGES, default=library_default(evaluate_run_suite, "judge"),
+                   help="the engine of the suite's true plants, with the same varied parameters (default %(default)s; mujoco: the dev extra)")
     p.add_argument("--roa", action="store_true", help="the older table instead: success from the box under mass ×0.8/×1.2, saturation and noise")
     add_box_argument(p, robustness_table)
     factor = library_default(robustness_table, "saturation_factor")

@@ -23,7 +23,9 @@ x*'s, every speed within `SuiteConfig.speed`, and a cart stayed on its rail:
    ``"actuated"`` reproduces that, and its published push scores.
 
 The suite's score is the mean of the six. All rows of all tests are simulated as one batch per law
-(`simulate_disturbed`); the noise draws and push profiles are the same for every law.
+(`simulate_disturbed`); the noise draws and push profiles are the same for every law. The rows'
+true plants are Pinocchio's (`RowPlants`), or MuJoCo's with the same varied parameters
+(``judge="mujoco"``, `idapbc_pin.sim.mujoco_rows`): an independent engine for the same tests.
 """
 
 from __future__ import annotations
@@ -37,16 +39,21 @@ from .._parallel import process_map
 from ..control.speed_filter import FilteredLaw, SpeedFilter
 from ..model.angles import wrap_angles
 from ..model.resting import resting_configuration
+from ..errors import IdapbcError
 from ..model.variations import Family, RowPlants, plant_families, varied_model
 from ..sim.disturbed import Disturbances, simulate_disturbed
+from ..sim.mujoco_plant import MujocoPlant
+from ..sim.mujoco_rows import MujocoRowPlants
 from ..sim.states import uniform_states
 
-__all__ = ["FILTERED", "PUSH_JOINTS", "SUITE_FILE", "SUITE_TESTS", "SuiteConfig", "SuiteResult", "SuiteRows", "evaluate_run_suite", "judge_suite", "push_profiles", "suite_rows", "suite_start"]
+__all__ = ["FILTERED", "PUSH_JOINTS", "SUITE_FILE", "SUITE_JUDGES", "SUITE_TESTS", "SuiteConfig", "SuiteResult", "SuiteRows", "evaluate_run_suite", "judge_suite", "push_profiles", "suite_rows", "suite_start"]
 
 #: The six tests, in the leaderboard's order.
 SUITE_TESTS = ("model", "speed noise", "torque noise", "lag", "delay", "pushes")
 #: Seed offset of the suite's noise and pushes (apart from the other evaluations').
 SUITE_SEED = 70_000
+#: Engines of the suite's true plants (`judge_suite`).
+SUITE_JUDGES = ("pinocchio", "mujoco")
 #: Which joints the pushes reach (`SuiteConfig.push_joints`).
 PUSH_JOINTS = ("all", "actuated")
 
@@ -208,10 +215,17 @@ def _successes(system, rows: SuiteRows, ending, config: SuiteConfig) -> np.ndarr
     return near & ~ending.diverged & ending.on_rail
 
 
+def _row_plants(system, rows: SuiteRows, judge: str):
+    """The rows' true plants: Pinocchio's (`RowPlants`) or MuJoCo's (`MujocoRowPlants`)."""
+    if judge == "mujoco":
+        return MujocoRowPlants(MujocoPlant(system.plant), rows.models, rows.damping, rows.coulomb)
+    return RowPlants(system.plant, rows.models, rows.damping, rows.coulomb)
+
+
 def _judge_job(job) -> np.ndarray:
-    """Worker: (system, law, rows, config, seed, limits) -> (N,) successes of the law on every row."""
-    system, law, rows, config, seed, limits = job
-    plants = RowPlants(system.plant, rows.models, rows.damping, rows.coulomb)
+    """Worker: (system, law, rows, config, seed, limits, judge) -> (N,) successes of the law on every row."""
+    system, law, rows, config, seed, limits, judge = job
+    plants = _row_plants(system, rows, judge)
     ending = simulate_disturbed(system, plants, law, rows.x0, rows.dist, config.T, config.dt, seed=SUITE_SEED + 1 + int(seed), limits=limits)
     return _successes(system, rows, ending, config)
 
@@ -221,7 +235,7 @@ class SuiteResult:
     """Several laws judged on the same suite rows.
 
     system : name.  start : "hanging" | "box".  config : `SuiteConfig`.  rows : `SuiteRows`.
-    success : law name -> (N,) bool per row.
+    success : law name -> (N,) bool per row.  judge : the engine of the true plants.
     """
 
     system: str
@@ -229,6 +243,7 @@ class SuiteResult:
     config: SuiteConfig
     rows: SuiteRows
     success: dict = field(default_factory=dict)
+    judge: str = "pinocchio"
 
     def scores(self, name: str) -> dict:
         """{test: score in [0, 1]} of one law, and "overall": their mean (module docstring)."""
@@ -268,7 +283,7 @@ class SuiteResult:
 
     def to_dict(self) -> dict:
         """JSON-ready: the settings, each law's scores, its model test per family and every row's verdict."""
-        return {"system": self.system, "start": self.start, "config": asdict(self.config),
+        return {"system": self.system, "start": self.start, "judge": self.judge, "config": asdict(self.config),
                 "families": [{"name": f.name, "kind": f.kind, "levels": list(f.levels)} for f in self.rows.families],
                 "rows": {"test": self.rows.test.tolist(), "level": self.rows.level.tolist(), "family": self.rows.family.tolist(),
                          "value": self.rows.values.tolist()},
@@ -277,13 +292,19 @@ class SuiteResult:
 
 
 def judge_suite(system, laws: dict, config: SuiteConfig = SuiteConfig(), start: str = "hanging", seed: int = 0, workers: int = 1,
-                limits: bool = True) -> SuiteResult:
+                limits: bool = True, judge: str = "pinocchio") -> SuiteResult:
     """Judge `laws` (name -> law (N, n) -> (N, m), called once per tick; a fresh instance each) on
     the suite's rows of `system` (`suite_rows`): one batched rollout per law, `workers` processes
-    (0: one per core; the laws must pickle), the effort limits applied unless `limits` is False."""
+    (0: one per core; the laws must pickle), the effort limits applied unless `limits` is False.
+    `judge`: the engine of the rows' true plants, "pinocchio" or "mujoco" (the same varied
+    parameters, `idapbc_pin.sim.mujoco_rows`); the laws keep `system` as their model."""
+    if judge not in SUITE_JUDGES:
+        raise IdapbcError(f"judge must be one of {', '.join(SUITE_JUDGES)}, got {judge!r}. Fix: --judge pinocchio or --judge mujoco.")
+    if judge == "mujoco":
+        MujocoPlant(system.plant)  # refuse a robot MuJoCo cannot judge here, before any worker starts
     rows = suite_rows(system, config, start, seed)
-    oks = process_map(_judge_job, [(system, law, rows, config, seed, bool(limits)) for law in laws.values()], workers)
-    return SuiteResult(system=str(system.name), start=start, config=config, rows=rows, success=dict(zip(laws, oks)))
+    oks = process_map(_judge_job, [(system, law, rows, config, seed, bool(limits), judge) for law in laws.values()], workers)
+    return SuiteResult(system=str(system.name), start=start, config=config, rows=rows, success=dict(zip(laws, oks)), judge=judge)
 
 
 #: The run directory's file of the suite.
@@ -301,12 +322,12 @@ FILTERED = "{} + speed filter"
 
 
 def evaluate_run_suite(run, config: SuiteConfig = SuiteConfig(), start: str = "auto", seed: int = 0, workers: int = 1,
-                       limits: bool = True) -> SuiteResult:
+                       limits: bool = True, judge: str = "pinocchio") -> SuiteResult:
     """A run judged by the suite (`judge_suite`) beside saturated LQR and the energy-pumping law
     (`EnergyPumpLaw`, handing over to LQR near x*); from hanging also the run's swing-up manoeuvre
     where it keeps one (then the run's law). The run's laws are judged as measured and on the speeds
-    of the shipped `SpeedFilter` (rows `FILTERED`). `start` "auto": `suite_start`. Written to the
-    run directory (`SUITE_FILE`)."""
+    of the shipped `SpeedFilter` (rows `FILTERED`). `start` "auto": `suite_start`; `judge`: the
+    engine of the true plants (`judge_suite`). Written to the run directory (`SUITE_FILE`)."""
     from .._io import write_json
     from ..control.baseline import LQRController
     from ..control.energy_pump import EnergyPumpLaw
@@ -320,6 +341,6 @@ def evaluate_run_suite(run, config: SuiteConfig = SuiteConfig(), start: str = "a
         laws[MANOEUVRE_ROW] = manoeuvre.law(ctrl, dt=DT)
         laws[FILTERED.format(MANOEUVRE_ROW)] = FilteredLaw(manoeuvre.law(ctrl, dt=DT), system, SpeedFilter(dt=DT))
     laws |= {"LQR": LQRController(system), "energy pump + LQR": EnergyPumpLaw(system)}
-    result = judge_suite(run.system, laws, config, start, seed, workers, limits)
+    result = judge_suite(run.system, laws, config, start, seed, workers, limits, judge)
     write_json(run.path / SUITE_FILE, result.to_dict(), sort_keys=False)
     return result

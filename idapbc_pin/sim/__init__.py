@@ -5,6 +5,7 @@ One concept per module, in the order a rollout uses them:
 * `states`: evaluation boxes around x* (`scaled_box`) and seeded uniform initial states.
 * `judge`: the true plant in (q, v) (Pinocchio's forward dynamics, or the closed form).
 * `mujoco_plant`: `mujoco_judge`, the same system judged by MuJoCo (an independent engine, optional).
+* `mujoco_rows`: `MujocoRowPlants`, the robustness suite's varied plants judged by MuJoCo.
 * `limits`: the input bound a rollout applies (effort limits, saturation), `input_limits`.
 * `step`: `judge_step`, the judge's step and control period (2 ms, or shorter for a loop stiffer at
   x*), and `horizon`.

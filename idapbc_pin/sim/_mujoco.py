@@ -1,6 +1,6 @@
 """MuJoCo from a URDF, set up as an independent reference for the rigid-body dynamics.
 
-Only this module and `mujoco_plant` touch ``mujoco.MjModel`` / ``mujoco.MjData``; `mujoco` is an
+Only this module, `mujoco_plant` and `mujoco_rows` touch ``mujoco.MjModel`` / ``mujoco.MjData``; `mujoco` is an
 optional dependency (the ``dev`` extra), imported on first use. The settings below are the ones
 ``tests/test_mujoco_reference.py`` checks against Pinocchio on every zoo robot:
 
