@@ -8,16 +8,19 @@ time-varying LQR read at the nearest point (`TrackingLaw`): `tracking_laws`.
    and a stiff one on the input, the end pinned on every coordinate and reached `settle` seconds
    before the end, so that a nominal swings up with little torque and speed, and rests at x* when
    the run's law takes over (the costs of the RealAIGym leaderboard's score). Each plan is tracked
-   by its own iLQR gains and caught by the teacher (the run's law with energy pumping outside the
-   training box's angles); those that hold at x* over `judge_T` are the nominals, cheapest plan
-   first. Where none holds, the plans are solved again with the plain end cost (`PLAIN`: no running
+   by its own iLQR gains, each input held over its knot as the solver rolled the plan out, and
+   caught by the teacher (the run's law with energy pumping outside the training box's angles);
+   those that hold at x* over `judge_T` are the nominals: first those that end within the training
+   box's angles (`reaches`: the plan itself swings up), then those the catch swings up after the
+   horizon, cheapest first within each. Where none holds, the plans are solved again with the plain end cost (`PLAIN`: no running
    state cost, a plan only has to end where the catch takes over).
 2. **Gains.** Along each of the first `NOMINALS` nominals, the gains of a discrete time-varying LQR on
    the plan's knots (`tvlqr_gains`: state weight `TRACK_Q` on positions, a tenth of it on speeds,
    input weight `TRACK_R`, LQR's Riccati matrix at the end), mapped from z = (q, v) to the run's
    x = (q, p).
-3. **Choice.** Each nominal with each weight of `SPEED_WEIGHTS` on the speeds in the nearest-point
-   distance (positions weigh 1) is judged from `gate_states` near-resting starts of its own seed
+3. **Choice.** Each nominal, at every control tick (`dense_plan`: the motion within a knot is no
+   error then), with each weight of `SPEED_WEIGHTS` on the speeds in the nearest-point distance
+   (positions weigh 1), is judged from `gate_states` near-resting starts of its own seed
    (`plan_seed` + 500): the `tracks` laws that hold the most go to the swing-up gate
    (`swing_stage.swing_gate`), which judges them beside the fitted laws on states of its own.
 """
@@ -27,15 +30,16 @@ from __future__ import annotations
 import numpy as np
 
 from ..control.baseline import LQRController
+from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
 from ..sim.metrics import holds
 from ..sim.states import resting_states
 from .holds import count_holds
-from .ilqr import ILQRSettings, _knot_jacobians, ilqr_plans, plan_weights
+from .ilqr import ILQRSettings, _knot_jacobians, ilqr_plans, plan_weights, rollout
 from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
 
-__all__ = ["NOMINALS", "SPEED_WEIGHTS", "nominal_plans", "nominals", "tracking_law", "tracking_laws", "tvlqr_gains", "warm_starts"]
+__all__ = ["NOMINALS", "SPEED_WEIGHTS", "dense_plan", "nominal_plans", "nominals", "reaches", "tracking_law", "tracking_laws", "tvlqr_gains", "warm_starts"]
 
 #: Knot of a nominal plan, s.
 KNOT = 0.02
@@ -79,11 +83,26 @@ def nominal_plans(system, teacher, x_rest: np.ndarray, config) -> list[tuple[np.
     for cost_terms in (SETTLED, PLAIN):
         settings = ILQRSettings(iterations=config.track_iterations, alphas=ALPHAS, **cost_terms)
         U, Z, gains, cost = ilqr_plans(system, x0, W, bound, K * KNOT, LQRController(system).S, settings)
-        held = holds(simulate(system, TrackThenLaw(U, Z, gains, KNOT, teacher, system), x0, T=config.judge_T, dt=PLAN_STEP, stop_settled=False), system)
-        order = [i for i in np.argsort(cost, kind="stable") if held[i]]
+        tracked = TrackThenLaw(U, Z, gains, KNOT, teacher, system, hold=True)  # each input held over its knot, as the plan was rolled out
+        held = holds(simulate(system, tracked, x0, T=config.judge_T, dt=PLAN_STEP, stop_settled=False), system)
+        reach = reaches(system, Z[:, -1])
+        cheapest = [i for i in np.argsort(cost, kind="stable") if held[i]]
+        order = [i for i in cheapest if reach[i]] + [i for i in cheapest if not reach[i]]
         if order:
             break
     return [(U[i], Z[i], float(cost[i])) for i in order]
+
+
+def reaches(system, z_end: np.ndarray) -> np.ndarray:
+    """(N,) bool: the plans' last states z_end (N, n) in (q, v) have every angle within the training
+    box's half-width of x*'s: the plan itself swings up, rather than leaving the swing-up to the
+    catch after its horizon."""
+    nq = system.nq
+    lo, hi = (np.asarray(b, float)[:nq] for b in system.domain)
+    half = 0.5 * (hi - lo)
+    mask = np.asarray(system.angle_mask, bool)[:nq]
+    d = wrap_angles(np.asarray(z_end, float)[:, :nq] - np.asarray(system.x_star, float)[:nq], mask)
+    return (np.abs(d) <= half)[:, mask].all(axis=1)
 
 
 def tvlqr_gains(system, U: np.ndarray, Z: np.ndarray) -> np.ndarray:
@@ -105,11 +124,23 @@ def tvlqr_gains(system, U: np.ndarray, Z: np.ndarray) -> np.ndarray:
     return G
 
 
-def tracking_law(system, U: np.ndarray, Z: np.ndarray, G: np.ndarray, speed_weight: float, box: np.ndarray) -> TrackingLaw:
+def dense_plan(system, U: np.ndarray, Z: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The plan U (K, m), Z (K + 1, n), G (K, m, n) at every control tick (`PLAN_STEP`) instead of
+    every knot: each knot's motion under its held input rolled out from the knot's state, the input
+    and gains repeated: (U (K·r, m), Z (K·r + 1, n), G (K·r, m, n)), r = KNOT / PLAN_STEP. Read
+    from the nearest point, a fast plan's own motion within a knot is then no error."""
+    r = int(round(KNOT / PLAN_STEP))
+    inside = rollout(system, Z[:-1], np.repeat(U[:, None, :], r, axis=1), PLAN_STEP, 1)[:, :r]
+    return np.repeat(U, r, axis=0), np.concatenate([inside.reshape(-1, Z.shape[1]), Z[-1:]]), np.repeat(G, r, axis=0)
+
+
+def tracking_law(system, U: np.ndarray, Z: np.ndarray, G: np.ndarray, speed_weight: float, box: np.ndarray, dense: bool = False) -> TrackingLaw:
     """The `TrackingLaw` of a plan U (K, m), Z (K + 1, n) and its gains G (K, m, n) on z = (q, v),
     mapped to x = (q, p = M(q) v): X_k = (q_k, M(q_k) v_k) and K_k = G_k Φ_k⁻¹, Φ_k = ∂x/∂z at Z_k
     (∂(M v)/∂q by central differences of M); the distance weighs positions 1 and momenta
-    `speed_weight` / M_ii(q*)."""
+    `speed_weight` / M_ii(q*). `dense`: the nominal at every control tick (`dense_plan`)."""
+    if dense:
+        U, Z, G = dense_plan(system, U, Z, G)
     nq = system.nq
     q, v = Z[:-1, :nq], Z[:-1, nq:]
     M = system.mass_matrix(q)
@@ -141,7 +172,7 @@ def tracking_laws(system, teacher, plans: list, box: np.ndarray, config, progres
     the kept `box` (n,): (the `config.tracks` laws that hold the most, most first; {"nominals": how
     many plans were tried, "held": holds of each law tried (nominal, speed weight), "states"})."""
     plans = plans[:NOMINALS]
-    laws = [tracking_law(system, U, Z, G, w, box).with_inner(teacher.fallback) for U, Z, G in plans for w in SPEED_WEIGHTS]
+    laws = [tracking_law(system, U, Z, G, w, box, dense=True).with_inner(teacher.fallback) for U, Z, G in plans for w in SPEED_WEIGHTS]
     x0 = resting_states(system, config.gate_states, config.plan_seed + 500)
     held = count_holds(system, [teacher.with_fallback(law) for law in laws], x0, config)
     best = sorted(range(len(laws)), key=lambda i: -held[i])[: config.tracks]
