@@ -58,6 +58,16 @@ class MujocoPlant:
         return (MujocoPlant, (self.base,))
 
     @property
+    def qpos_addresses(self) -> np.ndarray:
+        """(nv,) int: MuJoCo's qpos address of each of the plant's coordinates."""
+        return self._qpos
+
+    @property
+    def dof_addresses(self) -> np.ndarray:
+        """(nv,) int: MuJoCo's dof address of each of the plant's coordinates."""
+        return self._dof
+
+    @property
     def nq_config(self) -> int:
         """Size of MuJoCo's qpos (continuous joints count 1)."""
         return int(self.mj_model.nq)

@@ -37,7 +37,7 @@ def mujoco_copy_of(plant, model) -> "object":
     Pinocchio model `model` (a `varied_model` of its base plant) and no joint damping."""
     mj = import_mujoco()
     out = copy.copy(plant.mj_model)
-    for i, dof in enumerate(plant._dof):
+    for i, dof in enumerate(plant.dof_addresses):
         jid = i + 1  # Pinocchio joint of coordinate i (the plant's joints, in the model's order)
         body = int(out.dof_bodyid[dof])
         inertia = model.inertias[jid]
@@ -51,7 +51,7 @@ def mujoco_copy_of(plant, model) -> "object":
         out.body_inertia[body] = evals
         out.body_iquat[body] = quat
         out.dof_armature[dof] = float(np.asarray(model.armature, float)[i])
-    out.dof_damping[plant._dof] = 0.0
+    out.dof_damping[plant.dof_addresses] = 0.0
     mj.mj_setConst(out, mj.MjData(out))  # subtree masses and other constants of the new inertias
     return out
 
@@ -75,7 +75,7 @@ class MujocoRowPlants:
         self.damping = np.asarray(damping, float).reshape(self.N, nv)
         self.coulomb = np.asarray(coulomb, float).reshape(self.N, nv)
         nominal = copy.copy(plant.mj_model)
-        nominal.dof_damping[plant._dof] = 0.0
+        nominal.dof_damping[plant.dof_addresses] = 0.0
         self._pairs = []  # (MjModel, MjData) of each row; the nominal rows share one
         shared = (nominal, self._mj.MjData(nominal))
         for mdl in models:
@@ -84,7 +84,7 @@ class MujocoRowPlants:
             else:
                 own = mujoco_copy_of(plant, mdl)
                 self._pairs.append((own, self._mj.MjData(own)))
-        self._qpos, self._dof = plant._qpos, plant._dof
+        self._qpos, self._dof = plant.qpos_addresses, plant.dof_addresses
         self._args = (plant, list(models), self.damping, self.coulomb)
 
     def __reduce__(self):  # MjModel/MjData are rebuilt in a worker process
