@@ -221,6 +221,43 @@ def test_standalone_applies_a_recovery_law_as_the_library_does(runs, tmp_path, r
     _close(out["single"], expected, 1e-9)
 
 
+def test_standalone_applies_a_recovery_library_of_paths_as_the_library_does(runs, tmp_path):
+    """A run whose recovery law is its labelled paths read at the nearest point (`LibraryLaw`):
+    controller.json carries the paths, their gains and the inner box, and the standalone τ (a brute
+    force nearest point) equals the library's (a k-d tree) to 1e-9 on states mostly outside the box."""
+    from tests.test_recovery_library import _paths
+
+    from idapbc_pin.recovery.library_law import LibraryLaw
+    from idapbc_pin.run import RECOVERY_FILE
+    from idapbc_pin.trajectory.library import paths_law
+
+    system = runs["pendubot"].system
+    X, U = _paths(system, P=8, L=60, seed=5)  # 472 points: the library reads them with its k-d tree
+    lo, hi = system.domain
+    law = LibraryLaw.from_tracks(paths_law(system, X, U, 0.3, np.full(system.n, np.inf)), (hi - lo) / 2).with_inner(0.3)
+    path = tmp_path / "run"
+    shutil.copytree(runs["pendubot"].path, path)
+    np.savez(path / RECOVERY_FILE, **law.arrays())
+    summary = json.loads((path / "summary.json").read_text()) | {"recovery": {"used": True, "inner_scale": 0.3}}
+    (path / "summary.json").write_text(json.dumps(summary))
+    run = ip.load_run(path)
+    assert isinstance(run.fallback, LibraryLaw)
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    record = json.loads((folder / "controller.json").read_text())
+    assert record["fallback"]["kind"] == "recovery" and len(record["fallback"]["X"]) == law.points
+    assert "read at the nearest point" in (folder / "README.md").read_text()
+    q, v = _states(system)
+    q_star = system.x_star[: system.nq]
+    q[:500], v[:500] = q_star + 0.08 * (q[:500] - q_star), 0.08 * v[:500]  # half of them near x*, in the inner box
+    outside = law.outside(system.state_from(q, v))
+    assert 0.3 < outside.mean() < 0.9
+    expected = run.controller.torque(q, v)
+    assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))
+    out = _run_standalone(folder, q, v, tmp_path)
+    _close(out["batched"], expected, 1e-9)
+    _close(out["single"], expected, 1e-9)
+
+
 def test_standalone_keeps_the_ida_pbc_law_on_the_level_set_of_h_d_as_the_library_does(runs, tmp_path):
     """A recovery law with a level c acts only where H_d(x) > c (outside its inner box): the
     standalone evaluates H_d from desired_flow.py and gives the library's τ to 1e-9."""

@@ -124,6 +124,21 @@ def test_cli_simulate_with_the_mujoco_judge_gives_pinocchio_verdicts(pendubot_ru
         assert by_mj[name]["median_peak_input"] == pytest.approx(by_pin[name]["median_peak_input"], rel=1e-6)
 
 
+def test_cli_swing_up_from_hanging_with_the_mujoco_judge_is_judged_there_and_gives_pinocchio_verdicts(pendubot_run, capsys):
+    run = str(pendubot_run.path)
+    common = ["simulate", run, "--from", "hanging", "--n", "3", "--T", "2"]
+    assert main(common) == 0
+    by_pin = json.loads((pendubot_run.path / "swingup.json").read_text())
+    assert main(common + ["--judge", "mujoco"]) == 0
+    assert "judged by mujoco" in capsys.readouterr().out
+    by_mj = json.loads((pendubot_run.path / "swingup.json").read_text())
+    assert (by_pin["judge"], by_mj["judge"]) == ("pinocchio", "mujoco")
+    for name in ("NIDA-PBC", "LQR", "energy pump + LQR"):
+        assert by_mj["scores"][name]["holds"] == by_pin["scores"][name]["holds"]
+        assert by_mj["scores"][name]["energy"] == pytest.approx(by_pin["scores"][name]["energy"], rel=1e-5)
+    assert by_mj["scores"]["NIDA-PBC"]["energy"] != by_pin["scores"]["NIDA-PBC"]["energy"]  # the same motion from another engine's rounding
+
+
 def test_cli_mujoco_judge_refuses_a_mismatch_and_unknown_judges(pendubot_run, capsys):
     run = str(pendubot_run.path)
     assert main(["simulate", run, "--n", "2", "--T", "0.1", "--no-radius", "--judge", "mujoco", "--mismatch", "mass=1.2"]) == 2

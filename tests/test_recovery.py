@@ -389,8 +389,8 @@ def test_train_says_which_inputs_plan_within_their_limit_and_which_within_lqr_s_
     assert all(b in line for b in free) and line.count("±") == len(free)  # a limited input is not listed as planned within LQR's demand
 
 
-TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, confirm_states=2, inner_scales=(0.25,), workers=1, fits=1,
-            plan=PlanSettings(horizon=0.5, ilqr_iterations=4), judge_T=8.0)  # fmt: skip (one fit: the tests of --fits set their own)
+TINY = dict(starts=3, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=4, near_states=2, confirm_states=2, inner_scales=(0.25,), workers=1, fits=1, library=False,
+            plan=PlanSettings(horizon=0.5, ilqr_iterations=4), judge_T=8.0)  # fmt: skip (one fit and no library: the tests of --fits and of the library set their own)
 
 
 @pytest.mark.parametrize("near_of_the_best", [90, 80])

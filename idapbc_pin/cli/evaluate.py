@@ -59,9 +59,9 @@ def _simulate_swingup(args: argparse.Namespace, run, seed: int) -> int:
                           "Fix: drop --no-limits and --x0.")
     n = 20 if args.n == library_default(simulate_run, "n") else args.n
     T = 10.0 if args.T == library_default(simulate_run, "T") else args.T
-    result = evaluate_run_swingup(run, n=n, T=T, seed=seed, workers=workers_of(args), starts=args.start)
+    result = evaluate_run_swingup(run, n=n, T=T, seed=seed, workers=workers_of(args), starts=args.start, judge=args.judge)
     where = "near-resting states" if args.start == "hanging" else "states at rest, every angle from the full circle"
-    print(f"swing-up of {run.system.name} from {n} {where} (the first exactly at rest, hanging), T = {T:g} s, RK4 at 2 ms, "
+    print(f"swing-up of {run.system.name} from {n} {where} (the first exactly at rest, hanging), judged by {args.judge}, T = {T:g} s, RK4 at 2 ms, "
           f"the law held at 500 Hz, effort limits on every controller:")
     print(result.table())
     print(f"wrote {Path(args.run) / swingup_file(args.start)}")

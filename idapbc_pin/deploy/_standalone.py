@@ -23,7 +23,9 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
     u ← ū tanh(MLP(δ / s))  where some |δ_i| > inner_i        (instead, if the "fallback" has kind
                   "recovery": the run's recovery law outside an inner box; tanh hidden layers;
                   with a "level" c, only where also H_d(x) > c, H_d from desired_flow.py;
-                  with "residual": u ← ū clip(clip(u / ū, ±1) + MLP(δ / s), ±1) there instead)
+                  with "residual": u ← ū clip(clip(u / ū, ±1) + MLP(δ / s), ±1) there instead;
+                  with labelled paths "X": u ← clip(U_k + K_k e_k, ±ū) there, the nearest path
+                  point as for a tracking law below)
     u ← ū tanh(MLP(φ(δ)))  where some |δ_i| > box_i        (last, if the "fallback" has kind "swing_up":
                   the run's swing-up law outside its kept box (a null half-width is not read),
                   around the fallback it "wraps", above; φ(δ) = (sin δ_a, cos δ_a, δ_o / s_o): the
@@ -171,8 +173,15 @@ class ExportedController:
 
     def recovery_law(self, d: np.ndarray, u: np.ndarray) -> np.ndarray:
         """For δ (N, n) and the learned law's u (N, m) -> (N, m): ū tanh(MLP(δ / s)), or with "residual"
-        ū clip(clip(u / ū, ±1) + MLP(δ / s), ±1); W0, b0, W1, b1, … of controller.json's "fallback"."""
+        ū clip(clip(u / ū, ±1) + MLP(δ / s), ±1); W0, b0, W1, b1, … of controller.json's "fallback".
+        A library of paths ("X") reads the nearest path point instead: clip(U_k + K_k e, ±ū)."""
         fb = self.fallback
+        if "X" in fb:  # the labelled paths: the point nearest to x = x* + δ, and its gains
+            e = (d + fb["x_star"])[:, None, :] - fb["X"][None]
+            e[..., fb["angle_mask"]] = np.pi - np.mod(np.pi - e[..., fb["angle_mask"]], 2 * np.pi)
+            k = np.argmin(((e * fb["weight"]) ** 2).sum(axis=-1), axis=1)
+            e = e[np.arange(len(k)), k]
+            return np.clip(fb["U"][k] + np.einsum("nij,nj->ni", fb["K"][k], e), -fb["effort"], fb["effort"])
         z, depth = d / fb["scale"], sum(1 for k in fb if k.startswith("W"))
         for k in range(depth - 1):
             z = np.tanh(z @ fb[f"W{k}"].T + fb[f"b{k}"])

@@ -171,16 +171,20 @@ def _fallback_text(fallback: dict | None) -> tuple[str, str]:
     line, text = "", ""
     if fallback is not None and fallback.get("kind") == "recovery":
         level = f" and H_d(x) > {fallback['level']:.6g}" if "level" in fallback else ""  # the IDA-PBC law also keeps {H_d ≤ level}
-        law = "ū clip(clip(u / ū, ±1) + MLP(δ / s), ±1)" if fallback.get("residual") else "ū tanh(MLP(δ / s))"
+        library = "X" in fallback
+        law = ("clip(U_k + K_k e_k, ±ū)" if library else "ū clip(clip(u / ū, ±1) + MLP(δ / s), ±1)" if fallback.get("residual")
+               else "ū tanh(MLP(δ / s))")
         line = f"    u    ← {law}  where some |δ_i| > inner_i{level},  δ = wrap(x − x*)  (the recovery law)\n"
         inner = "(" + ", ".join(f"{v:.4g}" for v in fallback["inner"]) + ")"
         if level:
             inner += f" and where H_d(x) > {fallback['level']:.6g} (H_d from desired_flow.py)"
         text = (
-            f"\nOutside an inner box (half-widths {inner} around x*) the run uses its recovery law, a small MLP fitted to "
-            "torque plans within the limits (`idapbc-pin recover`), "
-            + ("as a correction added to the IDA-PBC law's input" if fallback.get("residual") else "instead of the IDA-PBC law") + ": its weights are "
-            "controller.json's \"fallback\" (`controller.py` applies it; the ONNX graph is f̃_d alone). It was kept because it "
+            f"\nOutside an inner box (half-widths {inner} around x*) the run uses its recovery law, "
+            + ("the paths of torque plans within the limits (`idapbc-pin recover`), each with the gains of a time-varying LQR along it, "
+               "read at the nearest point (e_k = wrap(x − X_k), the k that minimises ‖weight ⊙ e_k‖), instead of the IDA-PBC law: its arrays are "
+               if library else "a small MLP fitted to torque plans within the limits (`idapbc-pin recover`), "
+               + ("as a correction added to the IDA-PBC law's input" if fallback.get("residual") else "instead of the IDA-PBC law") + ": its weights are ")
+            + "controller.json's \"fallback\" (`controller.py` applies it; the ONNX graph is f̃_d alone). It was kept because it "
             "brought more simulated states to x* under the effort limits; no certificate covers it.\n"
         )
     elif fallback is not None:

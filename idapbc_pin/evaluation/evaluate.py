@@ -19,7 +19,7 @@ from tqdm.auto import tqdm
 from .._io import finite_or_none, write_json
 from .._parallel import JobPool
 from ..control.baseline import LQRController
-from ..recovery.law import RecoveryLaw
+from ..recovery.law import InnerSwitch
 from ..recovery.swing_law import KeptBoxLaw
 from ..run import Run
 from ..sim.limits import input_limits
@@ -129,7 +129,7 @@ def evaluate_run(
     law = getattr(ctrl, "fallback", None)
     record["swing_up"] = isinstance(law, KeptBoxLaw)  # NIDA-PBC used a swing-up law where the posture left the training box
     law = law.inner if record["swing_up"] else law
-    record["recovery"] = isinstance(law, RecoveryLaw)  # NIDA-PBC used a recovery law outside an inner box (`idapbc-pin recover`)
+    record["recovery"] = isinstance(law, InnerSwitch)  # NIDA-PBC used a recovery law outside an inner box (`idapbc-pin recover`)
     record["fallback"] = law is not None and not record["recovery"]  # NIDA-PBC used the anchor's linear law outside the training box
     record["inside_gain"] = float(getattr(law, "inside_gain", 1.0)) if record["fallback"] else 1.0  # and scaled its law inside it
     record["inside_ramp"] = list(getattr(law, "inside_ramp", (0.0, 0.0))) if record["fallback"] else [0.0, 0.0]  # from 1 near x*

@@ -214,21 +214,25 @@ def swingup_file(starts: str = "hanging") -> str:
     return "swingup.json" if starts == "hanging" else f"swingup-{starts}.json"
 
 
-def evaluate_run_swingup(run, n: int = 20, T: float = 10.0, seed: int = 0, workers: int = 1, starts: str = "hanging") -> SwingupResult:
+def evaluate_run_swingup(run, n: int = 20, T: float = 10.0, seed: int = 0, workers: int = 1, starts: str = "hanging",
+                         judge: str = "pinocchio") -> SwingupResult:
     """A run judged from `n` swing-up starts (`evaluate_swingup`; near-resting by default, or at rest
     from the full circle) beside saturated LQR and the energy-pumping law (`EnergyPumpLaw`, handing
-    over to LQR near x*), with the effort limits; from near rest also the run's swing-up manoeuvre
+    over to LQR near x*), with the effort limits, on the judge plant (``"pinocchio"``, or
+    ``"mujoco"``: `sim.mujoco_plant.mujoco_judge`); from near rest also the run's swing-up manoeuvre
     where it keeps one (row `MANOEUVRE_ROW`: the manoeuvre from t = 0, then the run's law). The
-    result is also written to the run directory (`swingup_file`)."""
+    result is also written to the run directory (`swingup_file`, with the judge's name)."""
     from .._io import write_json
     from ..control.baseline import LQRController
     from ..control.energy_pump import EnergyPumpLaw
+    from .closed_loop import _judged
 
     controllers = {"NIDA-PBC": run.controller}
     manoeuvre = getattr(run, "manoeuvre", None) if starts == "hanging" else None
     if manoeuvre is not None:  # from rest on command: the manoeuvre, then the run's law
         controllers[MANOEUVRE_ROW] = manoeuvre.law(run.controller, dt=DT)
     controllers |= {"LQR": LQRController(run.system), "energy pump + LQR": EnergyPumpLaw(run.system)}
-    result = evaluate_swingup(run.system, controllers, n=n, T=T, dt=DT, seed=seed, workers=workers, starts=starts)
-    write_json(run.path / swingup_file(starts), result.to_dict() | {"swing_up_law": bool(getattr(run, "uses_swing_up", False)), "manoeuvre": manoeuvre is not None})
+    result = evaluate_swingup(_judged(run.system, judge, {}), controllers, n=n, T=T, dt=DT, seed=seed, workers=workers, starts=starts)
+    write_json(run.path / swingup_file(starts), result.to_dict() | {"judge": judge, "swing_up_law": bool(getattr(run, "uses_swing_up", False)),
+                                                                    "manoeuvre": manoeuvre is not None})
     return result

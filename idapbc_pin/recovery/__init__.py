@@ -4,7 +4,8 @@ floor below) acts where the IDA-PBC law does not reach, kept only where a gate s
 
 * `box_law`: `BoxFallback`, the linear law outside the training box (the run's own outer law), and
   `box_gate`, the gate after training that decides whether a run uses it.
-* `law`: `RecoveryLaw`, the fitted law and where it acts. The laws reach the controller only through
+* `law`: `RecoveryLaw`, the fitted law and where it acts; `library_law`: `LibraryLaw`, the labelled
+  paths themselves read at the nearest point, judged beside the fits. The laws reach the controller only through
   `idapbc_pin.control.controller.OuterLaw` (``apply(x, u, energy) -> u``).
 * `config`: `RecoveryConfig` and `SwingUpConfig`, every number of the stages (TOML files for the CLI).
 * The reach stage: `fit` (the recovery law from labels), `gate` (keep it or not), `stage`
@@ -20,10 +21,11 @@ from ..trajectory import SwingManoeuvre, TrackingLaw  # re-exported: the plan-ba
 from .box_law import BoxFallback
 from .config import RecoveryConfig, SwingUpConfig
 from .law import RecoveryLaw
+from .library_law import LibraryLaw
 from .stage import recover, refit, regate
 from .swing_law import SwingUpLaw
 from .swing_stage import swing_up
 from .trigger import auto_recover, limits_bind
 
-__all__ = ["BoxFallback", "RecoveryConfig", "RecoveryLaw", "SwingManoeuvre", "SwingUpConfig", "SwingUpLaw", "TrackingLaw", "auto_recover", "limits_bind",
+__all__ = ["BoxFallback", "LibraryLaw", "RecoveryConfig", "RecoveryLaw", "SwingManoeuvre", "SwingUpConfig", "SwingUpLaw", "TrackingLaw", "auto_recover", "limits_bind",
            "recover", "refit", "regate", "swing_up"]

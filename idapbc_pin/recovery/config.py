@@ -46,6 +46,12 @@ class RecoveryConfig(Settings):
     fits : laws fitted to the final labels (seeds fit_seed, fit_seed + 1, …), each judged by the gate
         on the same states; the one it keeps with the most successes is the run's (`choose_fit`): a
         fit's seed alone moves the basin.
+    library : also judge, beside the fits, the labelled paths read at the nearest point with the
+        gains of a time-varying LQR along each (`stage.label_library`).
+    library_speed : the weight of the momenta in the library's nearest-point distance (positions
+        weigh 1; momenta are divided by M_ii(x*) first).
+    library_every : of the library's points outside the smallest inner box, every `library_every`-th
+        knot is kept (the exported controller searches every point each call).
     gate_states : states of the gate (half from the half box, half from the training box).
     inner_scales : candidate scales r of the inner box r·s where the IDA-PBC law keeps control.
     margin : successes the best candidate must add to the run's law on the gate's states to be kept.
@@ -90,6 +96,9 @@ class RecoveryConfig(Settings):
     batch: int = 1024
     fit_seed: int = 0
     fits: int = 2
+    library: bool = True
+    library_speed: float = 0.3
+    library_every: int = 2
     gate_states: int = 100
     near_states: int = 100
     inner_scales: tuple = (0.25, 0.5)
@@ -111,6 +120,7 @@ class RecoveryConfig(Settings):
             (self.dagger >= 0 and self.workers >= 0 and min(self.width, self.steps, self.fits, self.batch) >= 1, "dagger, workers ≥ 0, width, steps, batch and fits ≥ 1"),
             (len(self.inner_scales) >= 1 and all(0 <= r <= 1 for r in self.inner_scales), "inner_scales must be scales in [0, 1]"),
             (self.half_loss >= 0 and all(0 < q < 1 for q in self.levels), "half_loss must be ≥ 0 and levels quantiles in (0, 1)"),
+            (self.library_speed >= 0 and self.library_every >= 1, "library_speed must be ≥ 0 and library_every ≥ 1"),
             (self.start_box in START_BOXES, f"start_box must be one of {', '.join(START_BOXES)}"),
             (self.teacher in TEACHERS, f"teacher must be one of {', '.join(TEACHERS)}"),
             (self.form in FORMS, f"form must be one of {', '.join(FORMS)}"),

@@ -283,7 +283,12 @@ def format_gate(gate: dict, margin: int, half_loss: int) -> str:
     if "level_candidates" in gate:  # no inner box was kept: the levels of H_d were tried
         levels = "; or only where also H_d > " + ", ".join(
             f"c = {c:.3g}: {_shown(t)} ({gate['level_candidates_near'][c]} near x*)" for c, t in gate["level_candidates"].items())
-    fits = f"; the {len(gate['fits'])} fits brought {', '.join(map(_shown, gate['fits']))}: fit {gate['fit'] + 1}" if "fits" in gate else ""
+    if "fits" in gate and gate.get("library_points"):  # the last law judged is the library of paths
+        *fitted, library = gate["fits"]
+        chosen = "the library" if gate.get("library") else f"fit {gate['fit'] + 1}"
+        fits = f"; the {len(fitted)} fits brought {', '.join(map(_shown, fitted))}, the library of paths {_shown(library)}: {chosen}"
+    else:
+        fits = f"; the {len(gate['fits'])} fits brought {', '.join(map(_shown, gate['fits']))}: fit {gate['fit'] + 1}" if "fits" in gate else ""
     screened = any(v is None for v in [*gate["candidates"].values(), *gate.get("level_candidates", {}).values()])
     fits += "; –: too few near x* to be eligible, not run from the box states" if screened else ""
     return (f"gate: {gate['states']} states, the run's law brings {gate['run']} to x* ({gate['run_half']} of the {gate['states'] // 2} "

@@ -36,11 +36,60 @@ import numpy as np
 
 from ..model.angles import wrap_angles
 
-__all__ = ["RecoveryLaw"]
+__all__ = ["InnerSwitch", "RecoveryLaw"]
+
+
+class InnerSwitch:
+    """Mixin of a recovery law: the IDA-PBC law inside the inner box (and where H_d ≤ `level`), the
+    law's own `law(x, u)` elsewhere.
+
+    The dataclass that mixes it in holds x_star (n,), angle_mask (n,) bool, scale (n,) s, inner (n,)
+    half-widths r·s and level c, and defines `law`.
+    """
+
+    def delta(self, x) -> np.ndarray:
+        """δ = wrap(x − x*): (..., n) -> (..., n)."""
+        return wrap_angles(np.asarray(x, dtype=np.float64) - self.x_star, self.angle_mask)
+
+    def outside(self, x) -> np.ndarray:
+        """(..., n) -> (...) bool: True where the state is outside the inner box (the recovery law acts)."""
+        return (np.abs(self.delta(x)) > self.inner).any(axis=-1)
+
+    @property
+    def uses_level(self) -> bool:
+        """True when the IDA-PBC law also keeps the sublevel set {H_d ≤ level}: `apply` needs H_d."""
+        return math.isfinite(self.level)
+
+    def apply(self, x, u, energy=None) -> np.ndarray:
+        """u inside the inner box (and where H_d ≤ `level`), the recovery law elsewhere:
+        (N, n), (N, m) -> (N, m) (a new array). energy : H_d as a function (K, n) -> (K,), called on
+        the rows outside the inner box only; needed when `uses_level`."""
+        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        u = np.array(u, dtype=np.float64, copy=True).reshape(len(x), -1)
+        out = self.outside(x)
+        if self.uses_level and out.any():
+            if energy is None:
+                raise ValueError("this recovery law switches on H_d's level: pass energy, the function x -> H_d(x)")
+            out[out] = np.asarray(energy(x[out]), dtype=np.float64).reshape(-1) > self.level
+        if out.any():
+            u[out] = self.law(x[out], u[out])
+        return u
+
+    def with_inner(self, inner_scale: float):
+        """The same law with the inner box r·s for another r (s = `scale`)."""
+        return replace(self, inner=inner_scale * self.scale)
+
+    def with_level(self, level: float):
+        """The same law with the IDA-PBC law also keeping {H_d ≤ level} (∞: the inner box alone)."""
+        return replace(self, level=float(level))
+
+    def to_json(self) -> dict:
+        """controller.json's "fallback" of an export (kind "recovery"): every array as lists."""
+        return {"kind": "recovery"} | {k: np.asarray(v).tolist() for k, v in self.arrays().items()}
 
 
 @dataclass(frozen=True, eq=False)
-class RecoveryLaw:
+class RecoveryLaw(InnerSwitch):
     """The fitted recovery law and the inner box where the IDA-PBC law keeps control.
 
     Attributes
@@ -67,10 +116,6 @@ class RecoveryLaw:
     level: float = math.inf
     residual: bool = False
 
-    def delta(self, x) -> np.ndarray:
-        """δ = wrap(x − x*): (..., n) -> (..., n)."""
-        return wrap_angles(np.asarray(x, dtype=np.float64) - self.x_star, self.angle_mask)
-
     def law(self, x, u=None) -> np.ndarray:
         """The recovery law alone: (N, n) -> (N, m), within ±ū. Direct form: ū ⊙ tanh(MLP(δ/s)).
         Residual form: ū ⊙ clip(clip(u/ū, ±1) + MLP(δ/s), ±1), with u (N, m) the IDA-PBC law's
@@ -84,38 +129,6 @@ class RecoveryLaw:
         if u is None:
             raise ValueError("a residual recovery law corrects the IDA-PBC law's input: pass u, that input at x")
         return self.effort * np.clip(np.clip(np.asarray(u, dtype=np.float64).reshape(z.shape) / self.effort, -1.0, 1.0) + z, -1.0, 1.0)
-
-    def outside(self, x) -> np.ndarray:
-        """(..., n) -> (...) bool: True where the state is outside the inner box (the recovery law acts)."""
-        return (np.abs(self.delta(x)) > self.inner).any(axis=-1)
-
-    @property
-    def uses_level(self) -> bool:
-        """True when the IDA-PBC law also keeps the sublevel set {H_d ≤ level}: `apply` needs H_d."""
-        return math.isfinite(self.level)
-
-    def apply(self, x, u, energy=None) -> np.ndarray:
-        """u inside the inner box (and where H_d ≤ `level`), the recovery law elsewhere:
-        (N, n), (N, m) -> (N, m) (a new array). energy : H_d as a function (K, n) -> (K,), called on
-        the rows outside the inner box only; needed when `uses_level`."""
-        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-        u = np.array(u, dtype=np.float64, copy=True).reshape(len(x), -1)
-        out = self.outside(x)
-        if self.uses_level and out.any():
-            if energy is None:
-                raise ValueError("this recovery law switches on H_d's level: pass energy, the function x -> H_d(x)")
-            out[out] = np.asarray(energy(x[out]), dtype=np.float64).reshape(-1) > self.level
-        if out.any():
-            u[out] = self.law(x[out], u[out])
-        return u
-
-    def with_inner(self, inner_scale: float) -> "RecoveryLaw":
-        """The same law with the inner box r·s for another r (s = `scale`)."""
-        return replace(self, inner=inner_scale * self.scale)
-
-    def with_level(self, level: float) -> "RecoveryLaw":
-        """The same law with the IDA-PBC law also keeping {H_d ≤ level} (∞: the inner box alone)."""
-        return replace(self, level=float(level))
 
     def arrays(self) -> dict:
         """The law as named arrays (recovery.npz of a run): W0, b0, W1, b1, …, x_star, scale, effort,
@@ -143,7 +156,3 @@ class RecoveryLaw:
         if not all(np.isfinite(a).all() for a in (*weights, *biases, x_star, scale, effort, inner)) or not (scale > 0).all() or math.isnan(level):
             raise ValueError("the recovery law has non-finite weights, limits or scales")
         return law
-
-    def to_json(self) -> dict:
-        """controller.json's "fallback" of an export (kind "recovery"): every array as lists."""
-        return {"kind": "recovery"} | {k: np.asarray(v).tolist() for k, v in self.arrays().items()}

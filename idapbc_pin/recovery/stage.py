@@ -19,7 +19,10 @@ The steps (`RecoveryConfig` holds every number):
 2. **Fit.** A `recovery.law.RecoveryLaw` MLP (two tanh layers of `width`) by least squares on
    u/ū (Adam, minibatches of 4096; `fit`). With `form` "residual" the MLP is a correction
    added to the IDA-PBC law's own input (`RecoveryLaw.residual`). After the DAgger rounds, `fits`
-   laws are fitted to the final labels (seeds `fit_seed`, `fit_seed` + 1, …) and the gate judges each.
+   laws are fitted to the final labels (seeds `fit_seed`, `fit_seed` + 1, …) and the gate judges each,
+   and beside them (`library`) the labelled paths themselves, each with the gains of a time-varying
+   LQR along it, read at the nearest point (`label_library`, `library_law.LibraryLaw`): where the
+   fits average the paths, the library keeps them.
 3. **DAgger** (Ross, Gordon, Bagnell 2011), `dagger` rounds: the fitted law runs from
    `dagger_starts` new starts of the same box; the states its failures visit at 0.5, 1.5 and 3 s are
    labelled as in step 1, and a fresh law is fitted on all labels. When the first fit brings none
@@ -52,7 +55,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 import torch
@@ -71,12 +74,17 @@ from .config import FORMS, START_BOXES, TEACHERS, RecoveryConfig
 from .fit import base_inputs, fit_job, fit_recovery_law
 from .gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, read_labels, save_labels, save_recovery
 from .law import RecoveryLaw
+from .library_law import LibraryLaw
+from ..trajectory.library import paths_law
+from ..trajectory.tracks import KNOT
 from ..trajectory.plans import PLAN_STEP, PlanThenLaw, TrackThenLaw, plan_candidates, planning_system, search_plans
 
-__all__ = ["FORMS", "LABEL_EVERY", "LABEL_SPAN", "RecoveryConfig", "START_BOXES", "TEACHERS", "choose_inner", "collect_labels", "dagger_round", "ends_near", "fit_recovery_law", "gate_choice", "recover", "refit", "regate"]
+__all__ = ["FORMS", "LABEL_EVERY", "LABEL_PATH", "LABEL_SPAN", "RecoveryConfig", "START_BOXES", "TEACHERS", "choose_inner", "collect_labels", "dagger_round", "ends_near", "fit_recovery_law", "gate_choice", "label_library", "recover", "refit", "regate"]
 
 #: A label every LABEL_EVERY ticks (10 ms) over the first LABEL_SPAN ticks (6 s) of a successful start.
 LABEL_EVERY, LABEL_SPAN = 5, 3000
+#: Labels of one start's path.
+LABEL_PATH = LABEL_SPAN // LABEL_EVERY
 #: The labelled span, s: a rollout's record is complete up to it, and rows that enter their loop's
 #: terminal set after it stop there (`simulate`'s stop_converged: their success is known).
 LABEL_TIME = LABEL_SPAN * PLAN_STEP
@@ -304,7 +312,7 @@ def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: boo
     start = time.perf_counter()
     gate = choose_inner(run, law, config, progress)
     regated = {"from": {"used": last.get("used"), "inner_scale": last.get("inner_scale")}, "seconds": round(time.perf_counter() - start, 1)}
-    entry = last | _verdict(gate, config, keep) | {"fit_seed": last.get("fit_seed", 0), "regated": regated}  # the saved law's seed
+    entry = last | _verdict(gate, config, keep) | {"fit_seed": last.get("fit_seed", 0), "library": isinstance(law, LibraryLaw), "regated": regated}  # the saved law's
     return _save_and_tell(run, law, entry, config, progress, start)
 
 
@@ -327,7 +335,7 @@ def refit(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool
         print(f"fitted again on the {len(X)} saved labels (fit seed {config.fit_seed}, width {config.width}, {config.steps} steps): "
               f"mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
     law, gate = _gate_fits(run, system, law, X, U, config, progress, start, networks)
-    refitted = {"fit_seed": config.fit_seed + gate.get("fit", 0), "fits": config.fits, "width": config.width, "steps": config.steps, "labels": int(len(X)), "mse": mse,
+    refitted = {"fit_seed": None if gate.get("library") else config.fit_seed + gate.get("fit", 0), "fits": config.fits, "width": config.width, "steps": config.steps, "labels": int(len(X)), "mse": mse,
                 "seconds": round(time.perf_counter() - start, 1)}
     earlier = {k: v for k, v in last.items() if k not in ("regated", "refit")}
     return _save_and_tell(run, law, earlier | _verdict(gate, config, keep) | {"refit": refitted}, config, progress, start)
@@ -347,8 +355,31 @@ def _gate_fits(run, system, law: RecoveryLaw | None, X: np.ndarray, U: np.ndarra
         laws.append(more)
         if progress:
             print(f"fit {k + 1}/{config.fits} (seed {config.fit_seed + k}): mean squared error {mse:.4f}  [{time.perf_counter() - start:.0f} s]", flush=True)
-    k, gate = choose_fit(run, laws, config, progress)
-    return laws[k], gate
+    library = label_library(system, X, U, config.library_speed, config.library_every, min(config.inner_scales)) if config.library else None
+    if progress and library is not None:
+        print(f"library: the {len(X) // LABEL_PATH} labelled paths read at the nearest point ({library.points} points), judged beside the fits", flush=True)
+    k, gate = choose_fit(run, laws + ([library] if library is not None else []), config, progress)
+    if library is not None:
+        gate |= {"library": k == len(laws), "library_points": library.points}
+    return (laws + [library])[k], gate
+
+
+def label_library(system, X: np.ndarray, U: np.ndarray, speed_weight: float, every: int = 1, inner: float = 0.0) -> LibraryLaw | None:
+    """The labels X (K, n), U (K, m) as the paths they were sampled from (`LABEL_PATH` labels each,
+    every LABEL_EVERY ticks), each knot of each read at the nearest point (`LibraryLaw`,
+    `trajectory.library.paths_law`; momenta weighted `speed_weight` / M_ii(q*)), then thinned for the
+    exported controller's brute-force search: the points inside the inner box `inner`·s are dropped
+    (the IDA-PBC law's there) and of the others every `every`-th is kept. None where the labels are
+    not whole paths."""
+    if not len(X) or len(X) % LABEL_PATH:
+        return None
+    step = int(round(KNOT / (LABEL_EVERY * PLAN_STEP)))
+    P = len(X) // LABEL_PATH
+    paths = X.reshape(P, LABEL_PATH, system.n)[:, ::step], U.reshape(P, LABEL_PATH, system.m)[:, ::step]
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in system.domain)
+    law = LibraryLaw.from_tracks(paths_law(system, *paths, speed_weight, np.full(system.n, np.inf)), 0.5 * (hi - lo)).with_inner(inner)
+    keep = np.flatnonzero(law.outside(law.X))[::every]
+    return None if not keep.size else replace(law, X=law.X[keep], U=law.U[keep], K=law.K[keep], inner=np.zeros(system.n))
 
 
 def _fit(system, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, networks, progress: str | None = None) -> tuple[RecoveryLaw, float]:
@@ -362,7 +393,7 @@ def _verdict(gate: dict, config: RecoveryConfig, keep: bool) -> dict:
     """The summary entry's verdict: the gate's (or forced by `keep`), its inner box, the seed of the
     law it judged (the best of `config.fits`) and the settings."""
     return {"used": bool(gate["used"] or keep), "forced": bool(keep and not gate["used"]), "inner_scale": gate["inner_scale"], "level": gate.get("level"),
-            "fit_seed": config.fit_seed + gate.get("fit", 0), "gate": gate, "config": asdict(config) | {"inner_scales": list(config.inner_scales), "levels": list(config.levels)}}
+            "fit_seed": None if gate.get("library") else config.fit_seed + gate.get("fit", 0), "library": bool(gate.get("library", False)), "gate": gate, "config": asdict(config) | {"inner_scales": list(config.inner_scales), "levels": list(config.levels)}}
 
 
 def _save_and_tell(run, law: RecoveryLaw, entry: dict, config: RecoveryConfig, progress: bool, start: float) -> dict:

@@ -169,9 +169,9 @@ def read_recovery(run_dir, name: str = RECOVERY_FILE) -> OuterLaw:
     if not path.is_file():
         says = "uses a recovery law" if name == RECOVERY_FILE else "the last recover refused its law"
         raise DamagedFileError(f"'{path}' is missing, but summary.json says the run {says}. Fix: {fix}.")
-    from ..recovery.law import RecoveryLaw  # the recovery package's stage opens runs through this module
+    from ..recovery.library_law import recovery_law_from_arrays  # the recovery package's stage opens runs through this module
 
-    return read_npz(path, RecoveryLaw.from_arrays, fix=fix)
+    return read_npz(path, recovery_law_from_arrays, fix=fix)
 
 
 def read_swing_up(run_dir, name: str = SWINGUP_FILE, inner: OuterLaw | None = None) -> OuterLaw:

@@ -20,6 +20,11 @@ many starts instead, each with a short horizon:
 
 The starts are planned in chunks of `CHUNK` over `workers` processes; the chunks and their order fix
 the result, the number of workers only the time.
+
+`paths_law` builds the same kind of law from recorded closed-loop paths instead of fresh plans (the
+reach stage's labels: plans tracked and caught, sampled every knot): each path with the gains of a
+time-varying LQR along it, every point of every path read at the nearest point, a funnel library
+(Tedrake et al. 2010, LQR-trees; Reist, Preiskorn & Tedrake 2016, simulation-based LQR-trees).
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
 from .tracks import ALPHAS, KNOT, tracking_law, tvlqr_gains, warm_starts
 
-__all__ = ["CHUNK", "LIBRARY_COST", "WARM_PERIOD", "WARM_RANDOM", "library_nominals", "library_starts", "plan_library"]
+__all__ = ["CHUNK", "LIBRARY_COST", "WARM_PERIOD", "WARM_RANDOM", "library_nominals", "library_starts", "paths_law", "plan_library"]
 
 #: The library's plan cost (`ilqr.ILQRSettings` fields): time priced above torque, at rest at x* at the end.
 LIBRARY_COST = {"q": 1.0, "r": 1.0, "end_box": 1000.0, "settle": 0.3}
@@ -101,3 +106,19 @@ def plan_library(system, catch, starts: np.ndarray, box: np.ndarray, *, horizon:
         return None, 0
     laws = [tracking_law(system, U, Z, tvlqr_gains(system, U, Z), speed_weight, box) for U, Z in nominals]
     return TrackingLaw.join(laws), len(nominals)
+
+
+def paths_law(system, X: np.ndarray, U: np.ndarray, speed_weight: float, box: np.ndarray) -> TrackingLaw:
+    """One `TrackingLaw` over recorded paths: X (P, L, n) states in x = (q, p) every `KNOT` seconds and
+    U (P, L, m) the inputs applied from each (N·m or N); each path's last state ends its plan. Each
+    path gets the gains of a time-varying LQR along it (`tracks.tvlqr_gains`, its inputs taken as
+    held over each knot), all read at the nearest point with momenta weighted
+    `speed_weight` / M_ii(q*) and the kept `box` (n,) (∞: every state is the law's)."""
+    X, U = np.asarray(X, dtype=np.float64), np.asarray(U, dtype=np.float64)
+    nq = system.nq
+    laws = []
+    for x, u in zip(X, U):
+        v = np.linalg.solve(system.mass_matrix(x[:, :nq]), x[:, nq:, None])[..., 0]
+        Z = np.concatenate([x[:, :nq], v], axis=1)
+        laws.append(tracking_law(system, u[:-1], Z, tvlqr_gains(system, u[:-1], Z), speed_weight, box))
+    return TrackingLaw.join(laws)
