@@ -258,6 +258,40 @@ def test_standalone_applies_a_recovery_library_of_paths_as_the_library_does(runs
     _close(out["single"], expected, 1e-9)
 
 
+def test_standalone_applies_a_swing_up_tracking_law_as_the_library_does(runs, tmp_path):
+    """A run whose swing-up law is a tracking law (a nominal read at the nearest point, `TrackingLaw`):
+    controller.json's "swing_up" fallback carries its nominal "X", and the standalone τ equals the
+    library's to 1e-9 on states mostly outside its kept box."""
+    from tests.test_recovery_library import _paths
+
+    from idapbc_pin.run import SWINGUP_FILE
+    from idapbc_pin.trajectory.library import paths_law
+
+    system = runs["pendubot"].system
+    X, U = _paths(system, P=1, L=120, seed=6)
+    lo, hi = system.domain
+    law = paths_law(system, X, U, 0.3, 0.3 * (hi - lo) / 2)
+    path = tmp_path / "run"
+    shutil.copytree(runs["pendubot"].path, path)
+    np.savez(path / SWINGUP_FILE, **law.arrays())
+    summary = json.loads((path / "summary.json").read_text()) | {"swing_up": {"used": True}}
+    (path / "summary.json").write_text(json.dumps(summary))
+    run = ip.load_run(path)
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    record = json.loads((folder / "controller.json").read_text())
+    assert record["fallback"]["kind"] == "swing_up" and len(record["fallback"]["X"]) == len(law.X)
+    q, v = _states(system)
+    q_star = system.x_star[: system.nq]
+    q[:500], v[:500] = q_star + 0.08 * (q[:500] - q_star), 0.08 * v[:500]  # half of them near x*, in the kept box
+    outside = law.outside(system.state_from(q, v))
+    assert 0.3 < outside.mean() < 0.9
+    expected = run.controller.torque(q, v)
+    assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))
+    out = _run_standalone(folder, q, v, tmp_path)
+    _close(out["batched"], expected, 1e-9)
+    _close(out["single"], expected, 1e-9)
+
+
 def test_standalone_keeps_the_ida_pbc_law_on_the_level_set_of_h_d_as_the_library_does(runs, tmp_path):
     """A recovery law with a level c acts only where H_d(x) > c (outside its inner box): the
     standalone evaluates H_d from desired_flow.py and gives the library's τ to 1e-9."""

@@ -177,11 +177,7 @@ class ExportedController:
         A library of paths ("X") reads the nearest path point instead: clip(U_k + K_k e, ±ū)."""
         fb = self.fallback
         if "X" in fb:  # the labelled paths: the point nearest to x = x* + δ, and its gains
-            e = (d + fb["x_star"])[:, None, :] - fb["X"][None]
-            e[..., fb["angle_mask"]] = np.pi - np.mod(np.pi - e[..., fb["angle_mask"]], 2 * np.pi)
-            k = np.argmin(((e * fb["weight"]) ** 2).sum(axis=-1), axis=1)
-            e = e[np.arange(len(k)), k]
-            return np.clip(fb["U"][k] + np.einsum("nij,nj->ni", fb["K"][k], e), -fb["effort"], fb["effort"])
+            return _nearest_point_law(d + fb["x_star"], fb)
         z, depth = d / fb["scale"], sum(1 for k in fb if k.startswith("W"))
         for k in range(depth - 1):
             z = np.tanh(z @ fb[f"W{k}"].T + fb[f"b{k}"])
@@ -201,12 +197,8 @@ class ExportedController:
         if not out.any():
             return u
         if "X" in sw:  # a tracking law: the nominal point nearest to x, and its gains
-            e = x[out][:, None, :] - sw["X"][None]
-            e[..., mask] = np.pi - np.mod(np.pi - e[..., mask], 2 * np.pi)
-            k = np.argmin(((e * sw["weight"]) ** 2).sum(axis=-1), axis=1)
-            e = e[np.arange(len(k)), k]
             u = u.copy()
-            u[out] = np.clip(sw["U"][k] + np.einsum("nij,nj->ni", sw["K"][k], e), -sw["effort"], sw["effort"])
+            u[out] = _nearest_point_law(x[out], sw)
             return u
         z = np.concatenate([np.sin(d[out][:, mask]), np.cos(d[out][:, mask]), d[out][:, ~mask] / sw["scale"][~mask]], axis=1)
         depth = sum(1 for k in sw if k.startswith("W"))
@@ -248,6 +240,16 @@ class ExportedController:
         u = np.clip(feed + e @ mv["K"][k].T, -mv["effort"], mv["effort"])
         tau = np.minimum(np.maximum(u, -self.effort), self.effort) @ self.B.T
         return tau[0] if single else tau
+
+
+def _nearest_point_law(x: np.ndarray, law: dict) -> np.ndarray:
+    """clip(U_k + K_k e_k, ±ū) at the point X_k of `law` nearest to each state x (N, n), e_k = wrap(x − X_k)
+    and the distance ‖weight ⊙ e_k‖: a tracking law, or a recovery law's library of paths -> (N, m)."""
+    e = x[:, None, :] - law["X"][None]
+    e[..., law["angle_mask"]] = np.pi - np.mod(np.pi - e[..., law["angle_mask"]], 2 * np.pi)
+    k = np.argmin(((e * law["weight"]) ** 2).sum(axis=-1), axis=1)
+    e = e[np.arange(len(k)), k]
+    return np.clip(law["U"][k] + np.einsum("nij,nj->ni", law["K"][k], e), -law["effort"], law["effort"])
 
 
 def _arrays(fallback: dict) -> dict:
