@@ -312,7 +312,7 @@ def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: boo
     start = time.perf_counter()
     gate = choose_inner(run, law, config, progress)
     regated = {"from": {"used": last.get("used"), "inner_scale": last.get("inner_scale")}, "seconds": round(time.perf_counter() - start, 1)}
-    entry = last | _verdict(gate, config, keep) | {"fit_seed": last.get("fit_seed", 0), "library": isinstance(law, LibraryLaw), "regated": regated}  # the saved law's
+    entry = last | _verdict(gate, config, keep) | {"fit_seed": last.get("fit_seed", 0), "library": isinstance(law, LibraryLaw), "regated": regated}  # the saved law's seed and kind
     return _save_and_tell(run, law, entry, config, progress, start)
 
 
