@@ -188,6 +188,22 @@ def test_standalone_switches_to_the_linear_law_outside_the_box_as_the_library_do
     _close(out["single"], expected, 1e-9)
 
 
+def _standalone_equals_library_outside(run, law, folder, tmp_path) -> None:
+    """The exported controller's τ equals the library's to 1e-9 on 1000 states, half of them near x*
+    (inside `law`'s box), where `law` (the run's outer law) acts on 30–90 % of them and changes τ."""
+    system = run.system
+    q, v = _states(system)
+    q_star = system.x_star[: system.nq]
+    q[:500], v[:500] = q_star + 0.08 * (q[:500] - q_star), 0.08 * v[:500]  # half of them near x*, in the law's box
+    outside = law.outside(system.state_from(q, v))
+    assert 0.3 < outside.mean() < 0.9
+    expected = run.controller.torque(q, v)
+    assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))
+    out = _run_standalone(folder, q, v, tmp_path)
+    _close(out["batched"], expected, 1e-9)
+    _close(out["single"], expected, 1e-9)
+
+
 @pytest.mark.parametrize("residual", [False, True])
 def test_standalone_applies_a_recovery_law_as_the_library_does(runs, tmp_path, residual):
     """A run with a recovery law (`control.recovery`, direct or residual form): controller.json carries
@@ -209,16 +225,7 @@ def test_standalone_applies_a_recovery_law_as_the_library_does(runs, tmp_path, r
     assert record["fallback"]["kind"] == "recovery" and record["fallback"]["inner"] == pytest.approx(list(law.inner))
     assert "recovery law" in (folder / "README.md").read_text() and record["fallback"].get("residual", False) == residual
     assert ("correction added to the IDA-PBC law's input" in (folder / "README.md").read_text()) == residual
-    q, v = _states(run.system)
-    q_star = run.system.x_star[: run.system.nq]
-    q[:500], v[:500] = q_star + 0.08 * (q[:500] - q_star), 0.08 * v[:500]  # half of them near x*, in the inner box
-    outside = law.outside(run.system.state_from(q, v))
-    assert 0.3 < outside.mean() < 0.9
-    expected = run.controller.torque(q, v)
-    assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))
-    out = _run_standalone(folder, q, v, tmp_path)
-    _close(out["batched"], expected, 1e-9)
-    _close(out["single"], expected, 1e-9)
+    _standalone_equals_library_outside(run, law, folder, tmp_path)
 
 
 def test_standalone_applies_a_recovery_library_of_paths_as_the_library_does(runs, tmp_path):
@@ -246,16 +253,7 @@ def test_standalone_applies_a_recovery_library_of_paths_as_the_library_does(runs
     record = json.loads((folder / "controller.json").read_text())
     assert record["fallback"]["kind"] == "recovery" and len(record["fallback"]["X"]) == law.points
     assert "read at the nearest point" in (folder / "README.md").read_text()
-    q, v = _states(system)
-    q_star = system.x_star[: system.nq]
-    q[:500], v[:500] = q_star + 0.08 * (q[:500] - q_star), 0.08 * v[:500]  # half of them near x*, in the inner box
-    outside = law.outside(system.state_from(q, v))
-    assert 0.3 < outside.mean() < 0.9
-    expected = run.controller.torque(q, v)
-    assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))
-    out = _run_standalone(folder, q, v, tmp_path)
-    _close(out["batched"], expected, 1e-9)
-    _close(out["single"], expected, 1e-9)
+    _standalone_equals_library_outside(run, law, folder, tmp_path)
 
 
 def test_standalone_applies_a_swing_up_tracking_law_as_the_library_does(runs, tmp_path):
@@ -280,16 +278,7 @@ def test_standalone_applies_a_swing_up_tracking_law_as_the_library_does(runs, tm
     folder = ip.export(run, tmp_path / "export", onnx=False)
     record = json.loads((folder / "controller.json").read_text())
     assert record["fallback"]["kind"] == "swing_up" and len(record["fallback"]["X"]) == len(law.X)
-    q, v = _states(system)
-    q_star = system.x_star[: system.nq]
-    q[:500], v[:500] = q_star + 0.08 * (q[:500] - q_star), 0.08 * v[:500]  # half of them near x*, in the kept box
-    outside = law.outside(system.state_from(q, v))
-    assert 0.3 < outside.mean() < 0.9
-    expected = run.controller.torque(q, v)
-    assert not np.allclose(expected, run.controller.with_fallback(None).torque(q, v))
-    out = _run_standalone(folder, q, v, tmp_path)
-    _close(out["batched"], expected, 1e-9)
-    _close(out["single"], expected, 1e-9)
+    _standalone_equals_library_outside(run, law, folder, tmp_path)
 
 
 def test_standalone_keeps_the_ida_pbc_law_on_the_level_set_of_h_d_as_the_library_does(runs, tmp_path):
