@@ -1065,3 +1065,35 @@ def test_auto_recovers_exactly_when_saturated_lqr_leaves_room(tiny_run, tmp_path
     assert not (run_dir / RECOVERY_FILE).exists() and "recovery" not in json.loads((run_dir / "summary.json").read_text())
     with pytest.raises(IdapbcError, match="unknown recover mode"):
         auto_recover(ip.load_run(path), "sometimes", config)
+
+
+class _Hidden:
+    """An outer law with `reads_networks` hidden: the controller then computes the networks on every row."""
+
+    def __init__(self, law):
+        self.law = law
+
+    def apply(self, x, u, energy=None):
+        return self.law.apply(x, u, energy=energy)
+
+
+def test_the_controller_computes_the_networks_only_where_its_outer_law_reads_them_and_applies_the_same_inputs(tiny_run):
+    """`OuterLaw.reads_networks`: a direct recovery law reads the networks inside its inner box, a
+    residual one or one with a level everywhere, a swing-up law inside its kept box where its inner
+    law reads them; the inputs equal those computed over every row (NaN never reaches them)."""
+    from idapbc_pin.trajectory.tracks import tracking_law, tvlqr_gains
+    from tests.test_swing_tracks import _plan
+
+    system, ctrl = tiny_run.system, tiny_run.controller
+    x = np.concatenate([sample_domain(system, 300), system.x_star + 3 * (sample_domain(system, 300, seed=1) - system.x_star)])
+    U, Z, _ = _plan(system)
+    lo, hi = system.domain
+    direct = random_law(system, 0.3)
+    laws = [direct, random_law(system, 0.3, residual=True), direct.with_level(0.2),
+            tracking_law(system, U, Z, tvlqr_gains(system, U, Z), 0.1, 0.5 * (hi - lo)).with_inner(direct)]
+    for law in laws:
+        reads = law.reads_networks(x)
+        assert reads.shape == (len(x),) and (reads.all() if law is not direct and law is not laws[-1] else 0 < reads.mean() < 1)
+        u = ctrl.with_fallback(law)(x)
+        assert np.isfinite(u).all()
+        np.testing.assert_allclose(u, ctrl.with_fallback(_Hidden(law))(x), rtol=0, atol=1e-9)

@@ -114,8 +114,12 @@ def test_recover_judges_the_library_beside_the_fits_and_a_run_that_keeps_it_appl
         return np.full(len(x0), isinstance(ctrl.fallback, LibraryLaw))
 
     monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
-    entry = recover(path, RecoveryConfig(**TINY | {"library": True}), progress=False)
-    assert "LibraryLaw" in judged and "RecoveryLaw" in judged
+    entry = recover(path, RecoveryConfig(**TINY | {"library": True}), progress=False)  # judged first, kept: no fit
+    assert "LibraryLaw" in judged and "RecoveryLaw" not in judged and entry["fits_skipped"] and entry["first_fit_mse"] is None
+    assert entry["used"] and entry["library"] and entry["fit_seed"] is None and entry["gate"]["library_points"] > 0
+    judged.clear()
+    entry = recover(path, RecoveryConfig(**TINY | {"library": True, "always_fit": True}), progress=False)
+    assert "LibraryLaw" in judged and "RecoveryLaw" in judged and "fits_skipped" not in entry
     assert entry["used"] and entry["library"] and entry["fit_seed"] is None and entry["gate"]["library_points"] > 0
     line = recovery_gate.format_gate(entry["gate"], 3, 2)
     assert "the library of paths 4: the library" in line and "the 1 fits brought" in line
@@ -125,6 +129,11 @@ def test_recover_judges_the_library_beside_the_fits_and_a_run_that_keeps_it_appl
     x = uniform_states(system, 50, "domain", 4)
     outside = loaded.controller.fallback.outside(x)
     np.testing.assert_allclose(loaded.controller(x)[outside], loaded.controller.fallback.law(x[outside]), atol=1e-12)
+    judged.clear()
+    monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(lambda job: np.zeros(len(job[2]), bool)))  # nothing brings a state
+    refused = recover(path, RecoveryConfig(**TINY | {"library": True}), progress=False)  # the library refused alone: the fits follow
+    assert not refused["used"] and "fits_skipped" not in refused and refused["first_fit_mse"] is not None
+    monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
     judged.clear()
     without = recover(path, RecoveryConfig(**TINY | {"library": False}), progress=False)  # the fits alone: none adds a state
     assert "LibraryLaw" not in judged and not without["used"] and not without["library"] and "library_points" not in without["gate"]

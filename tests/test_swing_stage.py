@@ -4,6 +4,7 @@ limits; the stage writes a law the run loads, and a kill leaves the run as it wa
 
 import json
 import math
+from math import inf, nan
 import shutil
 
 import numpy as np
@@ -15,6 +16,7 @@ from idapbc_pin.recovery.config import SwingUpConfig
 from idapbc_pin.recovery.swing_law import SwingUpLaw, swing_features
 from idapbc_pin.recovery import swing_stage as stage
 from idapbc_pin.recovery.swing_stage import ANY_SPEED, any_speed_boxes, chosen_box, fit_swing_law, kept_boxes, posture_box, swing_up
+from idapbc_pin.trajectory.holds import Judged
 from idapbc_pin.trajectory.tracks import tracking_law, tvlqr_gains
 from idapbc_pin.run import SWINGUP_FILE, SWINGUP_REFUSED_FILE
 from idapbc_pin.sim.states import resting_states
@@ -502,15 +504,42 @@ def test_on_a_tie_in_holds_the_gate_takes_a_fit_then_the_candidate_that_keeps_mo
     system = tiny_swing_run.system
     laws = [random_swing_law(system, seed=s) for s in range(4)]  # two "fits", then two "tracking laws"
 
-    def judged(held, boxed):
-        monkeypatch.setattr(swing_stage, "count_holds", lambda system, laws, x0, config: [0, *held])
+    def judged(held, boxed, times=(2.0, 2.0, 2.0, 2.0), run=(0, 5.0)):
+        answers = [Judged(run[0], nan, nan, run[1]), *(Judged(h, nan, nan, t) for h, t in zip(held, times))]
+        monkeypatch.setattr(swing_stage, "judge_starts", lambda system, laws, x0, config: answers)
         monkeypatch.setattr(swing_stage, "compare_laws", lambda system, jobs, **kw: [(np.arange(len(jobs[0][1])) < b, None) for b in [50, *boxed]])
-        return swing_stage.swing_gate(tiny_swing_run, laws, SwingUpConfig(gate_states=4, box_states=100, workers=1), fitted=2)[1]["fit"]
+        gate = swing_stage.swing_gate(tiny_swing_run, laws, SwingUpConfig(gate_states=4, box_states=100, workers=1), fitted=2)[1]
+        return gate["fit"], gate["used"]
 
-    assert judged([4, 4, 4, 4], [50, 50, 60, 60]) == 1  # a fit before a tracking law; the later fit
-    assert judged([4, 4, 4, 4], [55, 50, 60, 60]) == 0  # among the fits, more box states
-    assert judged([3, 3, 4, 4], [55, 50, 49, 70]) == 3  # more held wins; between the tracking laws, more box states
-    assert judged([3, 3, 4, 2], [55, 50, 40, 70]) == 0  # a law that loses the box is not eligible
+    assert judged([4, 4, 4, 4], [50, 50, 60, 60])[0] == 1  # a fit before a tracking law; the later fit
+    assert judged([4, 4, 4, 4], [55, 50, 60, 60])[0] == 0  # among the fits, more box states
+    assert judged([3, 3, 4, 4], [55, 50, 49, 70])[0] == 3  # more held wins; between the tracking laws, more box states
+    assert judged([3, 3, 4, 2], [55, 50, 40, 70])[0] == 0  # a law that loses the box is not eligible
+    # among those that hold the most, the fastest by more than time_margin (0.25 s) wins; within it, the old ties
+    assert judged([4, 4, 4, 4], [50, 50, 60, 60], times=(2.0, 2.0, 1.0, 1.2))[0] == 3
+    assert judged([4, 4, 4, 4], [50, 50, 60, 60], times=(1.2, 2.0, 1.0, 1.2))[0] == 0
+
+
+def test_a_swing_up_law_that_holds_as_many_as_the_run_s_law_is_kept_only_where_it_is_sooner_at_x_star(tiny_swing_run, monkeypatch):
+    """The verdict: `margin` more held, or as many and a median time to x* `time_margin` sooner;
+    fewer held is never kept however fast, and a law that loses the box is never kept."""
+    from idapbc_pin.recovery import swing_stage
+
+    laws = [random_swing_law(tiny_swing_run.system, seed=0)]
+
+    def used(run, law, boxed=50):
+        answers = [Judged(run[0], nan, nan, run[1]), Judged(law[0], nan, nan, law[1])]
+        monkeypatch.setattr(swing_stage, "judge_starts", lambda system, laws, x0, config: answers)
+        monkeypatch.setattr(swing_stage, "compare_laws", lambda system, jobs, **kw: [(np.arange(len(jobs[0][1])) < b, None) for b in [50, boxed]])
+        gate = swing_stage.swing_gate(tiny_swing_run, laws, SwingUpConfig(gate_states=4, box_states=100, workers=1, margin=2), fitted=1)[1]
+        assert gate["run_time"] == (None if run[1] == inf else run[1]) and gate["law_time"] == (None if law[1] == inf else law[1])
+        return gate["used"]
+
+    assert used((20, 2.3), (20, 1.1))  # as many, 1.2 s sooner
+    assert not used((20, 2.3), (20, 2.1))  # as many, within the margin
+    assert not used((20, 2.3), (19, 0.5))  # fewer held
+    assert used((17, inf), (19, inf))  # margin more held
+    assert not used((20, 2.3), (20, 1.1), boxed=40)  # loses the box
 
 
 def test_the_anywhere_gate_keeps_a_library_by_its_own_rule_and_never_a_copy_of_the_law_it_replaces(tiny_swing_run):
@@ -556,3 +585,34 @@ def test_the_anywhere_gate_counts_the_tip_up_over_the_first_seconds_as_the_uptim
     assert up[0] == 1.0 and up[1] == 0.0 and held[0] and not held[1]
     traj = __import__("idapbc_pin").simulate(system, zero, x0[2:], T=UP_WINDOW)
     assert 0.0 < up[2] < 1.0 and abs(up[2] - tip_up(system, traj.q[0]).mean()) <= 2.0 / len(traj.t)
+
+
+def test_where_a_tracking_law_holds_every_start_the_stage_skips_labels_and_fits_unless_told_to_fit(tiny_swing_run, tmp_path, monkeypatch):
+    """`always_fit`: by default, a tracking law that holds all of its near-resting starts leaves the
+    gate to the tracking laws alone (no labels, no fit, no DAgger); with `always_fit` the labels are
+    collected and the fits join the gate."""
+    from idapbc_pin.recovery import swing_stage
+    from tests.test_swing_tracks import _plan
+
+    system = tiny_swing_run.system
+    U, Z, G = _plan(system)
+    law = tracking_law(system, U, Z, G, 0.1, kept_boxes(system, SwingUpConfig(**TINY))["posture"])
+    labelled = []
+
+    def labels(system, x0, seed, config, progress, teacher, store, step):
+        labelled.append(step)
+        rng = np.random.default_rng(seed)
+        q = rng.uniform(-math.pi, math.pi, (100, system.nq))
+        return system.state_from(q, np.zeros_like(q)), system.effort * np.tanh(np.sin(q[:, :1])), 0, len(x0)
+
+    monkeypatch.setattr(swing_stage, "collect_labels", labels)
+    monkeypatch.setattr(swing_stage, "nominals", lambda system, catch, config, count: [(U, Z, G)])
+    monkeypatch.setattr(swing_stage, "tracking_laws", lambda system, teacher, plans, box, config, progress: ([law], {"nominals": 1, "held": [2], "states": 2}))
+    monkeypatch.setattr(swing_stage, "GATE_HORIZON", 1.0)
+    config = SwingUpConfig(**TINY | {"library": 0, "manoeuvre": False, "dagger": 0})
+    for always, path in ((False, tmp_path / "skip"), (True, tmp_path / "fit")):
+        shutil.copytree(tiny_swing_run.path, path)
+        labelled.clear()
+        entry = swing_up(path, config.replace(always_fit=always), progress=False)
+        assert entry["fits_skipped"] is (not always) and bool(labelled) is always
+        assert entry["gate"]["fitted"] == (1 if always else 0) and all(len(held) == entry["gate"]["fitted"] + 1 for held in entry["gate"]["candidates"].values())

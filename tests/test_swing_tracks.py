@@ -296,3 +296,29 @@ def test_the_anywhere_step_joins_the_manoeuvre_else_the_tracking_law_it_would_re
         np.testing.assert_array_equal(kept.X[: len(library.X)], library.X)
         if joined is not None:
             np.testing.assert_array_equal(kept.X[len(library.X):], joined.X)
+
+
+def test_judging_starts_stops_settled_rows_without_changing_holds_or_times(pendubot):
+    """`judge_starts`: without a score the rows settled in the success box stop early; the holds, the
+    first start's settling time and the median time to x* equal those of the full horizon (a score
+    asks for it), and a start that never settles counts as ∞ in the median."""
+    from types import SimpleNamespace
+
+    from idapbc_pin.control.baseline import LQRController
+    from idapbc_pin.sim.integrate import simulate
+    from idapbc_pin.sim.metrics import holds, settling_time
+    from idapbc_pin.trajectory.holds import judge_starts
+
+    system = pendubot
+    rng = np.random.default_rng(0)
+    x0 = system.x_star + rng.uniform(-0.05, 0.05, (6, system.n))
+    x0[-2:] = system.x_star + np.r_[np.pi, np.zeros(system.n - 1)]  # hanging at rest: LQR never gets up
+    config = SimpleNamespace(judge_T=4.0, workers=1, ray=None)
+    lqr = LQRController(system)
+    fast, full = judge_starts(system, [lqr], x0, config)[0], judge_starts(system, [lqr], x0, config, score=True)[0]
+    traj = simulate(system, lqr, x0, T=4.0, dt=PLAN_STEP)
+    times = settling_time(traj, system)
+    assert fast.held == full.held == int(holds(traj, system).sum()) == 4
+    assert fast.rest_time == full.rest_time == times[0]
+    assert fast.median_time == full.median_time == np.median(np.where(np.isnan(times), np.inf, times))
+    assert np.isfinite(fast.median_time)

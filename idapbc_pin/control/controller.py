@@ -37,6 +37,8 @@ class OuterLaw(Protocol):
     callable ``energy(x) -> H_d(x)`` (N,), and returns the inputs to apply (N, m). The run's outer
     laws (the linear law outside the training box, a recovery law) live in `idapbc_pin.recovery`.
     An optional ``gain_at_target`` (float) scales the networks' part of the loop's linearisation at x*.
+    An optional ``reads_networks(x) -> (N,) bool`` names the rows of x whose networks' input ``apply``
+    reads: the controller computes the networks on those rows alone (NaN in the others).
     """
 
     def apply(self, x: np.ndarray, u: np.ndarray, energy: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray: ...
@@ -95,13 +97,24 @@ class Controller:
         """
         xb, single = self._batch(x)
         xb = self.nets.wrap(xb)
-        numpy = self._device.type == "cpu" or len(xb) <= RUNTIME_GPU_MAX_BATCH
-        f_d = self.flow()(xb) if numpy else self._np(self.nets.desired_fast(self._t(xb)))
-        rows = self._rows  # only the input rows of f (`System.f_rows`); float64 whatever the networks' dtype
-        u = (f_d[:, rows] - self.system.f_rows(xb, rows)) @ self._g_pinv[:, rows].T
+        reads = getattr(self.fallback, "reads_networks", None)
+        mask = None if reads is None else np.asarray(reads(xb), dtype=bool)
+        if mask is None or mask.all():
+            u = self._networks(xb)
+        else:  # the outer law takes the other rows whatever the networks say there
+            u = np.full((len(xb), self.system.m), np.nan)
+            if mask.any():
+                u[mask] = self._networks(xb[mask])
         if self.fallback is not None:  # a recovery law with a level reads H_d on the rows it may take
             u = self.fallback.apply(xb, u, energy=lambda x: self.flow().energy(x))
         return u[0] if single else u
+
+    def _networks(self, xb: np.ndarray) -> np.ndarray:
+        """The networks' law (gᵀg)⁻¹gᵀ(f̃_d − f) at wrapped states xb (N, n) -> (N, m), before any outer law."""
+        numpy = self._device.type == "cpu" or len(xb) <= RUNTIME_GPU_MAX_BATCH
+        f_d = self.flow()(xb) if numpy else self._np(self.nets.desired_fast(self._t(xb)))
+        rows = self._rows  # only the input rows of f (`System.f_rows`); float64 whatever the networks' dtype
+        return (f_d[:, rows] - self.system.f_rows(xb, rows)) @ self._g_pinv[:, rows].T
 
     def flow(self) -> DesiredFlow:
         """f̃_d as a numpy `DesiredFlow` of the current weights (retaken when a parameter changes).

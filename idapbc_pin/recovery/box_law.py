@@ -102,6 +102,10 @@ class BoxFallback:
         """(..., n) -> (...) bool: True where some |δ_i| > s_i (the state is outside the training box)."""
         return (np.abs(self.delta(x)) > self.half).any(axis=-1)
 
+    def reads_networks(self, x) -> np.ndarray:
+        """(N, n) -> (N,) bool: the rows whose networks' input `apply` reads (`OuterLaw`): inside the box."""
+        return ~self.outside(np.atleast_2d(x))
+
     def apply(self, x, u, energy=None) -> np.ndarray:
         """u* + k(x) (u − u*) where x is inside the box (k = `gain_at`), u* − Kδ outside:
         (N, n), (N, m) -> (N, m) (a new array; u itself inside when k_in = 1). `energy` (H_d, which

@@ -47,7 +47,9 @@ class RecoveryConfig(Settings):
         on the same states; the one it keeps with the most successes is the run's (`choose_fit`): a
         fit's seed alone moves the basin.
     library : also judge, beside the fits, the labelled paths read at the nearest point with the
-        gains of a time-varying LQR along each (`stage.label_library`).
+        gains of a time-varying LQR along each (`stage.label_library`). The library is judged first,
+        from the first labels: where the gate keeps it, no law is fitted (unless `always_fit`).
+    always_fit : fit, DAgger and judge the fits even where the gate keeps the library alone.
     library_speed : the weight of the momenta in the library's nearest-point distance (positions
         weigh 1; momenta are divided by M_ii(x*) first).
     library_every : of the library's points outside the smallest inner box, every `library_every`-th
@@ -97,6 +99,7 @@ class RecoveryConfig(Settings):
     fit_seed: int = 0
     fits: int = 2
     library: bool = True
+    always_fit: bool = False
     library_speed: float = 0.3
     library_every: int = 2
     gate_states: int = 100
@@ -158,6 +161,9 @@ class SwingUpConfig(Settings):
     box_states : states of the gate from the half box and the training box (half each), judged over
         20 s: the law is kept only if it loses at most `box_loss` of those the run's law brings to x*.
     margin : near-resting states the law must hold beyond the run's law to be kept.
+    time_margin : s; a law that holds as many as the run's law is kept where its median time to x*
+        over the gate's swing-up states is this much sooner; candidates within it of the fastest
+        count as equally fast.
     box_loss : see `box_states`.
     inner_scales : kept boxes r·s (every component) the gate tries beside the box's angles and
         `kept_momenta` (`swing_stage.kept_boxes`); none by default: a law acting through the box's postures
@@ -167,6 +173,9 @@ class SwingUpConfig(Settings):
         speed, would command torques that pump energy (a push through the top at speed can then spin
         a link up without bound).
     judge_T : horizon of every swing-up rollout (the teacher's, the plans', DAgger's, the gate's), s.
+    always_fit : label, fit and DAgger even where a tracking law already holds every near-resting
+        start of its own (by default those steps are skipped there: the tracking laws, the manoeuvre
+        and the anywhere library cover the swing-up, and the fits cost most of the stage's time).
     tracks : tracking laws (`trajectory.tracks`: nominal plans from the exact resting posture,
         each tracked from the nearest point by a time-varying LQR) the gate judges beside the fits; 0:
         none.
@@ -206,11 +215,13 @@ class SwingUpConfig(Settings):
     gate_states: int = 20
     box_states: int = 100
     margin: int = 2
+    time_margin: float = 0.25
     box_loss: int = 2
     inner_scales: tuple = ()
     kept_momenta: float = 5.0
     judge_T: float = 10.0
     tracks: int = 2
+    always_fit: bool = False
     track_iterations: int = 80
     track_share: float = 0.8
     manoeuvre: bool = True
@@ -226,7 +237,7 @@ class SwingUpConfig(Settings):
         ok = (all(0 < r <= 1 for r in self.inner_scales) and 0 < self.track_share <= 1 and 0 < self.library_share <= 1
               and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations, self.library_iterations) >= 1
               and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library) >= 0
-              and 0 < self.library_horizon <= self.judge_T - 2.0
+              and 0 < self.library_horizon <= self.judge_T - 2.0 and self.time_margin >= 0
               and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10 and self.kept_momenta >= 0
               and all(0 < h <= self.judge_T - 2.0 for h in self.manoeuvre_horizons))
         if not ok:

@@ -33,7 +33,7 @@ from .config import RecoveryConfig
 from .law import RecoveryLaw
 from ..trajectory.plans import PLAN_STEP
 
-__all__ = ["GATE_HORIZON", "LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "read_labels", "save_labels", "save_recovery", "write_law"]
+__all__ = ["GATE_HORIZON", "LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "library_first", "read_labels", "save_labels", "save_recovery", "write_law"]
 
 #: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
 RECOVERY_GATE_SEED = 7_368_787
@@ -129,6 +129,20 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     if len(laws) > 1:
         gates[k] |= {"fits": [g["with_recovery"] for g in gates], "fit": k, "fit_gates": [dict(g) for g in gates]}
     return k, gates[k]
+
+
+def library_first(run, library, paths: int, config, progress: bool = False):
+    """The reach stage's library of `paths` labelled paths judged alone (`choose_fit`): (the library,
+    its gate) where the gate keeps it, else None (the fits follow, and the library is judged again
+    beside them)."""
+    if progress:
+        print(f"library: the {paths} labelled paths read at the nearest point ({library.points} points), judged first", flush=True)
+    _, gate = choose_fit(run, [library], config, progress)
+    if not gate["used"]:
+        if progress:
+            print(f"library alone: {format_gate(gate, config.margin, config.half_loss)}; fitting laws to judge beside it", flush=True)
+        return None
+    return library, gate | {"library": True, "library_points": library.points}
 
 
 class _Confirmation:

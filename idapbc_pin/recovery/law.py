@@ -60,6 +60,13 @@ class InnerSwitch:
         """True when the IDA-PBC law also keeps the sublevel set {H_d ≤ level}: `apply` needs H_d."""
         return math.isfinite(self.level)
 
+    def reads_networks(self, x) -> np.ndarray:
+        """(N, n) -> (N,) bool: the rows whose IDA-PBC input `apply` reads (`OuterLaw`): inside the
+        inner box, every row for a level or a residual law."""
+        if self.uses_level or self.residual:
+            return np.ones(len(np.atleast_2d(x)), dtype=bool)
+        return ~self.outside(np.atleast_2d(x))
+
     def apply(self, x, u, energy=None) -> np.ndarray:
         """u inside the inner box (and where H_d ≤ `level`), the recovery law elsewhere:
         (N, n), (N, m) -> (N, m) (a new array). energy : H_d as a function (K, n) -> (K,), called on

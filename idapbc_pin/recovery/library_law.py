@@ -16,11 +16,12 @@ searches the nearest point by brute force.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
 
+from ..trajectory.library import paths_law
 from ..trajectory.tracking_law import TrackingLaw
 from .law import InnerSwitch, RecoveryLaw
 
@@ -60,6 +61,17 @@ class LibraryLaw(InnerSwitch):
         """The law of a `TrackingLaw` over the paths (`paths_law`), the inner box empty."""
         return cls(tracks.X, tracks.U, tracks.K, tracks.weight, tracks.x_star, np.asarray(scale, dtype=np.float64), tracks.effort,
                    tracks.angle_mask, np.zeros(len(tracks.x_star)))
+
+    @classmethod
+    def from_paths(cls, system, X: np.ndarray, U: np.ndarray, speed_weight: float, every: int = 1, inner: float = 0.0) -> "LibraryLaw | None":
+        """The law of whole paths X (P, L, n), U (P, L, m) sampled every knot (`paths_law`, momenta
+        weighted `speed_weight` / M_ii(q*)), thinned for the exported controller's brute-force search:
+        the points inside the inner box `inner`·s dropped (the IDA-PBC law's there) and of the others
+        every `every`-th kept; the inner box left empty for the gate to choose. None where no point is left."""
+        lo, hi = (np.asarray(b, dtype=np.float64) for b in system.domain)
+        law = cls.from_tracks(paths_law(system, X, U, speed_weight, np.full(system.n, np.inf)), 0.5 * (hi - lo)).with_inner(inner)
+        keep = np.flatnonzero(law.outside(law.X))[::every]
+        return None if not keep.size else replace(law, X=law.X[keep], U=law.U[keep], K=law.K[keep], inner=np.zeros(system.n))
 
     @cached_property
     def _tracks(self) -> TrackingLaw:

@@ -22,7 +22,8 @@ The steps (`RecoveryConfig` holds every number):
    laws are fitted to the final labels (seeds `fit_seed`, `fit_seed` + 1, …) and the gate judges each,
    and beside them (`library`) the labelled paths themselves, each with the gains of a time-varying
    LQR along it, read at the nearest point (`label_library`, `library_law.LibraryLaw`): where the
-   fits average the paths, the library keeps them.
+   fits average the paths, the library keeps them. The library of the first labels is judged
+   first: where the gate keeps it, steps 2–3 are skipped (unless `always_fit`).
 3. **DAgger** (Ross, Gordon, Bagnell 2011), `dagger` rounds: the fitted law runs from
    `dagger_starts` new starts of the same box; the states its failures visit at 0.5, 1.5 and 3 s are
    labelled as in step 1, and a fresh law is fitted on all labels. When the first fit brings none
@@ -55,7 +56,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict
 
 import numpy as np
 import torch
@@ -72,10 +73,9 @@ from ..sim.states import scaled_box, uniform_states
 from ..trajectory.chunks import ChunkStore, chunk_key
 from .config import FORMS, START_BOXES, TEACHERS, RecoveryConfig
 from .fit import base_inputs, fit_job, fit_recovery_law
-from .gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, read_labels, save_labels, save_recovery
+from .gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, library_first, read_labels, save_labels, save_recovery
 from .law import RecoveryLaw
 from .library_law import LibraryLaw
-from ..trajectory.library import paths_law
 from ..trajectory.tracks import KNOT
 from ..trajectory.plans import PLAN_STEP, PlanThenLaw, TrackThenLaw, plan_candidates, planning_system, search_plans
 
@@ -265,6 +265,16 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     if progress:
         print(f"labels: {_teacher_name(config)} brings {taught} of {config.starts} starts to x*, plans {recovered} of the other "
               f"{config.starts - taught}; {len(X)} labels  [{time.perf_counter() - start:.0f} s]", flush=True)
+    library = label_library(system, X, U, config.library_speed, config.library_every, min(config.inner_scales)) if config.library and not config.always_fit else None
+    first = library_first(run, library, len(X) // LABEL_PATH, config, progress) if library is not None else None
+    if first is not None:
+        law, gate = first
+        entry = _verdict(gate, config, keep) | {
+            "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "teacher": config.teacher, "teacher_starts": int(taught), "plan_starts": int(recovered),
+            "first_fit_mse": None, "dagger": [], "fits_skipped": True, "seconds": round(time.perf_counter() - start, 1)}
+        entry = _save_and_tell(run, law, entry, config, progress, start)
+        store.clear()
+        return entry
     try:
         law, mse = _fit(system, X, U, config, networks, "recovery: fit" if progress else None)
         if progress:
@@ -375,11 +385,8 @@ def label_library(system, X: np.ndarray, U: np.ndarray, speed_weight: float, eve
         return None
     step = int(round(KNOT / (LABEL_EVERY * PLAN_STEP)))
     P = len(X) // LABEL_PATH
-    paths = X.reshape(P, LABEL_PATH, system.n)[:, ::step], U.reshape(P, LABEL_PATH, system.m)[:, ::step]
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in system.domain)
-    law = LibraryLaw.from_tracks(paths_law(system, *paths, speed_weight, np.full(system.n, np.inf)), 0.5 * (hi - lo)).with_inner(inner)
-    keep = np.flatnonzero(law.outside(law.X))[::every]
-    return None if not keep.size else replace(law, X=law.X[keep], U=law.U[keep], K=law.K[keep], inner=np.zeros(system.n))
+    return LibraryLaw.from_paths(system, X.reshape(P, LABEL_PATH, system.n)[:, ::step], U.reshape(P, LABEL_PATH, system.m)[:, ::step],
+                                 speed_weight, every, inner)
 
 
 def _fit(system, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, networks, progress: str | None = None) -> tuple[RecoveryLaw, float]:

@@ -3,7 +3,9 @@
 The reach stage's machinery (`recovery.stage`) with another start set (DESIGN §3). `SwingUpConfig`
 holds every number.
 
-1. **Labels.** From `starts` states near the resting posture (`sim.states.resting_states`: the
+1. **Labels** (where no tracking law of step 4 holds all of its near-resting starts, or
+   `always_fit`; else steps 1–3 are skipped and the gate judges the tracking laws alone). From
+   `starts` states near the resting posture (`sim.states.resting_states`: the
    first exactly at rest there, a pendulum hanging) and round(`circle` × `starts`) states at rest
    with every angle from the full circle (`swing_starts`), the teacher runs first: the classical
    energy-pumping law outside the training box's angles and the run's law inside them
@@ -32,10 +34,11 @@ holds every number.
    of their own and `circle` times as many from the circle ("holds" over `judge_T`,
    `sim.metrics.holds`), and from `box_states` states of the half box and the training box (success
    over 20 s). Among the candidates that lose at most `box_loss` of the box states the run's law
-   brings to x* (all of them, where none does), the one that holds the most swing-up states is
-   chosen (ties: a fit before a tracking law, then the one that brings more box states to x*, the
-   later, the larger kept box); it is kept when it holds at least `margin` more than the run's law
-   and keeps the box. Where none is kept, the same gate runs once more with the box's angles and no
+   brings to x* (all of them, where none does), those that hold the most swing-up states, and of
+   them the fastest (median time to x* over the swing-up states, within `time_margin`), the chosen
+   one is a fit before a tracking law, then the one that brings more box states to x*, the later,
+   the larger kept box. It is kept when it keeps the box and holds at least `margin` more than the
+   run's law, or as many and is at x* `time_margin` sooner (median). Where none is kept, the same gate runs once more with the box's angles and no
    momentum read (`any_speed_boxes`): a robot whose training box allows far less momentum than a
    swing-up arrives with (a reaction wheel, a rotary arm) never leaves a bounded box to its law.
    The library of step 6 reads the kept box the gate chose (`chosen_box`).
@@ -73,7 +76,7 @@ from ..sim.compare import compare_laws
 from ..sim.integrate import simulate
 from ..sim.metrics import holds
 from ..sim.states import box_gate_states, circle_states, resting_states
-from ..trajectory.holds import count_holds
+from ..trajectory.holds import judge_starts
 from ..trajectory.chunks import ChunkStore
 from .anywhere_stage import run_anywhere_step
 from .config import RecoveryConfig, SwingUpConfig
@@ -215,16 +218,22 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
     store = ChunkStore(run.path)
     x0 = swing_starts(system, config.starts, config.circle, config.plan_seed)
     catch = PumpThenRun(system, teacher)  # the labels' first teacher, and the catch of every nominal plan
-    X, U, taught, planned = _label(system, x0, config.plan_seed, config, catch, store, "swing-labels", progress)
+    plans = nominals(system, catch, config, max(NOMINALS, MANOEUVRE_NOMINALS if config.manoeuvre else 0)) \
+        if config.tracks or config.manoeuvre else []
+    tracks, track_info = tracking_laws(system, teacher, plans, kept_boxes(system, config)["posture"], config, progress) if config.tracks and plans else ([], {})
+    tracked = bool(track_info) and max(track_info["held"], default=0) >= track_info["states"]
+    if tracked and not config.always_fit:  # step 1's condition: a tracking law already holds every start
+        X, U, taught, planned = np.empty((0, system.n)), np.empty((0, system.m)), 0, 0
+        if progress:
+            print("swing-up: a tracking law holds every near-resting start: no labels and no fits (always_fit)", flush=True)
+    else:
+        X, U, taught, planned = _label(system, x0, config.plan_seed, config, catch, store, "swing-labels", progress)
     Xb, Ub = _box_labels(run, system, len(X))
-    if progress:
+    if progress and len(X):
         circle = f" ({config.starts} near-resting, {len(x0) - config.starts} at rest from the full circle)" if len(x0) > config.starts else " near-resting"
         print(f"swing-up labels: energy pumping with the run's law in the box brings {taught} of {len(x0)}{circle} starts to x*, "
               f"plans {planned} more; "
               f"{len(X)} labels, and {len(Xb)} of the recovery stage's  [{time.perf_counter() - start:.0f} s]", flush=True)
-    plans = nominals(system, catch, config, max(NOMINALS, MANOEUVRE_NOMINALS if config.manoeuvre else 0)) \
-        if config.tracks or config.manoeuvre else []
-    tracks, track_info = tracking_laws(system, teacher, plans, kept_boxes(system, config)["posture"], config, progress) if config.tracks and plans else ([], {})
     if not len(X) and not tracks:
         reason = (f"no plan from the resting posture reached x* within {config.horizon:g} s: nothing to fit a swing-up law to "
                   "(a longer horizon in the swing-up config may find some)")
@@ -236,7 +245,7 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
         run.summary = dict(run.summary) | {"swing_up": entry}
     else:
         entry = _fit_and_gate(run, system, teacher, (X, U), (Xb, Ub), tracks, config, store, progress, start)
-        entry |= {"teacher_starts": int(taught), "plan_starts": int(planned), "tracks": track_info}
+        entry |= {"teacher_starts": int(taught), "plan_starts": int(planned), "tracks": track_info, "fits_skipped": bool(tracked and not config.always_fit)}
         save_swing_up(run, entry.pop("_law"), entry)
         if progress:
             print(f"{format_swing_gate(entry['gate'], config)}  [{time.perf_counter() - start:.0f} s]", flush=True)
@@ -357,7 +366,8 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
     """The run's law with and without each of `laws` (around the run's own outer law) outside each
     candidate kept box (`boxes`, {name: (n,)}; default `kept_boxes`), from the gate's states: ((k, box name) of the candidate judged,
     {"states", "run", "law": near-resting starts each holds, "candidates": {box name: holds of each
-    law}; "box_states", "run_box", "law_box": box states the run's law and the candidate bring to x*;
+    law}; "run_time", "law_time": their median times to x*, s (None: most not there);
+    "box_states", "run_box", "law_box": box states the run's law and the candidate bring to x*;
     "fit", "box", "used": the verdict; "fitted": how many of `laws` are fitted laws, the others
     tracking laws}) (see the module docstring)."""
     system, seed = run.system, SWING_GATE_SEED + run.config.seed
@@ -366,7 +376,8 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
     cands = [(k, name) for name in boxes for k in range(len(laws))]
     with_laws = [ctrl.with_fallback(laws[k].with_box(boxes[name]).with_inner(ctrl.fallback)) for k, name in cands]
     x_swing = swing_starts(system, config.gate_states, config.circle, seed)
-    run_holds, *held = count_holds(system, [ctrl, *with_laws], x_swing, config)
+    run_judged, *judged = judge_starts(system, [ctrl, *with_laws], x_swing, config)
+    run_holds, held, times = run_judged.held, [j.held for j in judged], [j.median_time for j in judged]
     order = list(boxes)
     run_box, boxed = 0, [0] * len(cands)
     if config.box_states:
@@ -374,18 +385,25 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
         run_box, *boxed = (int(ok.sum()) for ok, _ in compare_laws(system, [(c, x_box) for c in [ctrl, *with_laws]], T=GATE_HORIZON,
                                                                     dt=PLAN_STEP, workers=config.workers, ray=config.ray))
     keeps_box = [b >= run_box - config.box_loss for b in boxed]
-    # the candidate that holds the most among those that keep the box (all of them where none does)
+    # the candidate that holds the most among those that keep the box (all of them where none does),
+    # then the fastest: within `time_margin` of the fastest median time to x*, the ties go to a fit
+    # before a tracking law, more box states, the later, the larger box
     pool = [i for i in range(len(cands)) if keeps_box[i]] or list(range(len(cands)))
-    fitted = len(laws) if fitted is None else int(fitted)  # ties: a fit before a tracking law, more box states, the later, the larger box
-    best = max(pool, key=lambda i: (held[i], cands[i][0] < fitted, boxed[i], cands[i][0], -order.index(cands[i][1])))
+    pool = [i for i in pool if held[i] == max(held[j] for j in pool)]
+    pool = [i for i in pool if times[i] <= min(times[j] for j in pool) + config.time_margin]
+    fitted = len(laws) if fitted is None else int(fitted)
+    best = max(pool, key=lambda i: (cands[i][0] < fitted, boxed[i], cands[i][0], -order.index(cands[i][1])))
     box = run_box, boxed[best]
-    used = held[best] >= run_holds + config.margin and keeps_box[best]
+    faster = held[best] >= run_holds and times[best] <= run_judged.median_time - config.time_margin
+    used = (held[best] >= run_holds + config.margin or faster) and keeps_box[best]
     if progress:
         print(f"swing-up gate: simulated {len(x_swing)} swing-up states and {config.box_states} box states for the run's law and "
-              f"{len(cands)} candidates ({len(laws)} fits × {len(boxes)} kept boxes)", file=sys.stderr, flush=True)
+              f"{len(cands)} candidates ({len(laws)} laws × {len(boxes)} kept boxes)", file=sys.stderr, flush=True)
     candidates = {name: [held[i] for i, (_, b) in enumerate(cands) if b == name] for name in boxes}
     candidates_box = {name: [boxed[i] for i, (_, b) in enumerate(cands) if b == name] for name in boxes}
-    return cands[best], {"states": len(x_swing), "near_resting": config.gate_states, "run": run_holds, "law": held[best], "candidates": candidates, "candidates_box": candidates_box, "fit": cands[best][0],
+    finite = lambda t: round(t, 3) if np.isfinite(t) else None  # noqa: E731
+    return cands[best], {"states": len(x_swing), "near_resting": config.gate_states, "run": run_holds, "law": held[best], "candidates": candidates, "candidates_box": candidates_box,
+                         "run_time": finite(run_judged.median_time), "law_time": finite(times[best]), "fit": cands[best][0],
                          "box": cands[best][1], "box_states": config.box_states, "run_box": box[0], "law_box": box[1], "used": bool(used),
                          "fitted": fitted}
 
@@ -395,8 +413,8 @@ def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
     second gate with no momentum read kept the law)."""
     if "bounded" in gate:
         return f"{format_swing_gate(gate['bounded'], config)}; again with no momentum read: {format_swing_gate({k: v for k, v in gate.items() if k != 'bounded'}, config)}"
-    verdict = "kept" if gate["used"] else (f"not kept (needs {config.margin} more held than the run's law, and at most "
-                                            f"{config.box_loss} fewer box states)")
+    verdict = "kept" if gate["used"] else (f"not kept (needs {config.margin} more held than the run's law, or as many and "
+                                            f"{config.time_margin:g} s sooner at x*, and at most {config.box_loss} fewer box states)")
     boxed = gate.get("candidates_box", {})
     cands = "; ".join(f"kept box {name}: {', '.join(map(str, held))}" + (f" (box states {', '.join(map(str, boxed[name]))})" if name in boxed else "")
                       for name, held in gate["candidates"].items())
@@ -404,8 +422,10 @@ def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
     where = "near-resting states" if near == gate["states"] else f"states ({near} near-resting, {gate['states'] - near} at rest from the full circle)"
     fitted = gate.get("fitted", len(next(iter(gate["candidates"].values()))))
     which = f"fit {gate['fit'] + 1}" if gate["fit"] < fitted else f"tracking law {gate['fit'] - fitted + 1}"
+    at = lambda t: "never" if t is None else f"{t:.2f} s"  # noqa: E731
+    times = f", median time to x* {at(gate['run_time'])} and {at(gate['law_time'])}" if "run_time" in gate else ""
     return (f"swing-up gate: of {gate['states']} {where} the run's law holds {gate['run']} at x*, with the swing-up law "
-            f"{gate['law']} ({which}, kept box {gate['box']}; each fit, then each tracking law: {cands}); of {gate['box_states']} box states it brings {gate['run_box']} to x*, with the swing-up law {gate['law_box']}: {verdict}")
+            f"{gate['law']} ({which}, kept box {gate['box']}; each fit, then each tracking law: {cands}){times}; of {gate['box_states']} box states it brings {gate['run_box']} to x*, with the swing-up law {gate['law_box']}: {verdict}")
 
 
 def save_swing_up(run, law: SwingUpLaw, entry: dict) -> None:

@@ -27,14 +27,25 @@ class KeptBoxLaw:
         """(..., n) -> (...) bool: True outside the kept box (the swing-up law acts)."""
         return (np.abs(self.delta(x)) > self.box).any(axis=-1)
 
+    def reads_networks(self, x) -> np.ndarray:
+        """(N, n) -> (N,) bool: the rows whose networks' input `apply` reads (`OuterLaw`): inside the
+        kept box, where the inner law (if any) reads them."""
+        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        keep = ~self.outside(x)
+        reads = getattr(self.inner, "reads_networks", None)
+        if reads is not None and keep.any():
+            keep[keep] = reads(x[keep])
+        return keep
+
     def apply(self, x, u, energy=None) -> np.ndarray:
         """The run's law (u after `inner`, given `energy` if it needs H_d) in the kept box, the swing-up
         law elsewhere: (N, n), (N, m) -> (N, m) (a new array)."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         u = np.array(u, dtype=np.float64, copy=True).reshape(len(x), -1)
-        if self.inner is not None:
-            u = self.inner.apply(x, u, energy=energy)
         out = self.outside(x)
+        if self.inner is not None and not out.all():  # the inner law only where it is applied
+            keep = ~out
+            u[keep] = self.inner.apply(x[keep], u[keep], energy=energy)
         if out.any():
             u[out] = self.law(x[out])
         return u

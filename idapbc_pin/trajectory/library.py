@@ -71,7 +71,7 @@ def _chunk_nominals(job) -> list:
     x0 = np.repeat(starts, w, axis=0)
     settings = ILQRSettings(iterations=iterations, alphas=ALPHAS, **LIBRARY_COST)
     U, Z, gains, cost = ilqr_plans(system, x0, np.tile(W, (len(starts), 1, 1)), bound, K * KNOT, LQRController(system).S, settings)
-    held = holds(simulate(system, TrackThenLaw(U, Z, gains, KNOT, catch, system), x0, T=judge_T, dt=PLAN_STEP), system)
+    held = holds(simulate(system, TrackThenLaw(U, Z, gains, KNOT, catch, system), x0, T=judge_T, dt=PLAN_STEP, stop_settled=True), system)
     out = []
     for s in range(len(starts)):
         rows = [i for i in range(s * w, (s + 1) * w) if held[i]]
