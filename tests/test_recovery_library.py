@@ -129,10 +129,13 @@ def test_recover_judges_the_library_beside_the_fits_and_a_run_that_keeps_it_appl
     x = uniform_states(system, 50, "domain", 4)
     outside = loaded.controller.fallback.outside(x)
     np.testing.assert_allclose(loaded.controller(x)[outside], loaded.controller.fallback.law(x[outside]), atol=1e-12)
-    judged.clear()
-    monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(lambda job: np.zeros(len(job[2]), bool)))  # nothing brings a state
-    refused = recover(path, RecoveryConfig(**TINY | {"library": True}), progress=False)  # the library refused alone: the fits follow
-    assert not refused["used"] and "fits_skipped" not in refused and refused["first_fit_mse"] is not None
+    library = loaded.controller.fallback
+    monkeypatch.setattr(recovery_gate, "choose_fit", lambda run, laws, config, progress: (0, {"used": False}))
+    assert recovery_gate.library_first(loaded, library, 4, RecoveryConfig(**TINY)) is None  # refused alone: the fits follow
+    monkeypatch.setattr(recovery_gate, "choose_fit", lambda run, laws, config, progress: (0, {"used": True}))
+    kept, gate = recovery_gate.library_first(loaded, library, 4, RecoveryConfig(**TINY))
+    assert kept is library and gate["library"] and gate["library_points"] == library.points
+    monkeypatch.undo()
     monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
     judged.clear()
     without = recover(path, RecoveryConfig(**TINY | {"library": False}), progress=False)  # the fits alone: none adds a state
