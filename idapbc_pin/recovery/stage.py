@@ -268,13 +268,22 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     library = label_library(system, X, U, config.library_speed, config.library_every, min(config.inner_scales)) if config.library and not config.always_fit else None
     first = library_first(run, library, len(X) // LABEL_PATH, config, progress) if library is not None else None
     if first is not None:
-        law, gate = first
-        entry = _verdict(gate, config, keep) | {
-            "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "teacher": config.teacher, "teacher_starts": int(taught), "plan_starts": int(recovered),
-            "first_fit_mse": None, "dagger": [], "fits_skipped": True, "seconds": round(time.perf_counter() - start, 1)}
-        entry = _save_and_tell(run, law, entry, config, progress, start)
-        store.clear()
-        return entry
+        (law, gate), mse, rounds, skipped = first, None, [], {"fits_skipped": True}
+    else:
+        (law, gate), mse, rounds, X, U = _fits_and_dagger(run, system, X, U, config, progress, start, teacher, networks, store)
+        skipped = {}
+    entry = _verdict(gate, config, keep) | skipped | {
+        "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "teacher": config.teacher, "teacher_starts": int(taught), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
+        "seconds": round(time.perf_counter() - start, 1),
+    }
+    entry = _save_and_tell(run, law, entry, config, progress, start)
+    store.clear()
+    return entry
+
+
+def _fits_and_dagger(run, system, X, U, config: RecoveryConfig, progress: bool, start: float, teacher, networks, store):
+    """Steps 2–3 and the gate of the fits (with the library beside them): ((law, gate), the first
+    fit's mse, the DAgger rounds, X, U with the rounds' labels)."""
     try:
         law, mse = _fit(system, X, U, config, networks, "recovery: fit" if progress else None)
         if progress:
@@ -292,14 +301,7 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
             print(f"recover interrupted: the labels so far are in {run.path / RECOVERY_LABELS_FILE}; "
                   f"`idapbc-pin recover {run.path} --refit` fits and gates a law on them without the plans", flush=True)
         raise
-    law, gate = _gate_fits(run, system, law, X, U, config, progress, start, networks)
-    entry = _verdict(gate, config, keep) | {
-        "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "teacher": config.teacher, "teacher_starts": int(taught), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
-        "seconds": round(time.perf_counter() - start, 1),
-    }
-    entry = _save_and_tell(run, law, entry, config, progress, start)
-    store.clear()
-    return entry
+    return _gate_fits(run, system, law, X, U, config, progress, start, networks), mse, rounds, X, U
 
 
 def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
