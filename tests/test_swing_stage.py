@@ -68,6 +68,31 @@ def test_the_swing_up_law_acts_only_where_the_posture_leaves_the_box_and_stays_w
     assert not inside[~posture_in].any() and 0 < inside.sum() < posture_in.sum()
 
 
+def test_the_stage_s_teacher_pumps_outside_the_box_and_asks_the_run_s_law_only_inside(weak_pendubot):
+    """`PumpThenRun`: the energy pump's input where a posture leaves the training box's angles, the
+    run's law's inside; the run's law is called with the inside rows alone (none: not at all)."""
+    from idapbc_pin.control.energy_pump import EnergyPumpLaw
+
+    system = weak_pendubot
+    asked = []
+
+    def run_law(x):
+        asked.append(len(x))
+        return np.tanh(x[:, :1] + 2 * x[:, 1:2])
+
+    teacher = stage.PumpThenRun(system, run_law)
+    x = sample_domain(system, 40, seed=5) * 4  # states inside and outside the box's angles
+    out = (np.abs(wrap_angles(x - system.x_star, system.angle_mask)) > np.where(system.angle_mask, stage._box_half_widths(system), np.inf)).any(axis=1)
+    assert 0 < out.sum() < len(x)
+    u = teacher(x)
+    np.testing.assert_array_equal(u[out], EnergyPumpLaw(system)(x[out]))
+    np.testing.assert_array_equal(u[~out], run_law(x[~out]))
+    assert asked[0] == int((~out).sum())
+    asked.clear()
+    teacher(x[out])
+    assert asked == []
+
+
 def test_the_kept_box_reads_the_box_angles_and_a_multiple_of_its_momenta_and_never_the_cart():
     """`posture_box`: a state in the box's postures but faster than `kept_momenta` times the box's
     momenta is left to the swing-up law; a cart's position is never read; 0 reads no momentum."""
@@ -104,7 +129,7 @@ def test_where_the_bounded_box_keeps_nothing_a_second_gate_reads_no_momentum(mon
     run = type("Run", (), {"system": system, "summary": {}})()
     calls = []
 
-    def gate(run_, laws, config_, progress=False, fitted=None, boxes=None):
+    def gate(run_, laws, config_, progress=False, fitted=None, boxes=None, shared=None):
         calls.append(boxes)
         name = "posture" if boxes is None else next(iter(boxes))
         return (0, name), {"box": name, "used": boxes is not None or first_used}
@@ -540,6 +565,34 @@ def test_a_swing_up_law_that_holds_as_many_as_the_run_s_law_is_kept_only_where_i
     assert not used((20, 2.3), (19, 0.5))  # fewer held
     assert used((17, inf), (19, inf))  # margin more held
     assert not used((20, 2.3), (20, 1.1), boxed=40)  # loses the box
+
+
+def test_a_second_gate_reads_the_run_s_law_from_the_first_and_simulates_only_the_candidates(tiny_swing_run, monkeypatch):
+    """`swing_gate(shared=...)`: the run's law is simulated by the first gate only (its verdicts do
+    not depend on the candidates); a second gate over other kept boxes simulates the candidates alone
+    and records the same figures for the run's law as a gate that simulates it again."""
+    from idapbc_pin.recovery import swing_stage
+
+    laws = [random_swing_law(tiny_swing_run.system, seed=0)]
+    asked = []
+
+    def judge(system, laws, x0, config):
+        asked.append(len(laws))
+        return [Judged(len(laws) + 2, nan, nan, 1.0 + k) for k in range(len(laws))]
+
+    def compare(system, jobs, **kw):
+        asked.append(len(jobs))
+        return [(np.arange(len(jobs[0][1])) < 40 + 5 * k, None) for k in range(len(jobs))]
+
+    monkeypatch.setattr(swing_stage, "judge_starts", judge)
+    monkeypatch.setattr(swing_stage, "compare_laws", compare)
+    config, shared = SwingUpConfig(gate_states=4, box_states=100, workers=1), {}
+    first = swing_stage.swing_gate(tiny_swing_run, laws, config, fitted=1, shared=shared)[1]
+    assert asked == [2, 2] and shared["run"] == (Judged(4, nan, nan, 1.0), 40)
+    second = swing_stage.swing_gate(tiny_swing_run, laws, config, fitted=1, shared=shared)[1]
+    assert asked == [2, 2, 1, 1]
+    assert (second["run"], second["run_time"], second["run_box"]) == (first["run"], first["run_time"], first["run_box"]) == (4, 1.0, 40)
+    assert second["law"] == 3 and second["law_box"] == 40  # the candidate now answers first
 
 
 def test_the_anywhere_gate_keeps_a_library_by_its_own_rule_and_never_a_copy_of_the_law_it_replaces(tiny_swing_run):

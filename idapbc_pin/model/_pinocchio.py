@@ -248,13 +248,15 @@ class PinocchioPlant:
         return np.stack([np.array(pin.computeGeneralizedGravity(m, d, qc)) for qc in self.config(q)])
 
     def hamiltonian(self, q: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """H = ½ pᵀM⁻¹p + U: (N, nv), (N, nv) -> (N,), joules."""
+        """H = ½ pᵀM⁻¹p + U: (N, nv), (N, nv) -> (N,), joules; M⁻¹p batched as in `velocity`."""
+        p = np.asarray(p, float)
+        if p.shape[0] == 0:
+            return np.zeros(0)
+        qc = self.config(q)
+        zeros = np.zeros((p.shape[1], p.shape[0]), order="F")
+        v = pin.abaInParallel(1, self._free_pool, np.asfortranarray(qc.T), zeros, np.asfortranarray(p.T)).reshape(p.shape[1], p.shape[0]).T
         m, d = self.model, self.data
-        out = np.empty(q.shape[0])
-        for k, qc in enumerate(self.config(q)):
-            M_inv = pin.computeMinverse(m, d, qc)
-            out[k] = 0.5 * p[k] @ M_inv @ p[k] + pin.computePotentialEnergy(m, d, qc)
-        return out
+        return 0.5 * np.einsum("ni,ni->n", p, v) + np.array([pin.computePotentialEnergy(m, d, qk) for qk in qc])
 
     # ----------------------------------------------------------------- dynamics
     def _velocity_and_gravity(self, qc: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -179,16 +179,18 @@ class PumpThenRun:
     (N, n) -> (N, m); picklable."""
 
     def __init__(self, system, run_law):
-        self.run_law, self.pump = run_law, EnergyPumpLaw(system)
+        self.run_law, self.pump, self.m = run_law, EnergyPumpLaw(system), int(system.m)
         self.x_star, self.mask = np.asarray(system.x_star, dtype=np.float64), np.asarray(system.angle_mask, dtype=bool)
         self.box = np.where(self.mask, _box_half_widths(system), np.inf)
 
     def __call__(self, x):
         x = np.atleast_2d(x)
-        u = np.array(self.run_law(x), dtype=np.float64).reshape(len(x), -1)
         out = (np.abs(wrap_angles(x - self.x_star, self.mask)) > self.box).any(axis=1)
+        u = np.empty((len(x), self.m))
         if out.any():
-            u[out] = self.pump(x[out])
+            u[out] = np.asarray(self.pump(x[out]), dtype=np.float64).reshape(-1, self.m)
+        if not out.all():  # the run's law only where it applies: it costs most of a rollout's time
+            u[~out] = np.asarray(self.run_law(x[~out]), dtype=np.float64).reshape(-1, self.m)
         return u
 
 
@@ -292,10 +294,11 @@ def _fit_and_gate(run, system, teacher, labels: tuple, box_labels: tuple, tracks
             if info.get("stopped"):
                 break
             laws.append(law)
-    (k, box), gate = swing_gate(run, laws + tracks, config, progress, fitted=len(laws))
+    shared: dict = {}  # the run's law's verdicts, simulated by the first gate only
+    (k, box), gate = swing_gate(run, laws + tracks, config, progress, fitted=len(laws), shared=shared)
     second = any_speed_boxes(system, config)
     if not gate["used"] and second:  # a robot whose box momenta are far below a swing's (a wheel, a rotor arm)
-        (k2, box2), gate2 = swing_gate(run, laws + tracks, config, progress, fitted=len(laws), boxes=second)
+        (k2, box2), gate2 = swing_gate(run, laws + tracks, config, progress, fitted=len(laws), boxes=second, shared=shared)
         if gate2["used"]:
             (k, box), gate = (k2, box2), gate2 | {"bounded": gate}
     return {"used": gate["used"], "gate": gate, "fit": k, "law": "fitted" if k < len(laws) else "tracking", "labels": int(len(X)),
@@ -362,28 +365,36 @@ def _dagger_round(system, teacher, law: SwingUpLaw, X: np.ndarray, U: np.ndarray
 
 
 def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, fitted: int | None = None,
-               boxes: dict | None = None) -> tuple[tuple[int, str], dict]:
+               boxes: dict | None = None, shared: dict | None = None) -> tuple[tuple[int, str], dict]:
     """The run's law with and without each of `laws` (around the run's own outer law) outside each
     candidate kept box (`boxes`, {name: (n,)}; default `kept_boxes`), from the gate's states: ((k, box name) of the candidate judged,
     {"states", "run", "law": near-resting starts each holds, "candidates": {box name: holds of each
     law}; "run_time", "law_time": their median times to x*, s (None: most not there);
     "box_states", "run_box", "law_box": box states the run's law and the candidate bring to x*;
     "fit", "box", "used": the verdict; "fitted": how many of `laws` are fitted laws, the others
-    tracking laws}) (see the module docstring)."""
+    tracking laws}) (see the module docstring). `shared`: a dict kept across the gates of one run
+    and config; the run's law's verdicts, which do not depend on the candidates, are simulated by
+    the first of them and read from it by the others."""
     system, seed = run.system, SWING_GATE_SEED + run.config.seed
     ctrl = run.box_controller
     boxes = kept_boxes(system, config) if boxes is None else boxes
     cands = [(k, name) for name in boxes for k in range(len(laws))]
     with_laws = [ctrl.with_fallback(laws[k].with_box(boxes[name]).with_inner(ctrl.fallback)) for k, name in cands]
     x_swing = swing_starts(system, config.gate_states, config.circle, seed)
-    run_judged, *judged = judge_starts(system, [ctrl, *with_laws], x_swing, config)
+    known = None if shared is None else shared.get("run")  # the run's law's (Judged, box states) from an earlier gate
+    simulated = with_laws if known else [ctrl, *with_laws]
+    judged = judge_starts(system, simulated, x_swing, config)
+    run_judged, judged = (known[0], judged) if known else (judged[0], judged[1:])
     run_holds, held, times = run_judged.held, [j.held for j in judged], [j.median_time for j in judged]
     order = list(boxes)
     run_box, boxed = 0, [0] * len(cands)
     if config.box_states:
         x_box = box_gate_states(system, config.box_states, seed + 1)
-        run_box, *boxed = (int(ok.sum()) for ok, _ in compare_laws(system, [(c, x_box) for c in [ctrl, *with_laws]], T=GATE_HORIZON,
-                                                                    dt=PLAN_STEP, workers=config.workers, ray=config.ray))
+        boxed = [int(ok.sum()) for ok, _ in compare_laws(system, [(c, x_box) for c in simulated], T=GATE_HORIZON, dt=PLAN_STEP,
+                                                          workers=config.workers, ray=config.ray)]
+        run_box, boxed = (known[1], boxed) if known else (boxed[0], boxed[1:])
+    if shared is not None:
+        shared["run"] = (run_judged, run_box)
     keeps_box = [b >= run_box - config.box_loss for b in boxed]
     # the candidate that holds the most among those that keep the box (all of them where none does),
     # then the fastest: within `time_margin` of the fastest median time to x*, the ties go to a fit
