@@ -248,15 +248,14 @@ class PinocchioPlant:
         return np.stack([np.array(pin.computeGeneralizedGravity(m, d, qc)) for qc in self.config(q)])
 
     def hamiltonian(self, q: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """H = ½ pᵀM⁻¹p + U: (N, nv), (N, nv) -> (N,), joules; M⁻¹p batched as in `velocity`."""
+        """H = ½ pᵀM⁻¹p + U: (N, nv), (N, nv) -> (N,), joules (M⁻¹p batched: `_inverse_mass_times`)."""
         p = np.asarray(p, float)
         if p.shape[0] == 0:
             return np.zeros(0)
         qc = self.config(q)
-        zeros = np.zeros((p.shape[1], p.shape[0]), order="F")
-        v = pin.abaInParallel(1, self._free_pool, np.asfortranarray(qc.T), zeros, np.asfortranarray(p.T)).reshape(p.shape[1], p.shape[0]).T
         m, d = self.model, self.data
-        return 0.5 * np.einsum("ni,ni->n", p, v) + np.array([pin.computePotentialEnergy(m, d, qk) for qk in qc])
+        potential = np.array([pin.computePotentialEnergy(m, d, qk) for qk in qc])
+        return 0.5 * np.einsum("ni,ni->n", p, self._inverse_mass_times(qc, p)) + potential
 
     # ----------------------------------------------------------------- dynamics
     def _velocity_and_gravity(self, qc: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -267,15 +266,21 @@ class PinocchioPlant:
         `computeMinverse(q) @ p` and `computeGeneralizedGravity(q)` to rounding (tests/test_dynamics).
         """
         N, nv = p.shape
-        Q = np.asfortranarray(qc.T)
         zeros = np.zeros((nv, N), order="F")
-        v = pin.abaInParallel(1, self._free_pool, Q, zeros, np.asfortranarray(p.T))
-        grad_U = pin.rneaInParallel(1, self._pool, Q, zeros, zeros)
-        return np.array(v).reshape(nv, N).T, np.array(grad_U).reshape(nv, N).T
+        grad_U = pin.rneaInParallel(1, self._pool, np.asfortranarray(qc.T), zeros, zeros)
+        return self._inverse_mass_times(qc, p), np.array(grad_U).reshape(nv, N).T
+
+    def _inverse_mass_times(self, qc: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """M(q)⁻¹p for configurations qc (N, model.nq), p (N, nv): the ABA of the gravity-free model
+        at zero velocity with torque p (`abaInParallel`, one thread) -> (N, nv)."""
+        N, nv = p.shape
+        zeros = np.zeros((nv, N), order="F")
+        v = pin.abaInParallel(1, self._free_pool, np.asfortranarray(qc.T), zeros, np.asfortranarray(p.T))
+        return np.array(v).reshape(nv, N).T
 
     def velocity(self, q: np.ndarray, p: np.ndarray) -> np.ndarray:
         """v = M(q)⁻¹ p: (N, nv) each -> (N, nv)."""
-        return self._velocity_and_gravity(self.config(q), np.asarray(p, float))[0]
+        return self._inverse_mass_times(self.config(q), np.asarray(p, float))
 
     def f(self, q: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Open-loop f(x) = (v, Cᵀv − ∇U − D v): (N, nv) each -> (N, 2 nv).
