@@ -79,7 +79,7 @@ class RecoveryConfig(Settings):
         first round's starts to x* and fewer than half of them end in the near box (`ends_near`; the
         gate then judges that law).
     form : ``"direct"`` (the MLP's output is the input, ū tanh(MLP)) or ``"residual"`` (the MLP
-        corrects the IDA-PBC law's own input; `fit`, docs/method.md §6).
+        corrects the IDA-PBC law's own input; `fit`, docs/stages.md).
     levels : quantiles of H_d over the half box giving the levels c the gate tries, with the same
         rule, when it keeps no inner box: the IDA-PBC law then keeps {H_d ≤ c} (`RecoveryLaw.level`).
         Empty: the inner boxes alone.

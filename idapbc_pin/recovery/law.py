@@ -2,7 +2,7 @@
 
 Under tight effort limits most of the box cannot be brought to x* by a saturated smooth law: the
 actuator has to pump, and the matched IDA-PBC law cannot hold such a swing (its H_d would have to
-decrease along every pumping trajectory; docs/method.md §6). A
+decrease along every pumping trajectory; docs/stages.md). A
 recovery law is a plain state feedback fitted to torque plans within the limits
 (`recovery.stage`); the IDA-PBC law keeps the neighbourhood of x*:
 
@@ -17,14 +17,14 @@ the limits by construction. The MLP has tanh hidden layers and a linear output. 
 adds the MLP to the IDA-PBC law's own input instead of replacing it: where the labels are that
 law's inputs (every start the run's law brings to x*, and every plan after its horizon) the fit
 only has to learn zero, so a trajectory that swings out of the level set near x* keeps the IDA-PBC
-law's inputs up to the fitted correction (docs/method.md §6, "The residual form"). Like
+law's inputs up to the fitted correction (docs/stages.md, "The residual form"). Like
 `fallback.BoxFallback` it acts through `apply(x, u)`, so `Controller`, `simulate`, `export` and the
 exported controller.py treat both alike; the switch is discontinuous on the inner box's faces.
 
 The level c (∞ by default: the box alone) lets the IDA-PBC law keep the sublevel set {H_d ≤ c} of
 its own energy as well. Along the matched closed loop H_d does not grow, so a trajectory that starts
 there tends to stay there and never meets the recovery law, where with a box alone a swing from
-near x* leaves the box and is handed over (docs/method.md §6, "A level set of H_d").
+near x* leaves the box and is handed over (docs/stages.md, "A level set of H_d").
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ The steps (`RecoveryConfig` holds every number):
    every 10 ms over its first 6 s. With the run's law as the teacher the fitted law imitates the
    IDA-PBC law on the states that law already brings to x*, so a trajectory that leaves the inner
    box meets a law that continues what the IDA-PBC law was doing; with LQR it meets LQR's habits,
-   and can lose states near x* that the run's law holds (docs/method.md §6). Each finished chunk of starts is kept in ``recovery-chunks/``
+   and can lose states near x* that the run's law holds (docs/stages.md). Each finished chunk of starts is kept in ``recovery-chunks/``
    (`chunks.ChunkStore`) until the stage ends, so a stage started again after a kill reads it back.
 2. **Fit.** A `recovery.law.RecoveryLaw` MLP (two tanh layers of `width`) by least squares on
    u/ū (Adam, minibatches of 4096; `fit`). With `form` "residual" the MLP is a correction

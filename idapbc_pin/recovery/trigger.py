@@ -3,7 +3,7 @@ the training box.
 
 A recovery law (`recovery.stage`) is worth its cost (a few minutes for a 2-DoF robot) where a
 linear law under the robot's torque limits loses states that torque plans within the same limits
-bring to x* (docs/method.md §6). Saturated LQR leaves **room** when it fails from at least
+bring to x* (docs/stages.md). Saturated LQR leaves **room** when it fails from at least
 `ROOM_POINTS` per cent of the half box's states: `train` reads that from its own evaluation
 (`room_from`), after printing it; without one, `limits_bind` runs saturated LQR from `BIND_STATES`
 uniform half-box states (a seed no evaluation uses), and LQR without the limits from the same
@@ -17,7 +17,7 @@ the training box: a basin larger than LQR's is what the user comes for with or w
 
 Room, not binding, decides: a robot whose limits do not bind can still leave room that a recovery
 law fills. Where plans cannot help a feedback law the gate keeps none and only time is lost. What
-the test says for each zoo robot is in docs/method.md §6.
+the test says for each zoo robot is in docs/stages.md.
 """
 
 from __future__ import annotations
