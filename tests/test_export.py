@@ -281,6 +281,43 @@ def test_standalone_applies_a_swing_up_tracking_law_as_the_library_does(runs, tm
     _standalone_equals_library_outside(run, law, folder, tmp_path)
 
 
+def test_standalone_applies_a_tracking_law_only_within_its_funnel_as_the_library_does(runs, tmp_path):
+    """A tracking law with a funnel ϱ: controller.json carries ϱ, and the standalone τ equals the
+    library's to 1e-9 on states where the law acts, and where the state lies outside its kept box
+    but beyond ϱ of its nominal (the run's law acts there)."""
+    from tests.test_recovery_library import _paths
+
+    from idapbc_pin.run import SWINGUP_FILE
+    from idapbc_pin.trajectory.library import paths_law
+
+    system = runs["pendubot"].system
+    X, U = _paths(system, P=1, L=120, seed=6)
+    lo, hi = system.domain
+    plain = paths_law(system, X, U, 0.3, 0.3 * (hi - lo) / 2)
+    q, v = _states(system)
+    x = system.state_from(q, v)
+    _, d = plain.nearest(x)
+    dist = np.sqrt(((d * plain.weight) ** 2).sum(axis=1))
+    law = plain.with_funnel(float(np.median(dist[plain.outside(x)])))
+    beyond = plain.outside(x) & ~law.outside(x)
+    assert 0.1 < law.outside(x).mean() and 0.1 < beyond.mean()
+    path = tmp_path / "run"
+    shutil.copytree(runs["pendubot"].path, path)
+    np.savez(path / SWINGUP_FILE, **law.arrays())
+    summary = json.loads((path / "summary.json").read_text()) | {"swing_up": {"used": True}}
+    (path / "summary.json").write_text(json.dumps(summary))
+    run = ip.load_run(path)
+    assert run.controller.fallback.funnel == law.funnel
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    record = json.loads((folder / "controller.json").read_text())
+    assert record["fallback"]["funnel"] == law.funnel
+    expected = run.controller.torque(q, v)
+    assert not np.allclose(expected[beyond], run.controller.with_fallback(plain.with_inner(run.controller.fallback.inner)).torque(q, v)[beyond])
+    out = _run_standalone(folder, q, v, tmp_path)
+    _close(out["batched"], expected, 1e-9)
+    _close(out["single"], expected, 1e-9)
+
+
 def test_standalone_keeps_the_ida_pbc_law_on_the_level_set_of_h_d_as_the_library_does(runs, tmp_path):
     """A recovery law with a level c acts only where H_d(x) > c (outside its inner box): the
     standalone evaluates H_d from desired_flow.py and gives the library's τ to 1e-9."""

@@ -82,7 +82,7 @@ def test_the_stage_s_teacher_pumps_outside_the_box_and_asks_the_run_s_law_only_i
 
     teacher = stage.PumpThenRun(system, run_law)
     x = sample_domain(system, 40, seed=5) * 4  # states inside and outside the box's angles
-    out = (np.abs(wrap_angles(x - system.x_star, system.angle_mask)) > np.where(system.angle_mask, stage._box_half_widths(system), np.inf)).any(axis=1)
+    out = (np.abs(wrap_angles(x - system.x_star, system.angle_mask)) > np.where(system.angle_mask, stage.box_half_widths(system), np.inf)).any(axis=1)
     assert 0 < out.sum() < len(x)
     u = teacher(x)
     np.testing.assert_array_equal(u[out], EnergyPumpLaw(system)(x[out]))
@@ -148,6 +148,51 @@ def test_where_the_bounded_box_keeps_nothing_a_second_gate_reads_no_momentum(mon
             np.testing.assert_array_equal(chosen_box(run, system, config), second[ANY_SPEED])
     run.summary = {}
     np.testing.assert_array_equal(chosen_box(run, system, config), posture_box(system, config))
+
+
+def test_where_no_gate_keeps_a_law_a_last_gate_judges_each_tracking_law_within_each_funnel(monkeypatch):
+    """Where the gates keep nothing, a last gate judges each tracking law within each of `funnels`
+    (the fits are not judged again; the run's law's verdicts are shared); a funnelled law it keeps
+    is the stage's law, with its funnel in the entry and the printed verdict. Without funnels, or
+    where an earlier gate keeps a law, there is no such gate."""
+    from idapbc_pin.trajectory.tracking_law import TrackingLaw
+
+    system = ip.load_system("pendubot")
+    n, m = system.n, system.m
+    track = TrackingLaw(np.zeros((3, n)), np.zeros((3, m)), np.zeros((3, m, n)), np.ones(n), np.asarray(system.x_star, float),
+                        np.asarray(system.effort, float), np.asarray(system.angle_mask, bool), np.full(n, np.inf))
+    run = type("Run", (), {"system": system, "summary": {}})()
+    calls = []
+
+    def gate(run_, laws, config_, progress=False, fitted=None, boxes=None, shared=None):
+        calls.append((laws, fitted, shared))
+        funnelled = all(np.isfinite(getattr(law, "funnel", np.inf)) for law in laws)
+        used = funnelled and keep_funnelled
+        k = 3 if funnelled else 0  # the second tracking law within the second funnel
+        return (k, "posture" if boxes is None else next(iter(boxes))), {"box": "posture", "used": used, "fit": k, "fitted": fitted,
+                                                                         "candidates": {"posture": [0] * len(laws)}, "states": 20, "run": 4,
+                                                                         "law": 20, "box_states": 100, "run_box": 84, "law_box": 91}
+
+    monkeypatch.setattr(stage, "swing_gate", gate)
+    labels = (np.empty((0, n)), np.empty((0, m)))
+    tracks = [track, track.with_box(np.full(n, 2.0))]
+    for keep_funnelled, funnels in ((True, (0.5, 1.0)), (False, (0.5, 1.0)), (True, ())):
+        calls.clear()
+        config = SwingUpConfig(funnels=funnels)
+        entry = stage._fit_and_gate(run, system, None, labels, (None, None), tracks, config, None, False, 0.0)
+        assert len(calls) == (3 if funnels else 2)  # the bounded box's gate, with no momentum read, then the funnels'
+        if not funnels:
+            assert not entry["used"] and entry["funnel"] is None
+            continue
+        laws, fitted, shared = calls[-1]
+        assert [law.funnel for law in laws] == [0.5, 0.5, 1.0, 1.0] and fitted == 0 and shared is calls[0][2]
+        assert entry["used"] == keep_funnelled
+        if keep_funnelled:
+            assert entry["funnel"] == 1.0 and entry["_law"].funnel == 1.0 and entry["law"] == "tracking"
+            assert entry["gate"]["unfunnelled"]["used"] is False
+            line = stage.format_swing_gate(entry["gate"], config)
+            assert "tracking law 2 within the funnel 1" in line and "again each tracking law only within each funnel" in line
+            np.testing.assert_array_equal(entry["_law"].X, tracks[1].X)
 
 
 def test_the_swing_up_law_is_continuous_through_the_hanging_posture(weak_pendubot):

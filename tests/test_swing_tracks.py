@@ -122,6 +122,38 @@ def test_a_tracking_law_acts_outside_its_kept_box_within_the_limits_and_round_tr
         TrackingLaw.from_arrays(bad)
 
 
+def test_a_tracking_law_with_a_funnel_acts_only_near_its_nominal_and_round_trips(pendubot):
+    """With a funnel ϱ the law acts where the state is outside the kept box *and* within ϱ of its
+    nearest nominal point (the weighted distance, by hand); elsewhere the run's law's u passes
+    through. Its arrays carry ϱ, and arrays saved without one read as no funnel."""
+    system = pendubot
+    U, Z, G = _plan(system, seed=2)
+    lo, hi = system.domain
+    box = np.where(system.angle_mask, (hi - lo) / 2, np.inf)
+    plain = tracking_law(system, U, Z, G, 1.0, box)
+    rng = np.random.default_rng(5)
+    x = system.x_star + rng.uniform(-1, 1, (600, system.n)) * np.r_[np.full(system.nq, 3.0), np.full(system.nq, 5.0)]
+    _, d = plain.nearest(x)
+    dist = np.sqrt(((d * plain.weight) ** 2).sum(axis=1))
+    rho = float(np.median(dist[plain.outside(x)]))
+    law = plain.with_funnel(rho)
+    expected = plain.outside(x) & (dist <= rho)
+    assert 0 < expected.sum() < plain.outside(x).sum()
+    np.testing.assert_array_equal(law.outside(x), expected)
+    u = law.apply(x, np.full((len(x), system.m), 123.0))
+    np.testing.assert_array_equal(u[~expected], 123.0)
+    np.testing.assert_array_equal(u[expected], plain.law(x[expected]))
+    np.testing.assert_array_equal(law.outside(x.reshape(3, 200, -1)), expected.reshape(3, 200))  # any leading shape
+    back = swing_law_from_arrays(law.arrays())
+    assert back.funnel == rho
+    np.testing.assert_array_equal(back.apply(x, u), law.apply(x, u))
+    old = {k: v for k, v in law.arrays().items() if k != "funnel"}
+    assert TrackingLaw.from_arrays(old).funnel == np.inf
+    with pytest.raises(ValueError, match="funnel must be positive"):
+        TrackingLaw.from_arrays(law.arrays() | {"funnel": np.array(0.0)})
+    assert law.to_json()["funnel"] == rho and plain.to_json()["funnel"] is None
+
+
 def test_on_its_nominal_a_manoeuvre_interpolates_the_plan_s_inputs_without_a_step_at_a_knot(pendubot):
     """At the nominal state interpolated between two knots, the manoeuvre's input is the plan's
     inputs interpolated between the knots' midpoints (the feedback reads no error): continuous

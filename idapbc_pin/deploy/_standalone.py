@@ -31,7 +31,8 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
                   around the fallback it "wraps", above; φ(δ) = (sin δ_a, cos δ_a, δ_o / s_o): the
                   angles' sines and cosines, then the other components scaled; where it has a
                   nominal trajectory "X" instead, u ← clip(U_k + K_k e_k, ±ū) with e_k = wrap(x − X_k)
-                  at the k that minimises ‖weight ⊙ e_k‖: a tracking law)
+                  at the k that minimises ‖weight ⊙ e_k‖: a tracking law, which with a "funnel" ϱ
+                  acts only where ‖weight ⊙ e_k‖ ≤ ϱ)
     u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
 `swing_up_torque(q, v, t)` (when controller.json has a "manoeuvre"; the swing-up stage's manoeuvre
@@ -196,9 +197,13 @@ class ExportedController:
         out = (np.abs(d) > sw["box"]).any(axis=1)  # an unread component's null reads as nan: never outside
         if not out.any():
             return u
-        if "X" in sw:  # a tracking law: the nominal point nearest to x, and its gains
+        if "X" in sw:  # a tracking law: the nominal point nearest to x, and its gains, within its funnel
+            k, e = _nearest_point(x[out], sw)
+            funnel = float(sw.get("funnel", np.nan))  # null (none) reads as nan
+            near = ((e * sw["weight"]) ** 2).sum(axis=1) <= funnel ** 2 if np.isfinite(funnel) else np.ones(len(k), bool)
             u = u.copy()
-            u[out] = _nearest_point_law(x[out], sw)
+            rows = np.flatnonzero(out)[near]
+            u[rows] = np.clip(sw["U"][k[near]] + np.einsum("nij,nj->ni", sw["K"][k[near]], e[near]), -sw["effort"], sw["effort"])
             return u
         z = np.concatenate([np.sin(d[out][:, mask]), np.cos(d[out][:, mask]), d[out][:, ~mask] / sw["scale"][~mask]], axis=1)
         depth = sum(1 for k in sw if k.startswith("W"))
@@ -242,13 +247,19 @@ class ExportedController:
         return tau[0] if single else tau
 
 
-def _nearest_point_law(x: np.ndarray, law: dict) -> np.ndarray:
-    """clip(U_k + K_k e_k, ±ū) at the point X_k of `law` nearest to each state x (N, n), e_k = wrap(x − X_k)
-    and the distance ‖weight ⊙ e_k‖: a tracking law, or a recovery law's library of paths -> (N, m)."""
+def _nearest_point(x: np.ndarray, law: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(k (N,), e_k (N, n)): the point X_k of `law` nearest to each state x (N, n) by the distance
+    ‖weight ⊙ e_k‖, e_k = wrap(x − X_k)."""
     e = x[:, None, :] - law["X"][None]
     e[..., law["angle_mask"]] = np.pi - np.mod(np.pi - e[..., law["angle_mask"]], 2 * np.pi)
     k = np.argmin(((e * law["weight"]) ** 2).sum(axis=-1), axis=1)
-    e = e[np.arange(len(k)), k]
+    return k, e[np.arange(len(k)), k]
+
+
+def _nearest_point_law(x: np.ndarray, law: dict) -> np.ndarray:
+    """clip(U_k + K_k e_k, ±ū) at the point X_k of `law` nearest to each state x (N, n)
+    (`_nearest_point`): a tracking law, or a recovery law's library of paths -> (N, m)."""
+    k, e = _nearest_point(x, law)
     return np.clip(law["U"][k] + np.einsum("nij,nj->ni", law["K"][k], e), -law["effort"], law["effort"])
 
 

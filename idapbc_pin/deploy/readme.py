@@ -143,8 +143,8 @@ def deploy_readme(record: dict) -> str:
         line += "    u    ← clip(U_k + K_k e_k, ±ū), e_k = wrap(x − X_k) nearest   where some |δ_i| > box_i  (the swing-up law)\n"
         text += ("\nOutside a box around x* (controller.json's \"fallback\" → \"box\"; null: a component not read) the run uses its swing-up law, a "
                  "torque plan from the resting posture to x* (nominal states \"X\" in (q, p), inputs \"U\") tracked by the gains \"K\" of a "
-                 "time-varying LQR, read at the nominal point nearest to the state (distance weighted by \"weight\"; `idapbc-pin train "
-                 "--swing-up`), around the law it \"wraps\", above (`controller.py` applies it). It was kept because it brought more "
+                 "time-varying LQR, read at the nominal point nearest to the state (distance weighted by \"weight\"; with a \"funnel\" ϱ, only "
+                 "where that distance is at most ϱ; `idapbc-pin train --swing-up`), around the law it \"wraps\", above (`controller.py` applies it). It was kept because it brought more "
                  "simulated near-resting states to x* under the effort limits; no certificate covers it.\n")
     elif swing is not None:
         line += "    u    ← ū tanh(MLP(φ(δ)))  where some |δ_i| > box_i                        (the swing-up law)\n"

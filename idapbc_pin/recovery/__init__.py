@@ -11,8 +11,8 @@ floor below) acts where the IDA-PBC law does not reach, kept only where a gate s
 * The reach stage: `fit` (the recovery law from labels), `gate` (keep it or not), `stage`
   (`recover`, `refit`, `regate`), `trigger` (`limits_bind`, `auto_recover`: `train`'s default).
 * The swing-up stage: `swing_law` (`SwingUpLaw`, acting where the posture leaves the training box,
-  around the run's own outer law) and `swing_stage` (`swing_up`: its labels, fit, DAgger rounds,
-  gate and manoeuvre).
+  around the run's own outer law), `swing_boxes` (the kept boxes where the run's law keeps control)
+  and `swing_stage` (`swing_up`: its labels, fit, DAgger rounds, gate and manoeuvre).
 
 The law modules import nothing of the stages, so the run directory can load them.
 """

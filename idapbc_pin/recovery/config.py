@@ -179,6 +179,10 @@ class SwingUpConfig(Settings):
     tracks : tracking laws (`trajectory.tracks`: nominal plans from the exact resting posture,
         each tracked from the nearest point by a time-varying LQR) the gate judges beside the fits; 0:
         none.
+    funnels : radii ϱ (`TrackingLaw.funnel`: the weighted distance to the nominal's nearest point,
+        1 per rad) within which a tracking law acts; where the gate keeps no law, it judges each
+        tracking law within each of them (beyond ϱ the run's law keeps the paths of its own box that
+        swing far out); empty: none.
     track_iterations : iterations of the iLQR solves of those nominals.
     track_share : share of the effort limits the nominals use (the rest is the feedback's).
     manoeuvre : also judge each nominal as a manoeuvre from rest, tracked in time
@@ -221,6 +225,7 @@ class SwingUpConfig(Settings):
     kept_momenta: float = 5.0
     judge_T: float = 10.0
     tracks: int = 2
+    funnels: tuple = (0.5, 1.0)
     always_fit: bool = False
     track_iterations: int = 80
     track_share: float = 0.8
@@ -234,7 +239,7 @@ class SwingUpConfig(Settings):
     ray: str | None = None
 
     def __post_init__(self):
-        ok = (all(0 < r <= 1 for r in self.inner_scales) and 0 < self.track_share <= 1 and 0 < self.library_share <= 1
+        ok = (all(0 < r <= 1 for r in self.inner_scales) and all(0 < r < float("inf") for r in self.funnels) and 0 < self.track_share <= 1 and 0 < self.library_share <= 1
               and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations, self.library_iterations) >= 1
               and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library) >= 0
               and 0 < self.library_horizon <= self.judge_T - 2.0 and self.time_margin >= 0
@@ -242,5 +247,5 @@ class SwingUpConfig(Settings):
               and all(0 < h <= self.judge_T - 2.0 for h in self.manoeuvre_horizons))
         if not ok:
             raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch, ilqr_iterations, track_iterations and library_iterations "
-                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales, track_share and library_share in (0, 1], circle in [0, 10], kept_momenta ≥ 0, horizon, "
+                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales, track_share and library_share in (0, 1], funnels finite and > 0, circle in [0, 10], kept_momenta ≥ 0, horizon, "
                               "manoeuvre_horizons and library_horizon > 0 and judge_T ≥ each of them + 2 s. Fix: pass valid values.")

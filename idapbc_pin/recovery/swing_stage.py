@@ -41,6 +41,9 @@ holds every number.
    run's law, or as many and is at x* `time_margin` sooner (median). Where none is kept, the same gate runs once more with the box's angles and no
    momentum read (`any_speed_boxes`): a robot whose training box allows far less momentum than a
    swing-up arrives with (a reaction wheel, a rotary arm) never leaves a bounded box to its law.
+   Where still none is kept, the gate runs once more with each tracking law acting only within each
+   of `funnels` of its nominal (`TrackingLaw.funnel`): the run's law then keeps the paths of its box
+   that swing far outside the kept box, which a tracking law would take over far from its plan.
    The library of step 6 reads the kept box the gate chose (`chosen_box`).
 
 5. **Manoeuvre.** Each nominal plan (those of `horizon`, and as many of each `manoeuvre_horizons`)
@@ -84,6 +87,7 @@ from ..trajectory.fit import fit_mlp
 from .gate import GATE_HORIZON, RECOVERY_GATE_SEED, read_labels, write_law
 from ..trajectory.plans import PLAN_STEP, PlanSettings, planning_system
 from .stage import collect_labels
+from .swing_boxes import ANY_SPEED, box_half_widths, any_speed_boxes, chosen_box, kept_boxes, posture_box
 from .swing_law import SwingUpLaw, swing_features
 from ..trajectory.manoeuvre import MANOEUVRE_NOMINALS, SwingManoeuvre, choose_manoeuvre
 from ..trajectory.tracks import KNOT, NOMINALS, nominals, tracking_law, tracking_laws
@@ -94,48 +98,10 @@ __all__ = ["ANY_SPEED", "SWING_GATE_SEED", "any_speed_boxes", "chosen_box", "fit
 SWING_GATE_SEED = RECOVERY_GATE_SEED + 5_000
 #: Times (s) of a failed DAgger rollout whose states are labelled.
 DAGGER_TIMES = (1.0, 2.5, 4.0)
-#: Name of the kept box that reads the training box's angles and no momentum (`any_speed_boxes`).
-ANY_SPEED = "posture, any speed"
 #: The swing-up labels' plans (`PlanSettings` fields): LQR's end cost alone, the former step sizes and
 #: the input computed at every tick, as before the reach plans gained their running cost and held
 #: inputs (not yet measured on the swing-up stage).
 SWING_LABEL_PLANS = {"q": 0.0, "end_box": 0.0, "alphas": (1.0, 0.3, 0.1), "hold": False}
-
-
-def _box_half_widths(system) -> np.ndarray:
-    """(n,) the training box's half-widths about its centre."""
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in system.domain)
-    return (hi - lo) / 2
-
-
-def posture_box(system, config: SwingUpConfig) -> np.ndarray:
-    """(n,) the kept box of a swing-up law: the training box's angles, its momenta × `kept_momenta`
-    (∞ where 0), every other coordinate not read (∞)."""
-    s, mask = _box_half_widths(system), np.asarray(system.angle_mask, dtype=bool)
-    momenta = np.arange(s.size) >= system.nq
-    k = float(config.kept_momenta)
-    return np.where(mask, s, np.where(momenta & (k > 0), k * s, np.inf))
-
-
-def kept_boxes(system, config: SwingUpConfig) -> dict:
-    """The candidate kept boxes of the gate, {name: (n,) half-widths}: "posture" (`posture_box`),
-    and "r = …" (r·s on every component) for r in `config.inner_scales`."""
-    s = _box_half_widths(system)
-    return {"posture": posture_box(system, config)} | {f"r = {r:g}": float(r) * s for r in config.inner_scales}
-
-
-def any_speed_boxes(system, config: SwingUpConfig) -> dict:
-    """The second gate's kept box, {ANY_SPEED: (n,)}: the training box's angles with no momentum read
-    (`posture_box` with `kept_momenta` 0); empty where the posture box reads no momentum anyway."""
-    return {ANY_SPEED: posture_box(system, config.replace(kept_momenta=0.0))} if config.kept_momenta > 0 else {}
-
-
-def chosen_box(run, system, config: SwingUpConfig) -> np.ndarray:
-    """(n,) the kept box of the swing-up law the stage's gate chose (summary.json → "swing_up" →
-    "gate" → "box"; "posture" where the run has no gate)."""
-    name = ((run.summary.get("swing_up") or {}).get("gate") or {}).get("box", "posture")
-    boxes = kept_boxes(system, config) | any_speed_boxes(system, config)
-    return boxes.get(name, boxes["posture"])
 
 
 def _labels_config(config: SwingUpConfig) -> RecoveryConfig:
@@ -151,7 +117,7 @@ def fit_swing_law(system, X: np.ndarray, U: np.ndarray, config: SwingUpConfig, s
     squared error in units of ū)."""
     effort = np.asarray(system.effort, dtype=np.float64)
     x_star, mask = np.asarray(system.x_star, dtype=np.float64), np.asarray(system.angle_mask, dtype=bool)
-    box = _box_half_widths(system)
+    box = box_half_widths(system)
     delta = wrap_angles(np.asarray(X, dtype=np.float64) - x_star, mask)
     scale = np.maximum(delta.std(axis=0), box)  # the labels' spread, at least the box's
     F = swing_features(delta, mask, scale)
@@ -181,7 +147,7 @@ class PumpThenRun:
     def __init__(self, system, run_law):
         self.run_law, self.pump, self.m = run_law, EnergyPumpLaw(system), int(system.m)
         self.x_star, self.mask = np.asarray(system.x_star, dtype=np.float64), np.asarray(system.angle_mask, dtype=bool)
-        self.box = np.where(self.mask, _box_half_widths(system), np.inf)
+        self.box = np.where(self.mask, box_half_widths(system), np.inf)
 
     def __call__(self, x):
         x = np.atleast_2d(x)
@@ -301,9 +267,18 @@ def _fit_and_gate(run, system, teacher, labels: tuple, box_labels: tuple, tracks
         (k2, box2), gate2 = swing_gate(run, laws + tracks, config, progress, fitted=len(laws), boxes=second, shared=shared)
         if gate2["used"]:
             (k, box), gate = (k2, box2), gate2 | {"bounded": gate}
+    candidates = laws + tracks
+    if not gate["used"] and tracks and config.funnels:  # each tracking law only near its nominal: the box's own paths stay the run's law's
+        funnelled = [t.with_funnel(r) for r in config.funnels for t in tracks]
+        (k3, box3), gate3 = swing_gate(run, funnelled, config, progress, fitted=0, shared=shared)
+        if gate3["used"]:
+            candidates = laws + funnelled
+            (k, box), gate = (len(laws) + k3, box3), gate3 | {"fit": len(laws) + k3 % len(tracks), "fitted": len(laws), "unfunnelled": gate}  # "fit": the tracking law it narrows
+    funnel = getattr(candidates[k], "funnel", np.inf)
+    gate["funnel"] = float(funnel) if np.isfinite(funnel) else None
     return {"used": gate["used"], "gate": gate, "fit": k, "law": "fitted" if k < len(laws) else "tracking", "labels": int(len(X)),
-            "first_fit_mse": first_mse, "dagger": rounds, "seconds": round(time.perf_counter() - start, 1), "config": asdict(config),
-            "_law": (laws + tracks)[k].with_box((kept_boxes(system, config) | second)[box])}
+            "funnel": gate["funnel"], "first_fit_mse": first_mse, "dagger": rounds, "seconds": round(time.perf_counter() - start, 1),
+            "config": asdict(config), "_law": candidates[k].with_box((kept_boxes(system, config) | second)[box])}
 
 
 def _manoeuvre(run, system, candidates: list, config: SwingUpConfig, progress: bool, start: float) -> dict:
@@ -422,8 +397,9 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
 def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
     """The swing-up gate's figures and verdict in one line (the bounded box's gate first, where a
     second gate with no momentum read kept the law)."""
-    if "bounded" in gate:
-        return f"{format_swing_gate(gate['bounded'], config)}; again with no momentum read: {format_swing_gate({k: v for k, v in gate.items() if k != 'bounded'}, config)}"
+    for key, again in (("unfunnelled", "each tracking law only within each funnel"), ("bounded", "with no momentum read")):
+        if key in gate:
+            return f"{format_swing_gate(gate[key], config)}; again {again}: {format_swing_gate({k: v for k, v in gate.items() if k != key}, config)}"
     verdict = "kept" if gate["used"] else (f"not kept (needs {config.margin} more held than the run's law, or as many and "
                                             f"{config.time_margin:g} s sooner at x*, and at most {config.box_loss} fewer box states)")
     boxed = gate.get("candidates_box", {})
@@ -433,6 +409,7 @@ def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
     where = "near-resting states" if near == gate["states"] else f"states ({near} near-resting, {gate['states'] - near} at rest from the full circle)"
     fitted = gate.get("fitted", len(next(iter(gate["candidates"].values()))))
     which = f"fit {gate['fit'] + 1}" if gate["fit"] < fitted else f"tracking law {gate['fit'] - fitted + 1}"
+    which += f" within the funnel {gate['funnel']:g}" if gate.get("funnel") else ""
     at = lambda t: "never" if t is None else f"{t:.2f} s"  # noqa: E731
     times = f", median time to x* {at(gate['run_time'])} and {at(gate['law_time'])}" if "run_time" in gate else ""
     return (f"swing-up gate: of {gate['states']} {where} the run's law holds {gate['run']} at x*, with the swing-up law "

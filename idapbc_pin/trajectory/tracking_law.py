@@ -7,7 +7,11 @@ nominal point nearest to the state,
 
     k(x) = argmin_k ‖W wrap(x − X_k)‖²,      u(x) = clip(U_k + K_k wrap(x − X_k), ±ū)   (k = k(x)),
 
-with W = diag(weight), and the run's law inside the kept box, as `SwingUpLaw` (`kept_box`). Every
+with W = diag(weight), and the run's law inside the kept box, as `SwingUpLaw` (`kept_box`). A
+finite `funnel` ϱ bounds where the law acts to the states within ϱ of the nominal, ‖W wrap(x −
+X_k(x))‖ ≤ ϱ: a time-varying LQR is valid near its path only, and beyond ϱ the run's law keeps
+control (a state of the box whose own path swings far out is not taken over by a plan it is nowhere
+near). Every
 array is in the run's coordinates x = (q, p), so the law needs no model of the robot. It is a state
 feedback like the others: `Controller`, `simulate` and `export` treat it as any outer law. Where the
 nominal passes close to itself at different times the nearest point may be the wrong one: the stage
@@ -16,7 +20,7 @@ keeps such a law only where its gate says it holds swing-ups.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -61,7 +65,7 @@ class _TorusTree:
     def nearest(self, x: np.ndarray) -> np.ndarray:
         return self.tree.query(self._embed(x), k=1)[1]
 
-_FIELDS = ("X", "U", "K", "weight", "x_star", "effort", "angle_mask", "box")
+_FIELDS = ("X", "U", "K", "weight", "x_star", "effort", "angle_mask", "box", "funnel")
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,6 +82,8 @@ class TrackingLaw(KeptBoxLaw):
     angle_mask : (n,) bool, components wrapped to within π (angles of q).
     box : (n,) half-widths of the kept box, where the run's law keeps control (∞: not read).
     inner : the run's own outer law applied first, or None.
+    funnel : ϱ, the largest distance ‖W wrap(x − X_k)‖ to the nearest point at which the law acts
+        (beyond it the run's law, as in the kept box); ∞: everywhere outside the kept box.
     """
 
     X: np.ndarray
@@ -89,6 +95,7 @@ class TrackingLaw(KeptBoxLaw):
     angle_mask: np.ndarray
     box: np.ndarray
     inner: object = None
+    funnel: float = float("inf")
 
     @cached_property
     def _tree(self) -> "_TorusTree":
@@ -99,6 +106,20 @@ class TrackingLaw(KeptBoxLaw):
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         k = self._tree.nearest(x) if len(self.X) >= _TREE_FROM else _brute_nearest(x, self.X, self.weight, self.angle_mask)
         return k, wrap_angles(x - self.X[k], self.angle_mask)
+
+    def outside(self, x) -> np.ndarray:
+        """(..., n) -> (...) bool: True where the law acts: outside the kept box, and within the funnel."""
+        out = super().outside(x)
+        if np.isfinite(self.funnel) and out.any():
+            flat = out.reshape(-1)
+            _, d = self.nearest(np.asarray(x, dtype=np.float64).reshape(-1, self.X.shape[1])[flat])
+            flat[flat] = ((d * self.weight) ** 2).sum(axis=-1) <= self.funnel ** 2
+            out = flat.reshape(out.shape)
+        return out
+
+    def with_funnel(self, funnel: float) -> "TrackingLaw":
+        """The same law acting only within `funnel` of its nominal (∞: wherever outside the kept box)."""
+        return replace(self, funnel=float(funnel))
 
     def law(self, x) -> np.ndarray:
         """The tracking law alone: (N, n) -> (N, m), within ±ū."""
@@ -115,7 +136,7 @@ class TrackingLaw(KeptBoxLaw):
 
     def arrays(self) -> dict:
         """The law as named arrays (swingup.npz of a run, without `inner`): X, U, K, weight, x_star,
-        effort, angle_mask, box."""
+        effort, angle_mask, box, funnel."""
         return {k: np.asarray(getattr(self, k)) for k in _FIELDS}
 
     @classmethod
@@ -125,6 +146,7 @@ class TrackingLaw(KeptBoxLaw):
         try:
             X, U, K, weight, x_star, effort, box = (np.asarray(arrays[k], dtype=np.float64) for k in ("X", "U", "K", "weight", "x_star", "effort", "box"))
             mask = np.asarray(arrays["angle_mask"], dtype=bool)
+            funnel = float(np.asarray(arrays["funnel"])) if "funnel" in arrays else float("inf")  # laws saved before it: none
         except KeyError as err:
             raise ValueError(f"the tracking law has no {err.args[0]!r}") from None
         P, n = X.shape if X.ndim == 2 else (0, 0)
@@ -133,7 +155,9 @@ class TrackingLaw(KeptBoxLaw):
             raise ValueError("the tracking law's arrays do not fit together")
         if not all(np.isfinite(a).all() for a in (X, U, K, weight, x_star, effort)) or not (box >= 0).all() or not (weight >= 0).all():
             raise ValueError("the tracking law has non-finite arrays, or negative weights or box half-widths")
-        return cls(X, U, K, weight, x_star, effort, mask, box, inner)
+        if not funnel > 0:
+            raise ValueError("the tracking law's funnel must be positive")
+        return cls(X, U, K, weight, x_star, effort, mask, box, inner, funnel)
 
     def to_json(self) -> dict:
         """controller.json's "fallback" of an export (kind "swing_up", with the nominal "X"): every
@@ -141,4 +165,5 @@ class TrackingLaw(KeptBoxLaw):
         wraps as "wraps" (None: the networks alone)."""
         out = {k: np.asarray(v).tolist() for k, v in self.arrays().items()}
         out["box"] = [float(b) if np.isfinite(b) else None for b in self.box]
+        out["funnel"] = float(self.funnel) if np.isfinite(self.funnel) else None
         return {"kind": "swing_up"} | out | {"wraps": None if self.inner is None else self.inner.to_json()}
