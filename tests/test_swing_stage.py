@@ -187,11 +187,13 @@ def test_where_no_gate_keeps_a_law_a_last_gate_judges_each_tracking_law_within_e
         laws, fitted, shared = calls[-1]
         assert [law.funnel for law in laws] == [0.5, 0.5, 1.0, 1.0] and fitted == 0 and shared is calls[0][2]
         assert entry["used"] == keep_funnelled
+        line = stage.format_swing_gate(entry["gate"], config)
+        assert "tracking law 2 within the funnel 1" in line and "again each tracking law only within each funnel" in line
         if keep_funnelled:
             assert entry["funnel"] == 1.0 and entry["_law"].funnel == 1.0 and entry["law"] == "tracking"
             assert entry["gate"]["unfunnelled"]["used"] is False
-            line = stage.format_swing_gate(entry["gate"], config)
-            assert "tracking law 2 within the funnel 1" in line and "again each tracking law only within each funnel" in line
+        else:  # the refused last gate is recorded beside the first
+            assert entry["funnel"] is None and entry["gate"]["funnelled"]["used"] is False and not np.isfinite(entry["_law"].funnel)
             np.testing.assert_array_equal(entry["_law"].X, tracks[1].X)
 
 

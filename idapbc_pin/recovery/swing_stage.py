@@ -271,11 +271,14 @@ def _fit_and_gate(run, system, teacher, labels: tuple, box_labels: tuple, tracks
     if not gate["used"] and tracks and config.funnels:  # each tracking law only near its nominal: the box's own paths stay the run's law's
         funnelled = [t.with_funnel(r) for r in config.funnels for t in tracks]
         (k3, box3), gate3 = swing_gate(run, funnelled, config, progress, fitted=0, shared=shared)
+        gate3 |= {"fit": len(laws) + k3 % len(tracks), "fitted": len(laws), "funnel": funnelled[k3].funnel}  # "fit": the tracking law it narrows
         if gate3["used"]:
             candidates = laws + funnelled
-            (k, box), gate = (len(laws) + k3, box3), gate3 | {"fit": len(laws) + k3 % len(tracks), "fitted": len(laws), "unfunnelled": gate}  # "fit": the tracking law it narrows
+            (k, box), gate = (len(laws) + k3, box3), gate3 | {"unfunnelled": gate}
+        else:
+            gate = gate | {"funnelled": gate3}
     funnel = getattr(candidates[k], "funnel", np.inf)
-    gate["funnel"] = float(funnel) if np.isfinite(funnel) else None
+    gate["funnel"] = float(funnel) if np.isfinite(funnel) and gate["used"] else None
     return {"used": gate["used"], "gate": gate, "fit": k, "law": "fitted" if k < len(laws) else "tracking", "labels": int(len(X)),
             "funnel": gate["funnel"], "first_fit_mse": first_mse, "dagger": rounds, "seconds": round(time.perf_counter() - start, 1),
             "config": asdict(config), "_law": candidates[k].with_box((kept_boxes(system, config) | second)[box])}
@@ -397,7 +400,10 @@ def swing_gate(run, laws: list, config: SwingUpConfig, progress: bool = False, f
 def format_swing_gate(gate: dict, config: SwingUpConfig) -> str:
     """The swing-up gate's figures and verdict in one line (the bounded box's gate first, where a
     second gate with no momentum read kept the law)."""
-    for key, again in (("unfunnelled", "each tracking law only within each funnel"), ("bounded", "with no momentum read")):
+    funnels = "each tracking law only within each funnel"
+    if "funnelled" in gate:  # the last gate, which refused too
+        return f"{format_swing_gate({k: v for k, v in gate.items() if k != 'funnelled'}, config)}; again {funnels}: {format_swing_gate(gate['funnelled'], config)}"
+    for key, again in (("unfunnelled", funnels), ("bounded", "with no momentum read")):
         if key in gate:
             return f"{format_swing_gate(gate[key], config)}; again {again}: {format_swing_gate({k: v for k, v in gate.items() if k != key}, config)}"
     verdict = "kept" if gate["used"] else (f"not kept (needs {config.margin} more held than the run's law, or as many and "
