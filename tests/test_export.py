@@ -256,25 +256,35 @@ def test_standalone_applies_a_recovery_library_of_paths_as_the_library_does(runs
     _standalone_equals_library_outside(run, law, folder, tmp_path)
 
 
+def _swing_tracking_law(system):
+    """A tracking law (a library of one labelled path) with a kept box of 0.3 of the training box."""
+    from tests.test_recovery_library import _paths
+
+    from idapbc_pin.trajectory.library import paths_law
+
+    X, U = _paths(system, P=1, L=120, seed=6)
+    lo, hi = system.domain
+    return paths_law(system, X, U, 0.3, 0.3 * (hi - lo) / 2)
+
+
+def _run_with_swing_law(source, law, tmp_path):
+    """A copy of the run `source` under tmp_path whose kept swing-up law is `law`, loaded."""
+    from idapbc_pin.run import SWINGUP_FILE
+
+    path = tmp_path / "run"
+    shutil.copytree(source.path, path)
+    np.savez(path / SWINGUP_FILE, **law.arrays())
+    summary = json.loads((path / "summary.json").read_text()) | {"swing_up": {"used": True}}
+    (path / "summary.json").write_text(json.dumps(summary))
+    return ip.load_run(path)
+
+
 def test_standalone_applies_a_swing_up_tracking_law_as_the_library_does(runs, tmp_path):
     """A run whose swing-up law is a tracking law (a nominal read at the nearest point, `TrackingLaw`):
     controller.json's "swing_up" fallback carries its nominal "X", and the standalone τ equals the
     library's to 1e-9 on states mostly outside its kept box."""
-    from tests.test_recovery_library import _paths
-
-    from idapbc_pin.run import SWINGUP_FILE
-    from idapbc_pin.trajectory.library import paths_law
-
-    system = runs["pendubot"].system
-    X, U = _paths(system, P=1, L=120, seed=6)
-    lo, hi = system.domain
-    law = paths_law(system, X, U, 0.3, 0.3 * (hi - lo) / 2)
-    path = tmp_path / "run"
-    shutil.copytree(runs["pendubot"].path, path)
-    np.savez(path / SWINGUP_FILE, **law.arrays())
-    summary = json.loads((path / "summary.json").read_text()) | {"swing_up": {"used": True}}
-    (path / "summary.json").write_text(json.dumps(summary))
-    run = ip.load_run(path)
+    law = _swing_tracking_law(runs["pendubot"].system)
+    run = _run_with_swing_law(runs["pendubot"], law, tmp_path)
     folder = ip.export(run, tmp_path / "export", onnx=False)
     record = json.loads((folder / "controller.json").read_text())
     assert record["fallback"]["kind"] == "swing_up" and len(record["fallback"]["X"]) == len(law.X)
@@ -285,15 +295,8 @@ def test_standalone_applies_a_tracking_law_only_within_its_funnel_as_the_library
     """A tracking law with a funnel ϱ: controller.json carries ϱ, and the standalone τ equals the
     library's to 1e-9 on states where the law acts, and where the state lies outside its kept box
     but beyond ϱ of its nominal (the run's law acts there)."""
-    from tests.test_recovery_library import _paths
-
-    from idapbc_pin.run import SWINGUP_FILE
-    from idapbc_pin.trajectory.library import paths_law
-
     system = runs["pendubot"].system
-    X, U = _paths(system, P=1, L=120, seed=6)
-    lo, hi = system.domain
-    plain = paths_law(system, X, U, 0.3, 0.3 * (hi - lo) / 2)
+    plain = _swing_tracking_law(system)
     q, v = _states(system)
     x = system.state_from(q, v)
     _, d = plain.nearest(x)
@@ -301,12 +304,7 @@ def test_standalone_applies_a_tracking_law_only_within_its_funnel_as_the_library
     law = plain.with_funnel(float(np.median(dist[plain.outside(x)])))
     beyond = plain.outside(x) & ~law.outside(x)
     assert 0.1 < law.outside(x).mean() and 0.1 < beyond.mean()
-    path = tmp_path / "run"
-    shutil.copytree(runs["pendubot"].path, path)
-    np.savez(path / SWINGUP_FILE, **law.arrays())
-    summary = json.loads((path / "summary.json").read_text()) | {"swing_up": {"used": True}}
-    (path / "summary.json").write_text(json.dumps(summary))
-    run = ip.load_run(path)
+    run = _run_with_swing_law(runs["pendubot"], law, tmp_path)
     assert run.controller.fallback.funnel == law.funnel
     folder = ip.export(run, tmp_path / "export", onnx=False)
     record = json.loads((folder / "controller.json").read_text())
