@@ -203,7 +203,7 @@ class ExportedController:
             near = ((e * sw["weight"]) ** 2).sum(axis=1) <= funnel ** 2 if np.isfinite(funnel) else np.ones(len(k), bool)
             u = u.copy()
             rows = np.flatnonzero(out)[near]
-            u[rows] = np.clip(sw["U"][k[near]] + np.einsum("nij,nj->ni", sw["K"][k[near]], e[near]), -sw["effort"], sw["effort"])
+            u[rows] = _point_law(sw, k[near], e[near])
             return u
         z = np.concatenate([np.sin(d[out][:, mask]), np.cos(d[out][:, mask]), d[out][:, ~mask] / sw["scale"][~mask]], axis=1)
         depth = sum(1 for k in sw if k.startswith("W"))
@@ -259,7 +259,11 @@ def _nearest_point(x: np.ndarray, law: dict) -> tuple[np.ndarray, np.ndarray]:
 def _nearest_point_law(x: np.ndarray, law: dict) -> np.ndarray:
     """clip(U_k + K_k e_k, ±ū) at the point X_k of `law` nearest to each state x (N, n)
     (`_nearest_point`): a tracking law, or a recovery law's library of paths -> (N, m)."""
-    k, e = _nearest_point(x, law)
+    return _point_law(law, *_nearest_point(x, law))
+
+
+def _point_law(law: dict, k: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """clip(U_k + K_k e, ±ū) for point indices k (N,) and errors e (N, n) -> (N, m)."""
     return np.clip(law["U"][k] + np.einsum("nij,nj->ni", law["K"][k], e), -law["effort"], law["effort"])
 
 
