@@ -15,6 +15,8 @@ Claims:
 * a plan tracked with its input held over each knot applies one input per knot, U_0 from the plan's
   own start, and ends nearer the plan's end than the same plan tracked at every tick against the
   knot's start state; the reach plans get more iterations at three joints than at two;
+* a problem that took no step keeps its Jacobians, and the plans are those of a solver that
+  computes every problem's Jacobians at every iteration, to the bit;
 * a chunk store gives back exactly what was written, and nothing for another key or a damaged file;
   a labelling step started again after an interruption plans only the chunks it had not finished,
   and ends with the labels of an uninterrupted step;
@@ -31,6 +33,7 @@ import idapbc_pin as ip
 from idapbc_pin.control.baseline import LQRController
 from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.recovery import stage as stage_module
+from idapbc_pin.trajectory import ilqr as ilqr_module
 from idapbc_pin.trajectory.chunks import CHUNKS_DIR, ChunkStore, chunk_key
 from idapbc_pin.trajectory.ilqr import (ILQRSettings, _knot_jacobians, _rail, _rail_terms, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout,
                                       settle_weights)
@@ -112,6 +115,48 @@ def test_ilqr_plans_stay_within_the_limits_and_improve_on_their_warm_start(weak_
     assert np.all(cost <= start) and np.any(cost < 0.5 * start)
     alone = ilqr_plans(system, x0[1:2], U0[1:2], bound, H, S, settings)[0]
     np.testing.assert_allclose(alone, U[1:2], atol=1e-9)
+
+
+def _reference_ilqr(system, x0, U0, bound, horizon, S, settings):
+    """iLQR as written before the solver kept the Jacobians of problems that took no step: every
+    iteration computes every problem's Jacobians."""
+    N, K, m = U0.shape
+    dt = horizon / K
+    Q, Sz, r = plan_weights(system, S, settings, bound)
+    U = np.clip(U0, -bound, bound)
+    Z = rollout(system, np.concatenate(system.split(x0), axis=1), U, dt, settings.substeps)
+    n, alphas, L = Z.shape[2], np.asarray(settings.alphas), len(settings.alphas)
+    cost, mu = plan_cost(system, Z, U, Q, Sz, r, dt), np.full(N, settings.mu0)
+    for it in range(settings.iterations + 1):
+        A, B = _knot_jacobians(system, Z[:, :-1].reshape(-1, n), U.reshape(-1, m), dt)
+        kff, gains, ok = ilqr_module._backward(system, Z, U, A.reshape(N, K, n, n), B.reshape(N, K, n, m), Q, Sz, r, dt, mu, bound)
+        if it == settings.iterations:
+            return U, Z, gains, cost
+        rep = lambda a: np.repeat(a[:, None], L, 1).reshape((N * L,) + a.shape[1:])  # noqa: E731
+        Zn, Un = ilqr_module._forward(system, rep(Z), rep(U), (alphas[None, :, None, None] * kff[:, None]).reshape(N * L, K, m), rep(gains), bound, dt, 1)
+        cn = plan_cost(system, Zn, Un, Q, Sz, r, dt).reshape(N, L)
+        best = np.argmin(cn, axis=1)
+        better = ok & (cn[np.arange(N), best] < cost)
+        idx = (np.arange(N) * L + best)[better]
+        Z[better], U[better], cost[better] = Zn[idx], Un[idx], cn[better, best[better]]
+        mu = np.where(better, np.maximum(mu / 4.0, 1e-8), np.minimum(mu * 10.0, 1e8))
+
+
+def test_a_problem_that_took_no_step_keeps_its_jacobians_and_its_plan_is_unchanged(weak_pendubot, lost, monkeypatch):
+    system = weak_pendubot
+    x0, _ = lost
+    bound, S, K, H = np.array([8.0]), LQRController(system).S, 40, 0.8
+    U0 = np.concatenate([np.zeros((len(x0), K, 1)), np.full((len(x0), K, 1), 8.0)])
+    x0 = np.concatenate([x0, x0])
+    settings = ILQRSettings(iterations=10, alphas=(1.0, 0.3))
+    expected = _reference_ilqr(system, x0, U0, bound, H, S, settings)
+    rows = []
+    jacobians = ilqr_module._knot_jacobians
+    monkeypatch.setattr(ilqr_module, "_knot_jacobians", lambda s, z, u, dt: rows.append(len(z) // K) or jacobians(s, z, u, dt))
+    got = ilqr_plans(system, x0, U0, bound, H, S, settings)
+    assert sum(rows) < len(x0) * (settings.iterations + 1)  # some problem took no step and kept its Jacobians
+    for a, b in zip(got, expected):
+        assert np.array_equal(a, b)
 
 
 def test_a_settled_plan_rests_nearer_x_star_over_its_last_seconds_than_a_plain_one(weak_pendubot, lost):

@@ -154,6 +154,35 @@ def test_a_tracking_law_with_a_funnel_acts_only_near_its_nominal_and_round_trips
     assert law.to_json()["funnel"] == rho and plain.to_json()["funnel"] is None
 
 
+def test_the_region_test_at_the_states_of_the_last_call_is_not_computed_again(pendubot, monkeypatch):
+    """`outside` called again with the same states (as `reads_networks` and `apply` are in one tick)
+    searches no nearest point and returns what a fresh law computes; changed states, even in place, and
+    another funnel (`with_funnel`) are computed afresh."""
+    system = pendubot
+    U, Z, G = _plan(system, seed=2)
+    lo, hi = system.domain
+    box = np.where(system.angle_mask, (hi - lo) / 2, np.inf)
+    plain = tracking_law(system, U, Z, G, 1.0, box)
+    x = system.x_star + np.random.default_rng(6).uniform(-3, 3, (50, system.n))
+    _, d = plain.nearest(x)
+    rho = float(np.median(np.sqrt(((d * plain.weight) ** 2).sum(axis=1))[plain.outside(x)]))
+    law = plain.with_funnel(rho)
+    searches = []
+    nearest = TrackingLaw.nearest
+    monkeypatch.setattr(TrackingLaw, "nearest", lambda self, y: searches.append(len(y)) or nearest(self, y))
+    first = law.outside(x)
+    first[:] = True  # the caller's copy: the memo keeps its own
+    again = law.outside(x)
+    assert len(searches) == 1
+    fresh = tracking_law(system, U, Z, G, 1.0, box).with_funnel(rho)
+    np.testing.assert_array_equal(again, fresh.outside(x))
+    assert 0 < again.sum() < len(x)
+    x[0] = system.x_star  # changed in place: inside the kept box now
+    assert not law.outside(x)[0] and len(searches) == 3
+    np.testing.assert_array_equal(law.with_funnel(0.1).outside(x), fresh.with_funnel(0.1).outside(x))
+    np.testing.assert_array_equal(law.apply(x, np.zeros((len(x), 1))), fresh.apply(x, np.zeros((len(x), 1))))
+
+
 def test_on_its_nominal_a_manoeuvre_interpolates_the_plan_s_inputs_without_a_step_at_a_knot(pendubot):
     """At the nominal state interpolated between two knots, the manoeuvre's input is the plan's
     inputs interpolated between the knots' midpoints (the feedback reads no error): continuous

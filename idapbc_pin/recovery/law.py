@@ -34,6 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._memo import last_call
 from ..model.angles import wrap_angles
 
 __all__ = ["InnerSwitch", "RecoveryLaw"]
@@ -51,6 +52,7 @@ class InnerSwitch:
         """δ = wrap(x − x*): (..., n) -> (..., n)."""
         return wrap_angles(np.asarray(x, dtype=np.float64) - self.x_star, self.angle_mask)
 
+    @last_call
     def outside(self, x) -> np.ndarray:
         """(..., n) -> (...) bool: True where the state is outside the inner box (the recovery law acts)."""
         return (np.abs(self.delta(x)) > self.inner).any(axis=-1)

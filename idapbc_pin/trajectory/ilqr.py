@@ -31,8 +31,9 @@ on Q_uu and Q_ux for the step only; the value's V_x, V_xx come from the plain te
 Erez & Todorov 2012: folded into the value, μ makes V_xx indefinite and the pass refuses) and the
 box limits enforced by clamping in the backward pass (clamped inputs get no feedback: the simplest
 form of Tassa, Mansard & Todorov 2014). The line search tries every step size of `alphas` for every
-problem in one batched rollout. All problems advance together in arrays (N, ...), each with its own
-regularisation and acceptance, so a problem's plan does not depend on the others in the batch
+problem in one batched rollout; a problem that took no step keeps its Jacobians for the next pass
+(its plan is unchanged, and so are they). All problems advance together in arrays (N, ...), each
+with its own regularisation and acceptance, so a problem's plan does not depend on the others in the batch
 beyond floating-point rounding. The last backward pass gives the feedback gains a plan is tracked
 with (`plans.TrackThenLaw`).
 """
@@ -244,9 +245,13 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
     mu = np.full(N, settings.mu0)
     alphas = np.asarray(settings.alphas)
     L = len(alphas)
+    A, B = np.empty((N, K, n, n)), np.empty((N, K, n, m))
+    moved = np.ones(N, bool)  # problems whose plan changed since their Jacobians were computed
     for it in range(settings.iterations + 1):  # the last pass only gives the gains of the final plan
-        A, B = _knot_jacobians(system, Z[:, :-1].reshape(-1, n), U.reshape(-1, m), dt)
-        kff, gains, ok = _backward(system, Z, U, A.reshape(N, K, n, n), B.reshape(N, K, n, m), Q, Sz, r_scaled, dt, mu, bound, rail, sigma)
+        if moved.any():  # a problem that took no step keeps its Jacobians: the same rows give the same arrays
+            Am, Bm = _knot_jacobians(system, Z[moved, :-1].reshape(-1, n), U[moved].reshape(-1, m), dt)
+            A[moved], B[moved] = Am.reshape(-1, K, n, n), Bm.reshape(-1, K, n, m)
+        kff, gains, ok = _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail, sigma)
         if it == settings.iterations:
             break
         # batched line search: every problem tries every alpha in one rollout
@@ -257,6 +262,7 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
         better = ok & (cn[np.arange(N), best] < cost)
         idx = (np.arange(N) * L + best)[better]
         Z[better], U[better], cost[better] = Zn[idx], Un[idx], cn[better, best[better]]
+        moved = better
         mu = np.where(better, np.maximum(mu / 4.0, 1e-8), np.minimum(mu * 10.0, 1e8))
     return U, Z, gains, cost
 

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .._memo import last_call
 from ..model.angles import wrap_angles
 
 __all__ = ["KeptBoxLaw"]
@@ -23,6 +24,7 @@ class KeptBoxLaw:
         """δ = wrap(x − x*): (..., n) -> (..., n)."""
         return wrap_angles(np.asarray(x, dtype=np.float64) - self.x_star, self.angle_mask)
 
+    @last_call
     def outside(self, x) -> np.ndarray:
         """(..., n) -> (...) bool: True outside the kept box (the swing-up law acts)."""
         return (np.abs(self.delta(x)) > self.box).any(axis=-1)

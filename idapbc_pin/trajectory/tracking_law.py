@@ -25,6 +25,7 @@ from functools import cached_property
 
 import numpy as np
 
+from .._memo import last_call
 from ..model.angles import wrap_angles
 from .kept_box import KeptBoxLaw
 
@@ -107,6 +108,7 @@ class TrackingLaw(KeptBoxLaw):
         k = self._tree.nearest(x) if len(self.X) >= _TREE_FROM else _brute_nearest(x, self.X, self.weight, self.angle_mask)
         return k, wrap_angles(x - self.X[k], self.angle_mask)
 
+    @last_call
     def outside(self, x) -> np.ndarray:
         """(..., n) -> (...) bool: True where the law acts: outside the kept box, and within the funnel."""
         out = super().outside(x)
