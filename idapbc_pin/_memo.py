@@ -19,9 +19,9 @@ __all__ = ["last_call"]
 def last_call(method):
     """Decorate `method(self, x) -> array` to return a copy of its last result when called again on
     the same instance with a batch x (N, n) of the same shape and bytes (float64); other shapes are
-    not kept. The memo lives in the
-    instance's ``__dict__`` under the method's qualified name (so an override and the method it
-    overrides keep their own), which frozen dataclasses allow, and `dataclasses.replace` drops."""
+    not kept. The memo lives in the instance's ``__dict__`` under the method's qualified name (so an
+    override and the method it overrides keep their own), which frozen dataclasses allow, and
+    `dataclasses.replace` drops."""
     name = f"_last_{method.__qualname__}"
 
     @functools.wraps(method)

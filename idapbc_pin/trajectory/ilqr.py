@@ -33,8 +33,8 @@ box limits enforced by clamping in the backward pass (clamped inputs get no feed
 form of Tassa, Mansard & Todorov 2014). The line search tries every step size of `alphas` for every
 problem in one batched rollout; a problem that took no step keeps its Jacobians for the next pass
 (its plan is unchanged, and so are they). All problems advance together in arrays (N, ...), each
-with its own regularisation and acceptance, so a problem's plan does not depend on the others in the batch
-beyond floating-point rounding. The last backward pass gives the feedback gains a plan is tracked
+with its own regularisation and acceptance, so a problem's plan does not depend on the others in
+the batch beyond floating-point rounding. The last backward pass gives the feedback gains a plan is tracked
 with (`plans.TrackThenLaw`).
 """
 
