@@ -383,3 +383,20 @@ def test_judging_starts_stops_settled_rows_without_changing_holds_or_times(pendu
     assert fast.rest_time == full.rest_time == times[0]
     assert fast.median_time == full.median_time == np.median(np.where(np.isnan(times), np.inf, times))
     assert np.isfinite(fast.median_time)
+
+
+def test_a_library_plan_that_leaves_the_swing_up_to_its_catch_is_no_nominal(monkeypatch):
+    """A library nominal must swing up by itself (`reaches`): a 0.1-s plan from hanging cannot, and
+    the energy pump that catches it then swings the reaction wheel up, so the plan holds at x* over
+    `judge_T`. Kept, its knots would steer states towards its end near hanging, where the law then
+    holds them. With the reach rule lifted the same plan is a nominal, so the rule is what refuses it."""
+    from idapbc_pin.control.energy_pump import EnergyPumpLaw
+    from idapbc_pin.trajectory import library
+
+    wheel = ip.load_system("reaction_wheel")
+    start = library.library_starts(wheel, 0, seed=0)  # the resting posture alone: hanging at rest
+    job = (wheel, EnergyPumpLaw(wheel), start, 0.1, 1.0, 2, 8.0, 0)
+    assert library._chunk_nominals(job) == [None]
+    monkeypatch.setattr(library, "reaches", lambda system, z_end: np.ones(len(z_end), bool))
+    (found,) = library._chunk_nominals(job)
+    assert found is not None and not reaches(wheel, found[1][-1:])[0]

@@ -12,7 +12,9 @@ many starts instead, each with a short horizon:
    (`LIBRARY_COST`) prices time: a running cost on the state and a light one on the input, the end
    pinned on every coordinate and reached `settle` s before the end. Each plan is tracked by its own
    iLQR gains and caught by `catch` (the swing-up stage's teacher); of a start's plans that hold at
-   x* over `judge_T`, the cheapest is its nominal.
+   x* over `judge_T` and swing up by themselves (their last state within the training box's angles
+   of x*: `tracks.reaches`), the cheapest is its nominal. A plan that leaves the swing-up to the
+   catch would pull the law's nearest knots towards where it ends, away from x*.
 3. **The law**: each nominal with its time-varying LQR gains (`tracks.tvlqr_gains`) in x = (q, p)
    (`tracks.tracking_law`), every knot of every nominal in one `TrackingLaw`. The law is the same
    kind as any tracking law (the same arrays, the same export); it reads the nearest point over all
@@ -42,7 +44,7 @@ from ..sim.states import circle_states
 from .ilqr import ILQRSettings, ilqr_plans
 from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
-from .tracks import ALPHAS, KNOT, tracking_law, tvlqr_gains, warm_starts
+from .tracks import ALPHAS, KNOT, reaches, tracking_law, tvlqr_gains, warm_starts
 
 __all__ = ["CHUNK", "LIBRARY_COST", "WARM_PERIOD", "WARM_RANDOM", "library_nominals", "library_starts", "paths_law", "plan_library"]
 
@@ -62,7 +64,7 @@ def library_starts(system, size: int, seed: int) -> np.ndarray:
 
 def _chunk_nominals(job) -> list:
     """Worker: (system, catch, starts (S, n), horizon, share, iterations, judge_T, seed) -> for each
-    start, (U (K, m), Z (K + 1, n) in (q, v)) of its cheapest plan that holds, or None."""
+    start, (U (K, m), Z (K + 1, n) in (q, v)) of its cheapest plan that holds and reaches, or None."""
     system, catch, starts, horizon, share, iterations, judge_T, seed = job
     bound = share * plan_bound(system)
     K = max(1, int(round(horizon / KNOT)))
@@ -72,6 +74,7 @@ def _chunk_nominals(job) -> list:
     settings = ILQRSettings(iterations=iterations, alphas=ALPHAS, **LIBRARY_COST)
     U, Z, gains, cost = ilqr_plans(system, x0, np.tile(W, (len(starts), 1, 1)), bound, K * KNOT, LQRController(system).S, settings)
     held = holds(simulate(system, TrackThenLaw(U, Z, gains, KNOT, catch, system), x0, T=judge_T, dt=PLAN_STEP, stop_settled=True), system)
+    held &= reaches(system, Z[:, -1])  # the plan itself swings up; a plan that leaves it to the catch is no library entry
     out = []
     for s in range(len(starts)):
         rows = [i for i in range(s * w, (s + 1) * w) if held[i]]
