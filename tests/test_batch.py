@@ -137,12 +137,21 @@ BAD_JOBS = [
     ('name = "roa"\nsource = "acrobot"\nevaluate = { n = 0 }\n', "evaluate.n"),
     ('name = "lift"\nsource = "acrobot"\nevaluate = { limits = "no" }\n', "evaluate.limits must be true or false"),
     ('name = "draw"\nsource = "acrobot"\nevaluate = { seed = -3 }\n', "evaluate.seed must be ≥ 0, got -3"),
+    ('name = "grid"\nsource = "acrobot"\nfigure = { slice = 1 }\n', "figure.slice (the basin slice's grid points per axis) must be ≥ 2, got 1"),
     ('name = "weights"\nsource = "acrobot"\ntrain = { seed = -3 }\n', "seed must be an integer ≥ 0, got -3"),
     ('name = "weak"\nsource = "pendubot"\neffort = { elbow = 8.0 }\n', "elbow"),
     ('name = "zero"\nsource = "pendubot"\neffort = { shoulder = 0.0 }\n', "must be > 0"),
     ('name = "text"\nsource = "pendubot"\neffort = { shoulder = "8" }\n', "effort.shoulder must be a number"),
     ('name = "plans"\nsource = "pendubot"\nrecover = "yes"\n', "recover must be one of"),
 ]
+
+
+def test_a_job_may_set_the_figure_s_basin_slice_and_only_another_than_the_default_moves_its_fingerprint(tmp_path):
+    jobs = "".join(f'[[job]]\nname = "{n}"\nsource = "pendubot"\n{extra}\n' for n, extra in (("a", ""), ("b", "figure = { slice = 13 }"), ("c", "figure = { slice = 5 }")))
+    (tmp_path / "p.toml").write_text(jobs)  # no defaults: the smoke pipeline's set a slice of their own
+    a, b, c = load_pipeline(tmp_path / "p.toml").jobs
+    assert a.figure["slice"] == b.figure["slice"] == 13 and c.figure["slice"] == 5
+    assert a.fingerprint() == b.fingerprint() != c.fingerprint()  # jobs written before the key keep their fingerprint
 
 
 def test_a_job_may_lift_the_torque_limits_and_that_changes_its_fingerprint(tmp_path):

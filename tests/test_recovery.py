@@ -415,6 +415,16 @@ def test_of_several_fits_the_gate_keeps_the_eligible_one_that_brings_most_states
     assert gate["fit_gates"][1]["candidates_near"][0.25] == near_of_the_best  # the second fit's own near-box count
     none_kept = recovery_gate.choose_fit(tiny_run, laws, RecoveryConfig(gate_states=100, near_states=100, margin=50, workers=1))
     assert none_kept[0] == 1 and not none_kept[1]["used"]  # none kept: the refused law saved is the one that brought most
+    runs = []
+
+    def counting(job):  # the run's own law is the one without a recovery law
+        runs.append(not isinstance(job[1].fallback, RecoveryLaw))
+        return fake(job)
+
+    monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(counting))
+    known, config = {}, RecoveryConfig(gate_states=100, near_states=100, workers=1)
+    recovery_gate.choose_fit(tiny_run, laws[:1], config, known=known)  # the reach stage's first gate, then its second
+    assert recovery_gate.choose_fit(tiny_run, laws, config, known=known) == (k, gate) and sum(runs) == 1  # the run's law simulated once
 
 
 def test_a_level_that_loses_the_near_box_is_never_run_from_the_box_states(tiny_run, monkeypatch):

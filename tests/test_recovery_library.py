@@ -130,9 +130,9 @@ def test_recover_judges_the_library_beside_the_fits_and_a_run_that_keeps_it_appl
     outside = loaded.controller.fallback.outside(x)
     np.testing.assert_allclose(loaded.controller(x)[outside], loaded.controller.fallback.law(x[outside]), atol=1e-12)
     library = loaded.controller.fallback
-    monkeypatch.setattr(recovery_gate, "choose_fit", lambda run, laws, config, progress: (0, {"used": False}))
+    monkeypatch.setattr(recovery_gate, "choose_fit", lambda run, laws, config, progress, known=None: (0, {"used": False}))
     assert recovery_gate.library_first(loaded, library, 4, RecoveryConfig(**TINY)) is None  # refused alone: the fits follow
-    monkeypatch.setattr(recovery_gate, "choose_fit", lambda run, laws, config, progress: (0, {"used": True}))
+    monkeypatch.setattr(recovery_gate, "choose_fit", lambda run, laws, config, progress, known=None: (0, {"used": True}))
     kept, gate = recovery_gate.library_first(loaded, library, 4, RecoveryConfig(**TINY))
     assert kept is library and gate["library"] and gate["library_points"] == library.points
     monkeypatch.undo()

@@ -451,6 +451,7 @@ def test_simulate_from_anywhere_judges_the_state_feedback_on_the_torus_and_in_th
     run, entry = swung_run
     library = entry["anywhere"]  # the stage's anywhere step: a library from the resting posture and 2 postures of the circle
     assert library["starts"] == 3 and library["used"] == (run.summary["swing_up"].get("law") == "library")
+    assert not library["used"] or run.summary["swing_up"]["funnel"] is None  # a kept library acts wherever it is read
     assert main(["simulate", str(run.path), "--from", "anywhere", "--n", "3", "--T", "2", "--episodes", "2"]) == 0
     text = capsys.readouterr().out
     assert "from 3 states anywhere on the torus" in text and "uptime test: 2 episodes of 8 s, 2 resets" in text

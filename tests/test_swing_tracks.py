@@ -254,12 +254,24 @@ def test_the_manoeuvre_picked_holds_nearly_the_most_and_scores_best_from_rest_an
         def law(self, after):
             return self.i
 
-    def choose(picked, run, own):
-        answers = iter([picked, [run, own]])
-        monkeypatch.setattr(mod, "judge_starts", lambda system, laws, x0, config, score=False: next(answers))
-        return mod.choose_manoeuvre(None, None, [Stub(i) for i in range(len(picked))], np.zeros((20, 4)), np.zeros((20, 4)), SwingUpConfig())
-
     nan = math.nan
+    judged_beyond_rest = []
+
+    def choose(picked, run, own, config=SwingUpConfig()):
+        """`picked`: each manoeuvre's holds of the 20 near-resting starts and its verdict from rest."""
+        x_pick, x_gate = np.zeros((20, 4)), np.ones((20, 4))
+
+        def judge(system, laws, x0, config, score=False):
+            if x0[0, 0] == 1.0:  # the gate: the run's law, then the manoeuvre picked
+                return [run, own]
+            if len(x0) == 1:  # each from exact rest, scored
+                return [Judged(min(1, picked[i].held), picked[i].rest_time, picked[i].rest_score) for i in laws]
+            judged_beyond_rest.extend(laws)
+            return [Judged(picked[i].held - min(1, picked[i].held), nan, nan) for i in laws]
+
+        monkeypatch.setattr(mod, "judge_starts", judge)
+        return mod.choose_manoeuvre(None, None, [Stub(i) for i in range(len(picked))], x_pick, x_gate, config)
+
     picked = [Judged(20, 4.0, 0.30), Judged(18, 3.0, 0.55), Judged(17, 2.0, 0.70), Judged(5, 2.0, 0.90)]
     best, entry = choose(picked, run=Judged(20, 5.0, 0.20), own=Judged(20, 3.0, 0.55))
     assert mod.PICK_SHARE == 0.9 and entry["choice"] == 1 and best == 1  # 18 ≥ 0.9 · 20 > 17: the best score among 20, 18
@@ -272,6 +284,13 @@ def test_the_manoeuvre_picked_holds_nearly_the_most_and_scores_best_from_rest_an
     best, entry = choose(no_tip, run=Judged(19, 5.0, nan), own=Judged(19, 3.0, nan))
     assert best == 1 and entry["picked_score"] == [None, None, None] and entry["rest_score"]["run"] is None  # sooner settled
     assert choose(no_tip, run=Judged(19, 2.0, nan), own=Judged(19, 3.0, nan))[0] is None
+    # judged best from rest first, two at a time (two workers): once one holds all 20 and every one
+    # ranked as high is judged, the lower ranked are not judged beyond rest (they could not be picked)
+    ties = [Judged(20, 4.0, 0.30), Judged(20, 3.0, 0.80), Judged(20, 2.0, 0.80), Judged(12, 2.0, 0.90), Judged(20, 2.0, 0.50)]
+    judged_beyond_rest.clear()
+    best, entry = choose(ties, run=Judged(20, 5.0, 0.20), own=Judged(20, 3.0, 0.80), config=SwingUpConfig(workers=2))
+    assert best == 1 and entry["picked"] == [None, 20, 20, 12, 20] and sorted(judged_beyond_rest) == [1, 2, 3, 4]
+    assert entry["picked_score"] == [0.30, 0.80, 0.80, 0.90, 0.50]  # every one from rest
 
 
 def test_a_library_reads_each_nominal_at_its_own_knots(pendubot, monkeypatch):

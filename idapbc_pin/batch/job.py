@@ -29,7 +29,7 @@ from ..training.train import resolved_config, train
 from ..viewer import view
 from ._files import read_json_or_none, timestamp
 from ._shipping import pack_dir, sees_batch_dir
-from .pipeline import Job
+from .pipeline import FIGURE_DEFAULTS, Job
 from .record import new_record, summary_row
 
 __all__ = ["run_job"]
@@ -160,7 +160,8 @@ def _stages(job: Job, workdir: Path, record: dict, recover_workers: int = 1):
             write_json(run.path / "certificate.json", cert)
         record["files"]["certificate"] = "certificate.json"
     with stage("figure"):
-        png = Path(figure(run, n=job.figure["n"], T=job.figure["T"], seed=ev["seed"], limits=ev["limits"], certificate=cert))
+        png = Path(figure(run, n=job.figure["n"], T=job.figure["T"], seed=ev["seed"], limits=ev["limits"], certificate=cert,
+                          slice_n=job.figure.get("slice", FIGURE_DEFAULTS["slice"])))
         record["files"]["figure"] = str(png.relative_to(run.path)) if png.is_relative_to(run.path) else str(png)
     with stage("html"):
         viewer = view(run, n=job.view["n"], T=job.view["T"], seed=ev["seed"], pick="success", open_server=False, limits=ev["limits"])

@@ -9,7 +9,7 @@ Format (``pipelines/*.toml``)::
     train = { seed = 0 }       # TrainConfig overrides on top of the preset
     evaluate = { n = 200, T = 20.0, seed = 0 }   # ROA: states per box, horizon (s), seed
     certify = { n = 20000, settle = 4, T = 20.0 }  # certify(): domain samples, settling runs, horizon (s); also invariant, scale
-    figure = { n = 4, T = 20.0 }  # report.figure(): trajectories from the half box, seconds each
+    figure = { n = 4, T = 20.0, slice = 13 }  # report.figure(): trajectories from the half box, seconds each; basin-slice grid points per axis
     view = { n = 3, T = 10.0 } # HTML replay: rollouts from the half box, seconds each
 
     [[job]]
@@ -64,9 +64,9 @@ def _defaults_of(function, **names) -> dict:
 
 EVALUATE_DEFAULTS = _defaults_of(evaluate_run, n="n", T="T", seed="seed", limits="limits")
 CERTIFY_DEFAULTS = _defaults_of(certify, n="n", settle="settle", T="settle_T", invariant="invariant", scale="scale")
-FIGURE_DEFAULTS = _defaults_of(figure, n="n", T="T")
+FIGURE_DEFAULTS = _defaults_of(figure, n="n", T="T", slice="slice_n")
 VIEW_DEFAULTS = _defaults_of(view, n="n", T="T")
-_SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int, "limits": bool}, "certify": {"n": int, "settle": int, "T": float, "invariant": int, "scale": float}, "figure": {"n": int, "T": float}, "view": {"n": int, "T": float}}
+_SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int, "limits": bool}, "certify": {"n": int, "settle": int, "T": float, "invariant": int, "scale": float}, "figure": {"n": int, "T": float, "slice": int}, "view": {"n": int, "T": float}}
 
 #: What ``--smoke`` does to every job: a few epochs of tiny networks (and no `fallback` gate, which
 #: simulates 100 states for 20 s: "auto" becomes "none"), a small ROA and certificate,
@@ -74,7 +74,7 @@ _SUBTABLE_TYPES = {"evaluate": {"n": int, "T": float, "seed": int, "limits": boo
 SMOKE_TRAIN = {"epochs": 20, "width": 16, "depth": 1, "samples": 64, "checkpoint_every": 10}
 SMOKE_EVALUATE = {"n": 12, "T": 5.0}
 SMOKE_CERTIFY = {"n": 256, "settle": 0, "T": 5.0, "invariant": 16}
-SMOKE_FIGURE = {"n": 1, "T": 3.0}
+SMOKE_FIGURE = {"n": 1, "T": 3.0, "slice": 5}
 SMOKE_VIEW = {"n": 1, "T": 3.0}
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -103,7 +103,7 @@ class Job:
     preset : ``"paper"`` or ``"fast"``; `train` the overrides as written; `config` the resolved
         `TrainConfig` as a dict (smoke shrinking included).
     evaluate : {"n", "T", "seed"} of the ROA; certify : {"n", "settle", "T"} of `certify`;
-    figure : {"n", "T"} of `report.figure`; view : {"n", "T"} of the HTML replay.
+    figure : {"n", "T", "slice"} of `report.figure` ("slice": its `slice_n`); view : {"n", "T"} of the HTML replay.
     smoke : shrunk by ``--smoke``.
     recover : ``"auto"``, ``"always"`` or ``"never"``: a recovery law after training, as ``train --recover``.
     line : line of the job's ``[[job]]`` header in the pipeline file (None if not found).
@@ -150,7 +150,7 @@ class Job:
             "config": self.config,
             "evaluate": self.evaluate,
             "certify": self.certify,
-            "figure": self.figure,
+            "figure": {k: v for k, v in self.figure.items() if k != "slice" or v != FIGURE_DEFAULTS["slice"]},  # the default slice: the old fingerprint
             "view": self.view,
             "smoke": self.smoke,
         }
@@ -271,6 +271,8 @@ def _stage_tables(raw: dict) -> dict:
         least = 16 if key == "certify" else 1
         if table["n"] < least or table["T"] <= 0 or table.get("settle", 0) < 0:
             raise IdapbcError(f"{key}.n must be ≥ {least} and {key}.T > 0, got n = {table['n']}, T = {table['T']}")
+        if table.get("slice", 2) < 2:
+            raise IdapbcError(f"{key}.slice (the basin slice's grid points per axis) must be ≥ 2, got {table['slice']}")
         if table.get("seed", 0) < 0:  # numpy's generators refuse it, after the training
             raise IdapbcError(f"{key}.seed must be ≥ 0, got {table['seed']}")
         tables[key] = table

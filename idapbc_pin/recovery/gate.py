@@ -90,7 +90,7 @@ def choose_inner(run, law: RecoveryLaw, config: RecoveryConfig, progress: bool =
     return choose_fit(run, [law], config, progress)[1]
 
 
-def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) -> tuple[int, dict]:
+def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False, known: dict | None = None) -> tuple[int, dict]:
     """`choose_inner` for each of several fitted `laws` on the same gate states (the run's law
     simulated once, every law in `config.workers` processes or Ray tasks, `config.ray`; each level
     of H_d from the near-box states first, and from the others only where it can still be eligible,
@@ -102,15 +102,21 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     same rule judges each law with the IDA-PBC law keeping the sublevel sets {H_d ≤ c} instead, c
     from `config.levels` (`energy_levels`); a law kept that way has "level": c in its gate. Where
     the run's law brings every half-box gate state to x*, each law the rule keeps (at its box, then
-    at its level) must pass `_Confirmation` too."""
+    at its level) must pass `_Confirmation` too. `known`, a dict shared by the gates of one stage,
+    keeps the run's law's counts (its verdicts do not depend on the laws judged beside it), so that a
+    second gate on the same states does not simulate it again."""
     system, seed = run.system, RECOVERY_GATE_SEED + run.config.seed
     half, n = config.gate_states // 2, config.gate_states
     x0 = np.concatenate([box_gate_states(system, n, seed), uniform_states(system, config.near_states, scaled_box(system, NEAR_SCALE), seed + 2)])
     ctrl = run.own_controller  # without any recovery law the run already has
     scales = [float(r) for r in config.inner_scales]
-    base, *rest = _counts(system, [ctrl] + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales], x0, half, n, config, progress)
+    known = {} if known is None else known
+    ctrls = ([] if "run" in known else [ctrl]) + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales]
+    rest = _counts(system, ctrls, x0, half, n, config, progress)
+    base = known.setdefault("run", rest[0])
+    rest = rest[len(ctrls) - len(laws) * len(scales):]
     gates = [_gate(base, dict(zip(scales, rest[i * len(scales) : (i + 1) * len(scales)])), n, config) for i in range(len(laws))]
-    confirm = _Confirmation(system, ctrl, seed + 4, config, progress) if base[0] >= half and config.confirm_states else None
+    confirm = _Confirmation(system, ctrl, seed + 4, config, progress, known) if base[0] >= half and config.confirm_states else None
     if confirm:
         confirm(gates, lambda i: ctrl.with_fallback(laws[i].with_inner(gates[i]["inner_scale"])))
     if config.levels and not any(g["used"] for g in gates):
@@ -131,13 +137,13 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False) 
     return k, gates[k]
 
 
-def library_first(run, library, paths: int, config, progress: bool = False):
-    """The reach stage's library of `paths` labelled paths judged alone (`choose_fit`): (the library,
-    its gate) where the gate keeps it, else None (the fits follow, and the library is judged again
-    beside them)."""
+def library_first(run, library, paths: int, config, progress: bool = False, known: dict | None = None):
+    """The reach stage's library of `paths` labelled paths judged alone (`choose_fit`, `known` passed
+    on): (the library, its gate) where the gate keeps it, else None (the fits follow, and the library
+    is judged again beside them)."""
     if progress:
         print(f"library: the {paths} labelled paths read at the nearest point ({library.points} points), judged first", flush=True)
-    _, gate = choose_fit(run, [library], config, progress)
+    _, gate = choose_fit(run, [library], config, progress, known)
     if not gate["used"]:
         if progress:
             print(f"library alone: {format_gate(gate, config.margin, config.half_loss)}; fitting laws to judge beside it", flush=True)
@@ -155,25 +161,25 @@ class _Confirmation:
     list of {"states", "run", "law", and "inner_scale" r or "level" c}, successes of each candidate
     of that fit the check ran (an inner box, then a level where it refused every box)."""
 
-    def __init__(self, system, ctrl, seed: int, config, progress: bool):
-        self.system, self.ctrl, self.config, self.progress = system, ctrl, config, progress
+    def __init__(self, system, ctrl, seed: int, config, progress: bool, known: dict):
+        self.system, self.ctrl, self.config, self.progress, self.known = system, ctrl, config, progress, known
         self.x0 = uniform_states(system, config.confirm_states, "half", seed)
-        self.run: int | None = None  # the run's law's successes, simulated once
 
     def __call__(self, gates: list, law_of) -> None:
         """Confirm each gate of `gates` whose "used" is set, `law_of(i)` the controller gate i keeps."""
         idx = [i for i, g in enumerate(gates) if g["used"]]
         if not idx:
             return
-        ctrls = ([] if self.run is not None else [self.ctrl]) + [law_of(i) for i in idx]
+        ctrls = ([] if "confirm" in self.known else [self.ctrl]) + [law_of(i) for i in idx]
         n = len(self.x0)
         counts = [c[0] for c in _counts(self.system, ctrls, self.x0, n, n, self.config, self.progress)]
-        if self.run is None:
-            self.run, *counts = counts
+        if "confirm" not in self.known:  # the run's law's successes, simulated once
+            self.known["confirm"], *counts = counts
+        run = self.known["confirm"]
         for i, got in zip(idx, counts):
             at = {"level": gates[i]["level"]} if gates[i].get("level") is not None else {"inner_scale": gates[i]["inner_scale"]}
-            gates[i]["confirm"] = [*gates[i].get("confirm", []), {"states": n, "run": self.run, "law": got} | at]
-            gates[i]["used"] = got >= self.run - self.config.half_loss
+            gates[i]["confirm"] = [*gates[i].get("confirm", []), {"states": n, "run": run, "law": got} | at]
+            gates[i]["used"] = got >= run - self.config.half_loss
 
 
 def _judged(system, runs: list, config, bar):

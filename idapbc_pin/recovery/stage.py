@@ -266,11 +266,12 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
         print(f"labels: {_teacher_name(config)} brings {taught} of {config.starts} starts to x*, plans {recovered} of the other "
               f"{config.starts - taught}; {len(X)} labels  [{time.perf_counter() - start:.0f} s]", flush=True)
     library = label_library(system, X, U, config.library_speed, config.library_every, min(config.inner_scales)) if config.library and not config.always_fit else None
-    first = library_first(run, library, len(X) // LABEL_PATH, config, progress) if library is not None else None
+    known = {}  # the run's law's gate verdicts, simulated once for both gates (`choose_fit`)
+    first = library_first(run, library, len(X) // LABEL_PATH, config, progress, known) if library is not None else None
     if first is not None:
         (law, gate), mse, rounds, skipped = first, None, [], {"fits_skipped": True}
     else:
-        (law, gate), mse, rounds, X, U = _fits_and_dagger(run, system, X, U, config, progress, start, teacher, networks, store)
+        (law, gate), mse, rounds, X, U = _fits_and_dagger(run, system, X, U, config, progress, start, teacher, networks, store, known)
         skipped = {}
     entry = _verdict(gate, config, keep) | skipped | {
         "labels": int(len(X)), "labels_file": RECOVERY_LABELS_FILE, "teacher": config.teacher, "teacher_starts": int(taught), "plan_starts": int(recovered), "first_fit_mse": mse, "dagger": rounds,
@@ -281,9 +282,9 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     return entry
 
 
-def _fits_and_dagger(run, system, X, U, config: RecoveryConfig, progress: bool, start: float, teacher, networks, store):
-    """Steps 2–3 and the gate of the fits (with the library beside them): ((law, gate), the first
-    fit's mse, the DAgger rounds, X, U with the rounds' labels)."""
+def _fits_and_dagger(run, system, X, U, config: RecoveryConfig, progress: bool, start: float, teacher, networks, store, known: dict | None = None):
+    """Steps 2–3 and the gate of the fits (with the library beside them; `known` as in `choose_fit`):
+    ((law, gate), the first fit's mse, the DAgger rounds, X, U with the rounds' labels)."""
     try:
         law, mse = _fit(system, X, U, config, networks, "recovery: fit" if progress else None)
         if progress:
@@ -301,7 +302,7 @@ def _fits_and_dagger(run, system, X, U, config: RecoveryConfig, progress: bool, 
             print(f"recover interrupted: the labels so far are in {run.path / RECOVERY_LABELS_FILE}; "
                   f"`idapbc-pin recover {run.path} --refit` fits and gates a law on them without the plans", flush=True)
         raise
-    return _gate_fits(run, system, law, X, U, config, progress, start, networks), mse, rounds, X, U
+    return _gate_fits(run, system, law, X, U, config, progress, start, networks, known), mse, rounds, X, U
 
 
 def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
@@ -353,7 +354,8 @@ def refit(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool
     return _save_and_tell(run, law, earlier | _verdict(gate, config, keep) | {"refit": refitted}, config, progress, start)
 
 
-def _gate_fits(run, system, law: RecoveryLaw | None, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, progress: bool, start: float, networks):
+def _gate_fits(run, system, law: RecoveryLaw | None, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, progress: bool, start: float, networks,
+               known: dict | None = None):
     """Fit the laws of `config.fits` seeds (from `config.fit_seed`) to the labels that `law` does
     not stand for already (the fit of the first seed; None: every seed, in parallel), on `system`
     (the run's, with `plans.plan_bound` as its limits, as `law` was fitted), and let the gate choose
@@ -370,7 +372,7 @@ def _gate_fits(run, system, law: RecoveryLaw | None, X: np.ndarray, U: np.ndarra
     library = label_library(system, X, U, config.library_speed, config.library_every, min(config.inner_scales)) if config.library else None
     if progress and library is not None:
         print(f"library: the {len(X) // LABEL_PATH} labelled paths read at the nearest point ({library.points} points), judged beside the fits", flush=True)
-    k, gate = choose_fit(run, laws + ([library] if library is not None else []), config, progress)
+    k, gate = choose_fit(run, laws + ([library] if library is not None else []), config, progress, known)
     if library is not None:
         gate |= {"library": k == len(laws), "library_points": library.points}
     return (laws + [library])[k], gate

@@ -72,6 +72,7 @@ import numpy as np
 import torch
 
 from .._io import write_json
+from .._parallel import process_map
 from ..control.energy_pump import EnergyPumpLaw
 from ..model.angles import wrap_angles
 from ..run import MANOEUVRE_FILE, MANOEUVRE_REFUSED_FILE, SWINGUP_FILE, SWINGUP_REFUSED_FILE, resolve_run
@@ -186,8 +187,8 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
     store = ChunkStore(run.path)
     x0 = swing_starts(system, config.starts, config.circle, config.plan_seed)
     catch = PumpThenRun(system, teacher)  # the labels' first teacher, and the catch of every nominal plan
-    plans = nominals(system, catch, config, max(NOMINALS, MANOEUVRE_NOMINALS if config.manoeuvre else 0)) \
-        if config.tracks or config.manoeuvre else []
+    by_horizon = _all_nominals(system, catch, config) if config.tracks or config.manoeuvre else []
+    plans = by_horizon[0][1] if by_horizon else []
     tracks, track_info = tracking_laws(system, teacher, plans, kept_boxes(system, config)["posture"], config, progress) if config.tracks and plans else ([], {})
     tracked = bool(track_info) and max(track_info["held"], default=0) >= track_info["states"]
     if tracked and not config.always_fit:  # step 1's condition: a tracking law already holds every start
@@ -220,13 +221,28 @@ def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: boo
     store.clear()
     if config.manoeuvre:
         candidates = [(plan, config.horizon) for plan in plans[:MANOEUVRE_NOMINALS]]
-        for h in (h for h in config.manoeuvre_horizons if h != config.horizon):
-            candidates += [(plan, h) for plan in nominals(system, catch, config.replace(horizon=h), MANOEUVRE_NOMINALS)]
+        candidates += [(plan, h) for h, more in by_horizon[1:] for plan in more]
         if candidates:
             _manoeuvre(run, system, candidates, config, progress, start)
     if config.library:
         entry = _anywhere(run, system, catch, entry, config, progress)
     return entry
+
+
+def _nominals_job(job) -> list:
+    """Worker: (system, catch, config, count) -> `tracks.nominals`."""
+    system, catch, config, count = job
+    return nominals(system, catch, config, count)
+
+
+def _all_nominals(system, catch, config: SwingUpConfig) -> list[tuple[float, list]]:
+    """[(horizon s, its nominal plans)]: `config.horizon`'s (as many as the tracking laws and the
+    manoeuvre read), then, with `config.manoeuvre`, `MANOEUVRE_NOMINALS` of each other horizon of
+    `manoeuvre_horizons`; each horizon planned in a worker process of its own (`config.workers`)."""
+    horizons = [config.horizon] + ([h for h in config.manoeuvre_horizons if h != config.horizon] if config.manoeuvre else [])
+    counts = [max(NOMINALS, MANOEUVRE_NOMINALS if config.manoeuvre else 0)] + [MANOEUVRE_NOMINALS] * (len(horizons) - 1)
+    jobs = [(system, catch, config.replace(horizon=h), k) for h, k in zip(horizons, counts)]
+    return list(zip(horizons, process_map(_nominals_job, jobs, config.workers, config.ray)))
 
 
 def _anywhere(run, system, catch, entry: dict, config: SwingUpConfig, progress: bool) -> dict:
@@ -236,12 +252,12 @@ def _anywhere(run, system, catch, entry: dict, config: SwingUpConfig, progress: 
     kept, anywhere = run_anywhere_step(run, system, catch, chosen_box(run, system, config), config, progress)
     recorded = dict(run.summary.get("swing_up") or {}) | {"anywhere": anywhere}
     if kept is not None:
-        recorded |= {"used": True, "law": "library"}
+        recorded |= {"used": True, "law": "library", "funnel": None}  # the library acts wherever it is read
         save_swing_up(run, kept, {k: v for k, v in recorded.items() if k != "law_file"})
     else:
         write_json(run.path / "summary.json", dict(run.summary) | {"swing_up": recorded})
         run.summary = dict(run.summary) | {"swing_up": recorded}
-    return dict(entry) | {k: recorded[k] for k in ("anywhere", "used", "law") if k in recorded}
+    return dict(entry) | {k: recorded[k] for k in ("anywhere", "used", "law", "funnel") if k in recorded}
 
 
 def _fit_and_gate(run, system, teacher, labels: tuple, box_labels: tuple, tracks: list, config: SwingUpConfig, store, progress: bool, start: float) -> dict:
@@ -304,7 +320,7 @@ def _manoeuvre(run, system, candidates: list, config: SwingUpConfig, progress: b
         scores = ", ".join("–" if v is None else f"{v:.3f}" for v in entry["picked_score"])
         lengths = "/".join(f"{h:g}" for h in dict.fromkeys(entry["horizons"]))
         print(f"swing-up manoeuvre (a nominal plan tracked in time from the command, then the run's law): the {len(manoeuvres)} nominals of "
-              f"{lengths} s hold {', '.join(map(str, entry['picked']))} of {len(x_pick)} near-resting starts (v2 from rest {scores}); of the gate's "
+              f"{lengths} s hold {', '.join('–' if h is None else str(h) for h in entry['picked'])} of {len(x_pick)} near-resting starts (v2 from rest {scores}); of the gate's "
               f"{entry['states']}, the run's law holds {entry['run']}, manoeuvre {entry['choice'] + 1} ({entry['horizons'][entry['choice']]:g} s) "
               f"{entry['held']}; from rest at x* from {at['run']} and "
               f"{at['manoeuvre']}, v2 {v2['run']} and {v2['manoeuvre']}: {verdict}  [{time.perf_counter() - start:.0f} s]", flush=True)

@@ -20,7 +20,9 @@ of each horizon), from near-resting states of its own (the first exactly at rest
 manoeuvres that hold at least `PICK_SHARE` of the most any of them holds, the one whose swing-up
 from exact rest scores best by the RealAIGym v2 score (`sim.leaderboard`: time, energy, torque,
 smoothness and speed, what a command at rest is judged by; the sooner settled where the system has
-no URDF tip to score; then the most held, then the cheapest nominal). It keeps it (``swingup-manoeuvre.npz``) when it holds
+no URDF tip to score; then the most held, then the cheapest nominal). Each is judged from exact
+rest first, then from the other starts best first, until one holds them all: those ranked lower
+could not be picked. It keeps it (``swingup-manoeuvre.npz``) when it holds
 `SwingUpConfig.margin` more of its gate's near-resting states than the run's law does, or as many
 and, from the exact resting state, scores higher (settles at x* sooner, `sim.metrics.settling_time`,
 without a tip).
@@ -34,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._parallel import resolve_workers
 from ..model.angles import wrap_angles
 from .holds import Judged, judge_starts
 from .plans import PLAN_STEP
@@ -141,16 +144,39 @@ def choose_manoeuvre(system, after, manoeuvres: list, x_pick: np.ndarray, x_gate
     settled), then the most held, then the first; judged with `after` alone from the gate's states
     x_gate (the first exactly at rest) over `config.judge_T`: (its index where it holds
     `config.margin` more of x_gate than `after`, or as many and does better from rest, else None;
-    {"picked": holds of each from x_pick, "picked_score": each one's v2 from rest (None: no tip),
-    "choice", "states", "run", "held": from x_gate, "rest_time": {"run", "manoeuvre"} in s (None:
-    not settled), "rest_score": {"run", "manoeuvre"} (None: no tip), "used"})."""
-    picked = judge_starts(system, [m.law(after) for m in manoeuvres], x_pick, config, score=True)
-    top = max(j.held for j in picked)
-    pool = [i for i, j in enumerate(picked) if j.held >= PICK_SHARE * top]
-    best = max(pool, key=lambda i: (_from_rest(picked[i]), picked[i].held, -i))
+    {"picked": holds of each from x_pick (None: not judged, `_picked_holds`), "picked_score": each
+    one's v2 from rest (None: no tip), "choice", "states", "run", "held": from x_gate, "rest_time":
+    {"run", "manoeuvre"} in s (None: not settled), "rest_score": {"run", "manoeuvre"} (None: no
+    tip), "used"})."""
+    rest = judge_starts(system, [m.law(after) for m in manoeuvres], x_pick[:1], config, score=True)  # each from exact rest alone
+    held = _picked_holds(system, after, manoeuvres, rest, x_pick[1:], config)
+    top = max(h for h in held if h is not None)
+    pool = [i for i, h in enumerate(held) if h is not None and h >= PICK_SHARE * top]
+    best = max(pool, key=lambda i: (_from_rest(rest[i]), held[i], -i))
     run, own = judge_starts(system, [after, manoeuvres[best].law(after)], x_gate, config, score=True)
     used = own.held >= run.held + config.margin or (own.held >= run.held and _from_rest(own) > _from_rest(run))
-    return (best if used else None), {"picked": [int(j.held) for j in picked], "picked_score": [_plain(j.rest_score) for j in picked],
+    return (best if used else None), {"picked": held, "picked_score": [_plain(j.rest_score) for j in rest],
                                       "choice": int(best), "states": int(len(x_gate)), "run": int(run.held), "held": int(own.held),
                                       "rest_time": {"run": _plain(run.rest_time), "manoeuvre": _plain(own.rest_time)},
                                       "rest_score": {"run": _plain(run.rest_score), "manoeuvre": _plain(own.rest_score)}, "used": bool(used)}
+
+
+def _picked_holds(system, after, manoeuvres: list, rest: list, x_more: np.ndarray, config) -> list[int | None]:
+    """How many near-resting starts each manoeuvre holds: its verdict from exact rest (`rest`, its
+    `Judged`) plus those from the other starts x_more, judged best from rest first, a few at a time
+    (as many as the workers), and only until one holds every start and all ranked as high are
+    judged: then the most any holds is known, and none ranked lower can be picked (None: not judged)."""
+    rank = [_from_rest(j) for j in rest]
+    order = sorted(range(len(manoeuvres)), key=lambda i: (-rank[i], i))
+    held: list[int | None] = [None] * len(manoeuvres)
+    width, every, k = max(2, resolve_workers(config.workers)), len(x_more) + 1, 0
+    while k < len(order):
+        chunk = order[k : k + width]
+        k += len(chunk)
+        more = judge_starts(system, [manoeuvres[i].law(after) for i in chunk], x_more, config) if len(x_more) else [Judged(0, math.nan, math.nan)] * len(chunk)
+        for i, judged in zip(chunk, more):
+            held[i] = int(rest[i].held + judged.held)
+        full = [rank[i] for i in order[:k] if held[i] == every]
+        if full and (k == len(order) or rank[order[k]] < max(full)):
+            break
+    return held
