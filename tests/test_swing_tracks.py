@@ -419,3 +419,28 @@ def test_a_library_plan_that_leaves_the_swing_up_to_its_catch_is_no_nominal(monk
     monkeypatch.setattr(library, "reaches", lambda system, z_end: np.ones(len(z_end), bool))
     (found,) = library._chunk_nominals(job)
     assert found is not None and not reaches(wheel, found[1][-1:])[0]
+
+
+def test_a_plan_whose_rollout_blew_up_is_no_nominal_though_its_catch_holds(monkeypatch):
+    """iLQR can hand back a rollout that blew up (states of 1e55); its inputs, clipped to the limits,
+    can still leave a catch that swings up by itself to hold at x*, and its time-varying LQR then
+    overflows. `nominal_plans` keeps only plans whose states stay finite and within the simulator's
+    divergence bound (`sound`): here of two plans the catch holds both, and the blown-up one is refused."""
+    from idapbc_pin.recovery.config import SwingUpConfig
+    from idapbc_pin.trajectory import tracks
+
+    wheel = ip.load_system("reaction_wheel")
+    config = SwingUpConfig(horizon=0.2)
+    K = int(round(config.horizon / tracks.KNOT))
+    Z = np.zeros((2, K + 1, wheel.n))
+    Z[1, K // 2, 0] = 1e55  # the second plan's rollout blew up midway
+    U, gains = np.zeros((2, K, wheel.m)), np.zeros((2, K, wheel.m, wheel.n))
+    monkeypatch.setattr(tracks, "warm_starts", lambda K, bound, seed, **kw: np.zeros((2, K, wheel.m)))
+    monkeypatch.setattr(tracks, "ilqr_plans", lambda *args, **kw: (U, Z, gains, np.array([2.0, 1.0])))
+    monkeypatch.setattr(tracks, "simulate", lambda *args, **kw: None)
+    monkeypatch.setattr(tracks, "holds", lambda traj, system: np.ones(2, bool))  # the catch holds after either
+    x_rest = tracks.resting_states(wheel, 1)[0]
+    assert [cost for _, _, cost in tracks.nominal_plans(wheel, None, x_rest, config)] == [2.0]
+    assert np.array_equal(tracks.sound(Z), [True, False])
+    monkeypatch.setattr(tracks, "sound", lambda Z: np.ones(len(Z), bool))
+    assert [cost for _, _, cost in tracks.nominal_plans(wheel, None, x_rest, config)] == [1.0, 2.0]  # the rule is what refuses it

@@ -44,7 +44,7 @@ from ..sim.states import circle_states
 from .ilqr import ILQRSettings, ilqr_plans
 from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
-from .tracks import ALPHAS, KNOT, reaches, tracking_law, tvlqr_gains, warm_starts
+from .tracks import ALPHAS, KNOT, reaches, sound, tracking_law, tvlqr_gains, warm_starts
 
 __all__ = ["CHUNK", "LIBRARY_COST", "WARM_PERIOD", "WARM_RANDOM", "library_nominals", "library_starts", "paths_law", "plan_library"]
 
@@ -74,7 +74,7 @@ def _chunk_nominals(job) -> list:
     settings = ILQRSettings(iterations=iterations, alphas=ALPHAS, **LIBRARY_COST)
     U, Z, gains, cost = ilqr_plans(system, x0, np.tile(W, (len(starts), 1, 1)), bound, K * KNOT, LQRController(system).S, settings)
     held = holds(simulate(system, TrackThenLaw(U, Z, gains, KNOT, catch, system), x0, T=judge_T, dt=PLAN_STEP, stop_settled=True), system)
-    held &= reaches(system, Z[:, -1])  # the plan itself swings up; a plan that leaves it to the catch is no library entry
+    held &= reaches(system, Z[:, -1]) & sound(Z)  # the plan itself swings up; a plan that leaves it to the catch is no library entry
     out = []
     for s in range(len(starts)):
         rows = [i for i in range(s * w, (s + 1) * w) if held[i]]

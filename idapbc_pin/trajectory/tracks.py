@@ -10,7 +10,7 @@ time-varying LQR read at the nearest point (`TrackingLaw`): `tracking_laws`.
    the run's law takes over (the costs of the RealAIGym leaderboard's score). Each plan is tracked
    by its own iLQR gains, each input held over its knot as the solver rolled the plan out, and
    caught by the teacher (the run's law with energy pumping outside the training box's angles);
-   those that hold at x* over `judge_T` are the nominals: first those that end within the training
+   those whose planned states stay finite and bounded (`sound`) and that hold at x* over `judge_T` are the nominals: first those that end within the training
    box's angles (`reaches`: the plan itself swings up), then those the catch swings up after the
    horizon, cheapest first within each. Where none holds, the plans are solved again with the plain end cost (`PLAIN`: no running
    state cost, a plan only has to end where the catch takes over).
@@ -31,7 +31,7 @@ import numpy as np
 
 from ..control.baseline import LQRController
 from ..model.angles import wrap_angles
-from ..sim.integrate import simulate
+from ..sim.integrate import DIVERGENCE_BOUND, simulate
 from ..sim.metrics import holds
 from ..sim.states import resting_states
 from .holds import count_holds
@@ -39,7 +39,7 @@ from .ilqr import ILQRSettings, _knot_jacobians, ilqr_plans, plan_weights, rollo
 from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
 
-__all__ = ["NOMINALS", "SPEED_WEIGHTS", "dense_plan", "nominal_plans", "nominals", "reaches", "tracking_law", "tracking_laws", "tvlqr_gains", "warm_starts"]
+__all__ = ["NOMINALS", "SPEED_WEIGHTS", "dense_plan", "nominal_plans", "nominals", "reaches", "sound", "tracking_law", "tracking_laws", "tvlqr_gains", "warm_starts"]
 
 #: Knot of a nominal plan, s.
 KNOT = 0.02
@@ -84,13 +84,22 @@ def nominal_plans(system, teacher, x_rest: np.ndarray, config) -> list[tuple[np.
         settings = ILQRSettings(iterations=config.track_iterations, alphas=ALPHAS, **cost_terms)
         U, Z, gains, cost = ilqr_plans(system, x0, W, bound, K * KNOT, LQRController(system).S, settings)
         tracked = TrackThenLaw(U, Z, gains, KNOT, teacher, system, hold=True)  # each input held over its knot, as the plan was rolled out
-        held = holds(simulate(system, tracked, x0, T=config.judge_T, dt=PLAN_STEP, stop_settled=False), system)
+        held = holds(simulate(system, tracked, x0, T=config.judge_T, dt=PLAN_STEP, stop_settled=False), system) & sound(Z)
         reach = reaches(system, Z[:, -1])
         cheapest = [i for i in np.argsort(cost, kind="stable") if held[i]]
         order = [i for i in cheapest if reach[i]] + [i for i in cheapest if not reach[i]]
         if order:
             break
     return [(U[i], Z[i], float(cost[i])) for i in order]
+
+
+def sound(Z: np.ndarray) -> np.ndarray:
+    """(N,) bool: every planned state of Z (N, K + 1, n) is finite and within the simulator's
+    divergence bound (`sim.integrate.DIVERGENCE_BOUND`). iLQR can return a rollout that blew up
+    (states of 1e55), whose inputs, clipped to the limits, still leave a catch that swings up by
+    itself to hold: no plan, and its time-varying LQR overflows."""
+    Z = np.asarray(Z, dtype=np.float64)
+    return (np.isfinite(Z) & (np.abs(Z) <= DIVERGENCE_BOUND)).all(axis=(1, 2))
 
 
 def reaches(system, z_end: np.ndarray) -> np.ndarray:
