@@ -111,10 +111,11 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False, 
     ctrl = run.own_controller  # without any recovery law the run already has
     scales = [float(r) for r in config.inner_scales]
     known = {} if known is None else known
-    ctrls = ([] if "run" in known else [ctrl]) + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales]
-    rest = _counts(system, ctrls, x0, half, n, config, progress)
-    base = known.setdefault("run", rest[0])
-    rest = rest[len(ctrls) - len(laws) * len(scales):]
+    fresh = "run" not in known  # the run's law not yet simulated on these states
+    rest = _counts(system, [ctrl] * fresh + [ctrl.with_fallback(law.with_inner(r)) for law in laws for r in scales], x0, half, n, config, progress)
+    if fresh:
+        known["run"], *rest = rest
+    base = known["run"]
     gates = [_gate(base, dict(zip(scales, rest[i * len(scales) : (i + 1) * len(scales)])), n, config) for i in range(len(laws))]
     confirm = _Confirmation(system, ctrl, seed + 4, config, progress, known) if base[0] >= half and config.confirm_states else None
     if confirm:
