@@ -31,6 +31,10 @@ FIELD_HELP = {
     "give a faster local loop (anchored form only). 0 = automatic: the largest of 10, 1, 0.1, 0.01 whose anchor has "
     "no pole faster than 15 1/s (a stiffer loop asks for torques the actuators saturate on); 1, the LQR baseline's "
     "weight, when the plant itself has a pole faster than 15 1/s (no weight can meet the cap then)",
+    "anchor_cart": "multiplier of a prismatic joint's position weight in the anchor's Q (a cart on a rail: Q = anchor_q·I "
+    "weighs a metre of cart like a radian of angle, which leaves the cart's return the loop's slowest mode); 0 = automatic: "
+    "the first of 1, 3, 10, 30, 100 whose anchor has no pole slower than 2 1/s (nor faster than 15 1/s), else 1; robots "
+    "without a prismatic joint, and the analytic models, are unaffected",
     "anchor_weight": "units of the anchor's LQR state weight: 'physical' Q = anchor_q·I in the state's own units (the LQR "
     "baseline's weight when anchor_q = 1), whatever `scaling` is; 'box' Q = anchor_q·diag(1/s²) under box scaling, "
     "which weights the light links' tiny momenta by 1/s² ≈ 1e4 and can leave a pole far slower than "
@@ -115,6 +119,7 @@ class TrainConfig(Settings):
     alpha: float = 0.01
     form: str = "anchored"
     anchor_q: float = 0.0
+    anchor_cart: float = 0.0
     anchor_p: str = "riccati"
     anchor_weight: str = "physical"
     scaling: str = "auto"
@@ -158,6 +163,7 @@ class TrainConfig(Settings):
             (self.form in ("anchored", "free"), "form must be 'anchored' or 'free'"),
             (self.damping in ("full", "actuated"), "damping must be 'full' or 'actuated'"),
             (self.anchor_q >= 0, f"anchor_q must be > 0 (or 0 = automatic), got {self.anchor_q}"),
+            (self.anchor_cart >= 0, f"anchor_cart must be > 0 (or 0 = automatic), got {self.anchor_cart}"),
             (self.anchor_p in ("box", "lyapunov", "riccati", "fit"), "anchor_p must be 'box', 'lyapunov', 'riccati' or 'fit'"),
             (self.anchor_weight in ("physical", "box"), "anchor_weight must be 'physical' or 'box'"),
             (self.scaling in ("auto", "none", "box"), "scaling must be 'auto', 'none' or 'box'"),

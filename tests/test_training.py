@@ -379,6 +379,29 @@ def test_automatic_units_and_anchor_weight(name, scaling, anchor_q):
     assert anchor_settings(system, TrainConfig.fast(scaling="none", anchor_q=3.0)) == ("none", 3.0)
 
 
+@pytest.mark.parametrize("name", ["cartpole", "cart_double_pendulum"])
+def test_a_carts_position_weight_makes_its_return_no_slower_than_the_floor(name):
+    """Q = anchor_q·I weighs a metre of cart like a radian, and the cart's return is then the loop's
+    slowest mode (slower than 1 1/s on both cart robots); the automatic weight on the cart's position
+    (the first of 1, 3, 10, … that meets the floor under the cap) brings every pole to ≤ −2 1/s, and a
+    run records it. Robots without a prismatic joint, and the analytic models, keep Q = anchor_q·I."""
+    from idapbc_pin.control.anchor import AUTO_MAX_POLE, AUTO_SLOWEST_POLE, cart_setting, system_anchor
+    from idapbc_pin.training.train import resolved_config
+
+    system = ip.load_system(name)
+    config = resolved_config(system, TrainConfig.fast())
+    assert config.anchor_cart == cart_setting(system, TrainConfig.fast()) == 10.0
+    poles = np.linalg.eigvals(system_anchor(system, config).A_cl)
+    assert poles.real.max() <= -AUTO_SLOWEST_POLE and np.abs(poles).max() <= AUTO_MAX_POLE
+    assert np.linalg.eigvals(system_anchor(system, config.replace(anchor_cart=1.0)).A_cl).real.max() > -1.0
+    assert np.linalg.eigvals(system_anchor(system, config.replace(anchor_cart=3.0)).A_cl).real.max() > -AUTO_SLOWEST_POLE  # 3 falls short
+    for other in ("acrobot", "furuta", "paper_cartpole"):
+        robot = ip.load_system(other)
+        resolved = resolved_config(robot, TrainConfig.fast())
+        assert resolved.anchor_cart == 1.0
+        np.testing.assert_array_equal(system_anchor(robot, resolved).A_cl, system_anchor(robot, resolved.replace(anchor_cart=7.0)).A_cl)
+
+
 def test_a_plant_stiffer_than_the_cap_gets_the_lqr_baselines_weight():
     """Light, damped links (example-robot-data's double_pendulum_simple): the plant's own −153 1/s pole
     leaves no weight under the 15 1/s cap, and the automatic weight is then the LQR baseline's,
@@ -403,10 +426,10 @@ def test_the_run_directory_holds_the_resolved_units_and_old_runs_load_in_physica
     assert ip.load_run(run.path).controller(system.x_star[None]).shape == (1, 1)
     legacy = train(system, TrainConfig.fast(epochs=2, width=8, depth=1, samples=16, scaling="none", anchor_q=10.0, energy_input="box"), out=tmp_path / "old", progress=False)
     raw = json.loads((legacy.path / "config.json").read_text())
-    del raw["scaling"], raw["energy_input"]  # written before the options existed
+    del raw["scaling"], raw["energy_input"], raw["anchor_cart"]  # written before the options existed
     (legacy.path / "config.json").write_text(json.dumps(raw))
     loaded = ip.load_run(legacy.path, checkpoint="last")  # the final weights (best.pt holds the best-scoring ones)
-    assert (loaded.config.scaling, loaded.config.energy_input) == ("none", "box")
+    assert (loaded.config.scaling, loaded.config.energy_input, loaded.config.anchor_cart) == ("none", "box", 1.0)
     np.testing.assert_allclose(loaded.controller(system.x_star[None] + 0.1), legacy.controller(system.x_star[None] + 0.1))
 
 

@@ -20,11 +20,15 @@ from .linear import LinearAnchor, fastest_pole, lqr_anchor
 __all__ = [
     "AUTO_ANCHOR_Q",
     "AUTO_BOX_RATIO",
+    "AUTO_CART_WEIGHTS",
     "AUTO_MAX_POLE",
+    "AUTO_SLOWEST_POLE",
     "AUTO_STIFF_PLANT_Q",
     "anchor_settings",
+    "cart_setting",
     "half_widths",
     "local_rate",
+    "prismatic_positions",
     "system_anchor",
 ]
 
@@ -47,6 +51,12 @@ AUTO_MAX_POLE = 15.0
 #: damping on light links), no weight meets the cap and the rule says nothing: the LQR baseline's own
 #: weight is taken.
 AUTO_STIFF_PLANT_Q = 1.0
+#: ``anchor_cart=0`` (automatic) multiplies the position weight of each prismatic coordinate (a cart on
+#: a rail) by the first of these whose anchor has no pole slower than ``AUTO_SLOWEST_POLE`` 1/s and
+#: none faster than ``AUTO_MAX_POLE`` (else by 1). Q = anchor_q·I weighs a metre of cart like a radian
+#: of angle, which leaves the cart's return to x* the loop's slowest mode (docs/results-history.md).
+AUTO_CART_WEIGHTS = (1.0, 3.0, 10.0, 30.0, 100.0)
+AUTO_SLOWEST_POLE = 2.0
 
 
 def anchor_settings(system: System, config: TrainConfig) -> tuple[str, float]:
@@ -79,14 +89,59 @@ def system_anchor(system: System, config: TrainConfig, settings: tuple[str, floa
     return _lqr_anchor(system, config, scaling, anchor_q)
 
 
+def prismatic_positions(system: System) -> np.ndarray:
+    """(n,) bool: the state's position coordinates of the URDF's prismatic joints (a cart on a rail;
+    the analytic models' linear coordinates are not among them)."""
+    mask = np.zeros(system.n, dtype=bool)
+    mask[: system.nq] = [joint.kind == "prismatic" for joint in system.joints]
+    return mask
+
+
+def _state_weight(system: System, config: TrainConfig, scaling: str, anchor_q: float) -> np.ndarray:
+    """Q (n, n) before a cart's weight: anchor_q·I, or anchor_q·diag(1/s²) for box units with
+    ``config.anchor_weight == "box"``."""
+    half = half_widths(system)
+    return anchor_q * (np.diag(1.0 / half**2) if scaling == "box" and config.anchor_weight == "box" else np.eye(system.n))
+
+
+def _with_cart(Q: np.ndarray, cart: np.ndarray, weight: float) -> np.ndarray:
+    """The diagonal weight Q (n, n) with the entries of the `cart` coordinates multiplied by `weight`."""
+    return np.diag(np.diag(Q) * np.where(cart, weight, 1.0))
+
+
+def _auto_cart(system: System, A: np.ndarray, Bx: np.ndarray, Q: np.ndarray) -> float:
+    """The automatic ``anchor_cart`` (`AUTO_CART_WEIGHTS`, `AUTO_SLOWEST_POLE`) for the LQR problem (A, Bx, Q)."""
+    cart = prismatic_positions(system)
+    if not cart.any():
+        return 1.0
+    for weight in AUTO_CART_WEIGHTS:
+        poles = np.linalg.eigvals(lqr_anchor(A, Bx, Q=_with_cart(Q, cart, weight)).A_cl)
+        if poles.real.max() <= -AUTO_SLOWEST_POLE and np.abs(poles).max() <= AUTO_MAX_POLE:
+            return weight
+    return 1.0
+
+
+def cart_setting(system: System, config: TrainConfig) -> float:
+    """The resolved ``anchor_cart`` of `config` for `system`, at its resolved ``(scaling, anchor_q)``
+    (`anchor_settings`): what a new run's config.json records."""
+    if config.anchor_cart > 0:
+        return float(config.anchor_cart)
+    scaling, anchor_q = anchor_settings(system, config)
+    A, Bx = system.linearization()
+    return _auto_cart(system, A, Bx, _state_weight(system, config, scaling, anchor_q))
+
+
 def _lqr_anchor(system: System, config: TrainConfig, scaling: str, anchor_q: float) -> LinearAnchor:
     """The anchor for explicit settings: Q = anchor_q·I and λ_max(P) = 1 (``scaling="none"``), or
     λ_max(SPS) = 1 with S = diag(`half_widths`) (``"box"``), where Q = anchor_q·I too unless
-    ``config.anchor_weight == "box"`` (then Q = anchor_q·diag(1/s²))."""
+    ``config.anchor_weight == "box"`` (then Q = anchor_q·diag(1/s²)); in either case a prismatic
+    coordinate's weight multiplied by ``config.anchor_cart`` (0: `AUTO_CART_WEIGHTS`' choice)."""
     A, Bx = system.linearization()
     half = half_widths(system)
     box = scaling == "box"
-    Q = anchor_q * (np.diag(1.0 / half**2) if box and config.anchor_weight == "box" else np.eye(system.n))
+    Q = _state_weight(system, config, scaling, anchor_q)
+    cart = config.anchor_cart if config.anchor_cart > 0 else _auto_cart(system, A, Bx, Q)
+    Q = _with_cart(Q, prismatic_positions(system), cart)
     if config.anchor_p == "riccati":
         kw = dict(P_mode="riccati")
     elif config.anchor_p == "fit":

@@ -17,9 +17,9 @@ __all__ = ["LEGACY_DEFAULTS", "load_run_system", "read_config", "require_run_dir
 
 
 #: Values of options that runs written before the option existed trained with (their config.json
-#: lacks the key): the box-unit anchor weight diag(1/s²), physical units, H_d's ICNN fed the box-normalised state, no `effort` term, angles
+#: lacks the key): the box-unit anchor weight diag(1/s²), a cart's position weighted as the other coordinates, physical units, H_d's ICNN fed the box-normalised state, no `effort` term, angles
 #: not wrapped, J_d and R_d extrapolated beyond the box, the learned law outside the box too.
-LEGACY_DEFAULTS = {"fallback": "none", "anchor_weight": "box", "scaling": "none", "energy_input": "box", "effort_term": False, "wrap_angles": False, "bounded_structure": False, "fallback_gain": 1.0}
+LEGACY_DEFAULTS = {"fallback": "none", "anchor_weight": "box", "anchor_cart": 1.0, "scaling": "none", "energy_input": "box", "effort_term": False, "wrap_angles": False, "bounded_structure": False, "fallback_gain": 1.0}
 
 
 def system_record(system: System, run_dir: Path) -> dict:

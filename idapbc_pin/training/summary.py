@@ -30,6 +30,11 @@ def format_train_summary(run) -> str:
         box = config.scaling == "box"
         weight = "Q = anchor_q·diag(1/s²)" if box and config.anchor_weight == "box" else "Q = anchor_q·I in physical units"
         units = f"networks in box units, {weight}" if box else weight
+        from ..control.anchor import prismatic_positions
+
+        cart, system = getattr(config, "anchor_cart", 1.0), getattr(run, "system", None)
+        if cart not in (0.0, 1.0) and system is not None and prismatic_positions(system).any():
+            units += f"; a prismatic joint's position weighted × {cart:g}"
         lines.insert(3, f"anchor: LQR with anchor_q = {config.anchor_q:g} ({units})")
     if getattr(run, "uses_fallback", False):
         gate = s.get("fallback") or {}

@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 from .._device import require_device
 from .._io import write_json
 from ..config import TrainConfig
-from ..control.anchor import anchor_settings
+from ..control.anchor import anchor_settings, cart_setting
 from ..control.controller import Controller
 from ..control.linear import fastest_pole
 from ..control.nets import build_nets
@@ -186,10 +186,10 @@ def _resolve(system: System, config: TrainConfig | None, out, resume) -> tuple[T
 
 def resolved_config(system: System, config: TrainConfig) -> TrainConfig:
     """`config` with its automatic values resolved for `system` (the units and the anchor weight,
-    `control.anchor.anchor_settings`, and the fallback gain, `recovery.box_law.fallback_gain`): what a
+    `control.anchor.anchor_settings`, a cart's weight, `control.anchor.cart_setting`, and the fallback gain, `recovery.box_law.fallback_gain`): what a
     new run's config.json records, so a batch that runs a job again finds the run it trained."""
     scaling, anchor_q = anchor_settings(system, config)
-    return config.replace(scaling=scaling, anchor_q=anchor_q, fallback_gain=fallback_gain(system, config))
+    return config.replace(scaling=scaling, anchor_q=anchor_q, anchor_cart=cart_setting(system, config), fallback_gain=fallback_gain(system, config))
 
 
 def _new_run_dir(out: Path) -> Path:
