@@ -109,8 +109,11 @@ def _with_cart(Q: np.ndarray, cart: np.ndarray, weight: float) -> np.ndarray:
     return np.diag(np.diag(Q) * np.where(cart, weight, 1.0))
 
 
-def _auto_cart(system: System, A: np.ndarray, Bx: np.ndarray, Q: np.ndarray) -> float:
-    """The automatic ``anchor_cart`` (`AUTO_CART_WEIGHTS`, `AUTO_SLOWEST_POLE`) for the LQR problem (A, Bx, Q)."""
+def _cart_weight(system: System, config: TrainConfig, A: np.ndarray, Bx: np.ndarray, Q: np.ndarray) -> float:
+    """``config.anchor_cart``, or where it is 0 the automatic weight (`AUTO_CART_WEIGHTS`,
+    `AUTO_SLOWEST_POLE`) for the LQR problem (A, Bx, Q)."""
+    if config.anchor_cart > 0:
+        return float(config.anchor_cart)
     cart = prismatic_positions(system)
     if not cart.any():
         return 1.0
@@ -124,11 +127,9 @@ def _auto_cart(system: System, A: np.ndarray, Bx: np.ndarray, Q: np.ndarray) -> 
 def cart_setting(system: System, config: TrainConfig) -> float:
     """The resolved ``anchor_cart`` of `config` for `system`, at its resolved ``(scaling, anchor_q)``
     (`anchor_settings`): what a new run's config.json records."""
-    if config.anchor_cart > 0:
-        return float(config.anchor_cart)
     scaling, anchor_q = anchor_settings(system, config)
     A, Bx = system.linearization()
-    return _auto_cart(system, A, Bx, _state_weight(system, config, scaling, anchor_q))
+    return _cart_weight(system, config, A, Bx, _state_weight(system, config, scaling, anchor_q))
 
 
 def _lqr_anchor(system: System, config: TrainConfig, scaling: str, anchor_q: float) -> LinearAnchor:
@@ -140,8 +141,7 @@ def _lqr_anchor(system: System, config: TrainConfig, scaling: str, anchor_q: flo
     half = half_widths(system)
     box = scaling == "box"
     Q = _state_weight(system, config, scaling, anchor_q)
-    cart = config.anchor_cart if config.anchor_cart > 0 else _auto_cart(system, A, Bx, Q)
-    Q = _with_cart(Q, prismatic_positions(system), cart)
+    Q = _with_cart(Q, prismatic_positions(system), _cart_weight(system, config, A, Bx, Q))
     if config.anchor_p == "riccati":
         kw = dict(P_mode="riccati")
     elif config.anchor_p == "fit":
