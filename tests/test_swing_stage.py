@@ -24,9 +24,9 @@ from idapbc_pin.sim.states import resting_states
 from .conftest import sample_domain
 
 #: The smallest stage that exercises every step: two starts, half-second plans (two iterations each,
-#: the nominals' too), one DAgger round.
+#: the nominals' too), one DAgger round, the library's starts planned again at 1 s where 0.5 s brings none up.
 TINY = dict(starts=2, horizon=0.5, ilqr_iterations=2, track_iterations=2, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=2, box_states=4,
-            judge_T=3.0, workers=1, circle=0.5, manoeuvre_horizons=(0.25,), library=2, library_horizon=0.5)
+            judge_T=3.0, workers=1, circle=0.5, manoeuvre_horizons=(0.25,), library=2, library_horizon=0.5, library_longer=(1.0,))
 
 
 def random_swing_law(system, seed: int = 0, width: int = 16, inner=None, box=None) -> SwingUpLaw:
@@ -451,6 +451,7 @@ def test_simulate_from_anywhere_judges_the_state_feedback_on_the_torus_and_in_th
     run, entry = swung_run
     library = entry["anywhere"]  # the stage's anywhere step: a library from the resting posture and 2 postures of the circle
     assert library["starts"] == 3 and library["used"] == (run.summary["swing_up"].get("law") == "library")
+    assert library["horizon"] == [0.5, 1.0] and len(library["by_horizon"]) == 2 and sum(library["by_horizon"]) == library["nominals"] <= 3
     assert not library["used"] or run.summary["swing_up"]["funnel"] is None  # a kept library acts wherever it is read
     assert main(["simulate", str(run.path), "--from", "anywhere", "--n", "3", "--T", "2", "--episodes", "2"]) == 0
     text = capsys.readouterr().out
@@ -651,7 +652,7 @@ def test_the_anywhere_gate_keeps_a_library_by_its_own_rule_and_never_a_copy_of_t
     from tests.test_swing_tracks import _plan
 
     run = tiny_swing_run
-    config = SwingUpConfig(gate_states=3, box_states=4, judge_T=3.0, horizon=0.5, manoeuvre_horizons=(0.25,), workers=1)
+    config = SwingUpConfig(gate_states=3, box_states=4, judge_T=3.0, horizon=0.5, manoeuvre_horizons=(0.25,), library_longer=(), workers=1)
     U, Z, _ = _plan(run.system)
     library = tracking_law(run.system, U, Z, tvlqr_gains(run.system, U, Z), 0.1, kept_boxes(run.system, config)["posture"])
     gate = anywhere_gate(run, run.controller, library, config)
@@ -662,6 +663,12 @@ def test_the_anywhere_gate_keeps_a_library_by_its_own_rule_and_never_a_copy_of_t
     assert gate["used"] == rule
     same = anywhere_gate(run, run.box_controller, _NoLaw(), config)
     assert same["near"][0] == same["near"][1] and same["time"][0] == same["time"][1] and same["up"][0] == same["up"][1] and not same["used"]
+    # two libraries on the same states: each judged as alone; the rule keeps the one with the larger share up
+    both = anywhere_gate(run, run.box_controller, [_NoLaw(), library], config)
+    assert [both[k][2] for k in ("near", "anywhere", "up", "box")] == [gate[k][1] for k in ("near", "anywhere", "up", "box")]
+    passes = (both["anywhere"][2] >= both["anywhere"][0] and both["up"][2] >= both["up"][0] + ANYWHERE_MARGIN and both["near"][2] >= both["near"][0] - LIBRARY_LOSS
+              and both["box"][2] >= both["box"][0] - config.box_loss)
+    assert both["used"] == passes and both["library"] == (1 if passes or both["up"][2] > both["up"][1] else 0)
 
 
 class _NoLaw:

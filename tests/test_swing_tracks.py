@@ -294,29 +294,49 @@ def test_the_manoeuvre_picked_holds_nearly_the_most_and_scores_best_from_rest_an
 
 
 def test_a_library_reads_each_nominal_at_its_own_knots(pendubot, monkeypatch):
-    """`plan_library` puts every knot of every nominal into one `TrackingLaw`: at a knot of either
-    nominal the law reads that nominal's own input (its distance is zero there), and a start without
-    a nominal adds nothing. The starts are the resting posture and postures at rest from the circle."""
+    """`nominals_law` puts every knot of every nominal into one `TrackingLaw`: at a knot of either
+    nominal the law reads that nominal's own input (its distance is zero there); no nominal, no law.
+    The starts are the resting posture and postures at rest from the circle."""
     from idapbc_pin.model.resting import resting_configuration
     from idapbc_pin.trajectory import library
 
     plans = [_plan(pendubot, seed=s)[:2] for s in (1, 2)]
-    monkeypatch.setattr(library, "library_nominals", lambda *args, **kw: [plans[0], None, plans[1]])
     box = np.full(pendubot.n, np.inf)
-    law, found = library.plan_library(pendubot, None, np.zeros((3, pendubot.n)), box, horizon=1.0, share=1.0, iterations=1, judge_T=3.0,
-                                      seed=0, speed_weight=0.3)
-    assert found == 2 and law.X.shape == (24, pendubot.n) and law.K.shape == (24, pendubot.m, pendubot.n)
+    law = library.nominals_law(pendubot, plans, box, speed_weight=0.3)
+    assert law.X.shape == (24, pendubot.n) and law.K.shape == (24, pendubot.m, pendubot.n)
     for k, (U, Z) in enumerate(plans):
         alone = tracking_law(pendubot, U, Z, tvlqr_gains(pendubot, U, Z), 0.3, box)
         np.testing.assert_allclose(law.law(alone.X), np.clip(U, -pendubot.effort, pendubot.effort), rtol=0, atol=1e-12)
         np.testing.assert_array_equal(law.K[12 * k: 12 * (k + 1)], alone.K)
-    monkeypatch.setattr(library, "library_nominals", lambda *args, **kw: [None])
-    assert library.plan_library(pendubot, None, np.zeros((1, pendubot.n)), box, horizon=1.0, share=1.0, iterations=1, judge_T=3.0, seed=0,
-                                speed_weight=0.3) == (None, 0)
+    assert library.nominals_law(pendubot, [], box, speed_weight=0.3) is None
     starts = library.library_starts(pendubot, 5, seed=3)
     q, v = pendubot.split(starts)
     assert starts.shape == (6, pendubot.n) and (v == 0).all()
     np.testing.assert_array_equal(q[0], resting_configuration(pendubot))
+
+
+def test_a_longer_horizon_plans_only_the_starts_no_shorter_plan_brings_up(pendubot, monkeypatch):
+    """`horizon_nominals`: every start is planned with the first horizon; each further horizon plans
+    only the starts still without a nominal (its own warm-start seed), and a start keeps the nominal
+    of the first horizon that gave it one."""
+    from idapbc_pin.trajectory import library
+
+    starts = np.arange(5.0)[:, None] * np.ones(pendubot.n)
+    calls = []
+
+    def planned(system, catch, x, horizon, share, iterations, judge_T, seed, workers, progress):
+        calls.append((horizon, x[:, 0].tolist(), seed))
+        reached = {1.0: (1, 3), 2.0: (0, 3, 4), 3.0: (0, 2)}[horizon]  # the starts (by index) a plan of each horizon brings up
+        return [(horizon, int(s)) if int(s) in reached else None for s in x[:, 0]]
+
+    monkeypatch.setattr(library, "library_nominals", planned)
+    found, passes = library.horizon_nominals(pendubot, None, starts, (1.0, 2.0, 3.0), 1.0, 1, 3.0, seed=7)
+    assert found == [(2.0, 0), (1.0, 1), (3.0, 2), (1.0, 3), (2.0, 4)] and passes == [1, 0, 2, 0, 1]
+    assert calls == [(1.0, [0, 1, 2, 3, 4], 7), (2.0, [0, 2, 4], 7 + library.RETRY_SEED), (3.0, [2], 7 + 2 * library.RETRY_SEED)]
+    calls.clear()
+    assert library.horizon_nominals(pendubot, None, starts[[1, 3]], (1.0, 2.0), 1.0, 1, 3.0, seed=7) == ([(1.0, 1), (1.0, 3)], [0, 0])
+    assert len(calls) == 1  # every start brought up: no longer plans
+    assert library.horizon_nominals(pendubot, None, starts[[2]], (1.0, 2.0), 1.0, 1, 3.0, seed=7) == ([None], [-1])
 
 
 def test_the_tracking_laws_tree_finds_the_same_nearest_point_as_every_point():
@@ -350,32 +370,46 @@ def test_a_joined_law_reads_whichever_law_has_the_nearer_knot(pendubot):
     np.testing.assert_allclose(joined.law(x), np.where((distance(a) <= distance(b))[:, None], a.law(x), b.law(x)), rtol=0, atol=1e-12)
 
 
-def test_the_anywhere_step_joins_the_manoeuvre_else_the_tracking_law_it_would_replace(pendubot, monkeypatch):
-    """The library judged by the anywhere gate carries the knots of a nominal from hanging: the run's
-    manoeuvre where it keeps one, else its swing-up law where that is a tracking law (and the entry
-    says which, and how many); a run with neither is judged on the library alone."""
+def test_the_anywhere_step_joins_the_manoeuvre_and_the_tracking_law_it_would_replace(pendubot, monkeypatch):
+    """The anywhere gate judges the library of the short plans, joined by the knots of the run's
+    manoeuvre (else of its swing-up law, where that is a tracking law), and where a longer horizon
+    gave more, the library of all plans, joined by both (each where the run has one); a run with
+    neither is judged on the libraries alone. The step keeps the library the gate picks, and the
+    entry says which knots joined it, and how many."""
     from types import SimpleNamespace
 
     from idapbc_pin.recovery import anywhere_stage
     from idapbc_pin.recovery.config import SwingUpConfig
 
     box = np.full(pendubot.n, np.inf)
-    library, own, fast = (tracking_law(pendubot, U, Z, G, 0.1, box) for U, Z, G in (_plan(pendubot, seed=s) for s in (6, 7, 8)))
+    short, longer, own, fast = (tracking_law(pendubot, U, Z, G, 0.1, box) for U, Z, G in (_plan(pendubot, seed=s) for s in (6, 9, 7, 8)))
     fast = fast.with_box(box)
     judged = []
-    monkeypatch.setattr(anywhere_stage, "library_law", lambda *args, **kw: (library, 1, 1))
-    monkeypatch.setattr(anywhere_stage, "anywhere_gate", lambda run, current, law, config: judged.append(law) or {"used": True})
-    cases = ((own.with_inner(None), SimpleNamespace(track=fast), fast, "manoeuvre"), (own.with_inner(None), None, own, "tracking law"),
-             (None, None, None, None))
-    for fallback, manoeuvre, joined, source in cases:
+    monkeypatch.setattr(anywhere_stage, "library_law", lambda *args, **kw: ([(short, [1.0]), (longer, [1.0, 2.0])], [1, 1], 2))
+    cases = ((own.with_inner(None), SimpleNamespace(track=fast), [fast, own], ["manoeuvre", "tracking law"], 1),
+             (None, SimpleNamespace(track=fast), [fast], ["manoeuvre"], 0), (own.with_inner(None), None, [own], ["tracking law"], 1), (None, None, [], None, 0))
+    for fallback, manoeuvre, joined, sources, pick in cases:
         now = SimpleNamespace(controller=SimpleNamespace(fallback=fallback), manoeuvre=manoeuvre)
         monkeypatch.setattr(anywhere_stage, "resolve_run", lambda path: now)
+        monkeypatch.setattr(anywhere_stage, "anywhere_gate", lambda run, current, laws, config: judged.append(laws) or {"used": True, "library": pick})
         kept, entry = anywhere_stage.run_anywhere_step(SimpleNamespace(path=None), pendubot, None, box, SwingUpConfig(), progress=False)
-        extra = 0 if joined is None else len(joined.X)
-        assert len(kept.X) == len(library.X) + extra and entry.get("joined", 0) == extra and entry.get("joined_from") == source
-        np.testing.assert_array_equal(kept.X[: len(library.X)], library.X)
-        if joined is not None:
-            np.testing.assert_array_equal(kept.X[len(library.X):], joined.X)
+        each = [joined[:1], joined]  # the short library's knots from hanging, the longer one's
+        assert entry.get("joined", 0) == sum(len(j.X) for j in each[pick]) and entry.get("joined_from") == (sources if pick else (sources or [])[:1] or None)
+        assert kept is judged[-1][pick]
+        assert entry["nominals"] == 2 and entry["by_horizon"] == [1, 1] and entry["horizon"] == [1.0, 2.0] and entry["libraries"] == [[1.0], [1.0, 2.0]]
+        for library, law, extra in zip((short, longer), judged[-1], each):
+            np.testing.assert_array_equal(law.X, np.concatenate([library.X, *[j.X for j in extra]]))
+
+
+def test_of_two_libraries_the_anywhere_gate_takes_the_longer_one_only_by_a_margin():
+    """`_preferred`: the first library the rule keeps, unless a later one it keeps has its tip up for a
+    share `ANYWHERE_MARGIN` larger; a tie or a smaller lead keeps the first; none kept: the largest share."""
+    from idapbc_pin.recovery.anywhere_stage import ANYWHERE_MARGIN, _preferred
+
+    assert _preferred([True, True], [0.70, 0.70]) == 0 and _preferred([True, True], [0.70, 0.70 + ANYWHERE_MARGIN / 2]) == 0
+    assert _preferred([True, True], [0.50, 0.50 + 2 * ANYWHERE_MARGIN]) == 1
+    assert _preferred([False, True], [0.90, 0.30]) == 1 and _preferred([True, False], [0.30, 0.90]) == 0
+    assert _preferred([False, False], [0.30, 0.40]) == 1 and _preferred([False, False], [0.40, 0.40]) == 0
 
 
 def test_judging_starts_stops_settled_rows_without_changing_holds_or_times(pendubot):

@@ -198,6 +198,9 @@ class SwingUpConfig(Settings):
     library_share : share of the effort limits the library's plans use: less than the nominals'
         `track_share`, so that the gains keep room to recover from a push or a poor knot.
     library_horizon : length of each of the library's plans, s.
+    library_longer : lengths (s) of further plans, tried in turn from the starts that no shorter plan
+        brings up (`trajectory.library.horizon_nominals`); where they give more, the gate judges a
+        second library with every nominal beside the first (`anywhere_stage`); empty: none.
     library_iterations : iterations of the iLQR solves of the library's plans.
     workers, ray : as `RecoveryConfig`'s: processes (0: one per core) or Ray tasks; the time only.
     """
@@ -234,6 +237,7 @@ class SwingUpConfig(Settings):
     library: int = 128
     library_share: float = 0.6
     library_horizon: float = 1.0
+    library_longer: tuple = (2.0,)
     library_iterations: int = 40
     workers: int = 0
     ray: str | None = None
@@ -242,10 +246,10 @@ class SwingUpConfig(Settings):
         ok = (all(0 < r <= 1 for r in self.inner_scales) and all(0 < r < float("inf") for r in self.funnels) and 0 < self.track_share <= 1 and 0 < self.library_share <= 1
               and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations, self.library_iterations) >= 1
               and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library) >= 0
-              and 0 < self.library_horizon <= self.judge_T - 2.0 and self.time_margin >= 0
+              and 0 < self.library_horizon <= self.judge_T - 2.0 and all(0 < h <= self.judge_T - 2.0 for h in self.library_longer) and self.time_margin >= 0
               and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10 and self.kept_momenta >= 0
               and all(0 < h <= self.judge_T - 2.0 for h in self.manoeuvre_horizons))
         if not ok:
             raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch, ilqr_iterations, track_iterations and library_iterations "
                               "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales, track_share and library_share in (0, 1], funnels finite and > 0, circle in [0, 10], kept_momenta ≥ 0, horizon, "
-                              "manoeuvre_horizons and library_horizon > 0 and judge_T ≥ each of them + 2 s. Fix: pass valid values.")
+                              "manoeuvre_horizons, library_horizon and library_longer > 0 and judge_T ≥ each of them + 2 s. Fix: pass valid values.")

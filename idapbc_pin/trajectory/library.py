@@ -1,4 +1,4 @@
-"""A library of short plans from postures all round the circle, read at the nearest point: `plan_library`.
+"""A library of short plans from postures all round the circle, read at the nearest point: `horizon_nominals`, `nominals_law`.
 
 A tracking law (`TrackingLaw`) reads one nominal plan by the state. From a posture far from that
 plan's path it steers back to the path first, then follows it, which is slow. A library plans from
@@ -6,15 +6,18 @@ many starts instead, each with a short horizon:
 
 1. **Starts**: the resting posture and `size` postures at rest with every angle from the full circle
    (`sim.states.circle_states`, a seed of their own).
-2. **Plans**: from each start, iLQR plans of `horizon` s within `share` of the effort limits
-   (`ilqr.ilqr_plans`, all starts and warm starts in one batch), warm-started from ±sinusoids of
-   `WARM_PERIOD` at four phases and two amplitudes and `WARM_RANDOM` random steps. Their cost
-   (`LIBRARY_COST`) prices time: a running cost on the state and a light one on the input, the end
-   pinned on every coordinate and reached `settle` s before the end. Each plan is tracked by its own
-   iLQR gains and caught by `catch` (the swing-up stage's teacher); of a start's plans that hold at
-   x* over `judge_T` and swing up by themselves (their last state within the training box's angles
-   of x*: `tracks.reaches`), the cheapest is its nominal. A plan that leaves the swing-up to the
-   catch would pull the law's nearest knots towards where it ends, away from x*.
+2. **Plans**: from each start, iLQR plans of the first of `horizons` s within `share` of the effort
+   limits (`ilqr.ilqr_plans`, all starts and warm starts in one batch), warm-started from
+   ±sinusoids of `WARM_PERIOD` at four phases and two amplitudes and `WARM_RANDOM` random steps.
+   Their cost (`LIBRARY_COST`) prices time: a running cost on the state and a light one on the
+   input, the end pinned on every coordinate and reached `settle` s before the end. Each plan is
+   tracked by its own iLQR gains and caught by `catch` (the swing-up stage's teacher); of a start's
+   plans that hold at x* over `judge_T` and swing up by themselves (their last state within the
+   training box's angles of x*: `tracks.reaches`), the cheapest is its nominal. A plan that leaves
+   the swing-up to the catch would pull the law's nearest knots towards where it ends, away from
+   x*. The starts left without a nominal are planned again with each further horizon in turn: a
+   robot with long, heavy links cannot swing up from most postures in the time a small one needs,
+   and the library would otherwise cover few of them.
 3. **The law**: each nominal with its time-varying LQR gains (`tracks.tvlqr_gains`) in x = (q, p)
    (`tracks.tracking_law`), every knot of every nominal in one `TrackingLaw`. The law is the same
    kind as any tracking law (the same arrays, the same export); it reads the nearest point over all
@@ -46,7 +49,8 @@ from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
 from .tracks import ALPHAS, KNOT, reaches, sound, tracking_law, tvlqr_gains, warm_starts
 
-__all__ = ["CHUNK", "LIBRARY_COST", "WARM_PERIOD", "WARM_RANDOM", "library_nominals", "library_starts", "paths_law", "plan_library"]
+__all__ = ["CHUNK", "LIBRARY_COST", "RETRY_SEED", "WARM_PERIOD", "WARM_RANDOM", "horizon_nominals", "library_nominals", "library_starts", "nominals_law",
+           "paths_law"]
 
 #: The library's plan cost (`ilqr.ILQRSettings` fields): time priced above torque, at rest at x* at the end.
 LIBRARY_COST = {"q": 1.0, "r": 1.0, "end_box": 1000.0, "settle": 0.3}
@@ -54,6 +58,8 @@ LIBRARY_COST = {"q": 1.0, "r": 1.0, "end_box": 1000.0, "settle": 0.3}
 WARM_PERIOD, WARM_RANDOM = 1.0, 2
 #: Starts planned together in one batch (one worker job).
 CHUNK = 16
+#: Seed offset of each further horizon's warm starts (`horizon_nominals`).
+RETRY_SEED = 1000
 
 
 def library_starts(system, size: int, seed: int) -> np.ndarray:
@@ -99,16 +105,32 @@ def library_nominals(system, catch, starts: np.ndarray, horizon: float, share: f
     return out
 
 
-def plan_library(system, catch, starts: np.ndarray, box: np.ndarray, *, horizon: float, share: float, iterations: int, judge_T: float,
-                 seed: int, speed_weight: float, workers: int = 1, progress: str | None = None) -> tuple[TrackingLaw | None, int]:
-    """The library's `TrackingLaw` (module docstring) from `starts` (S, n) with the kept `box` (n,),
-    the nearest-point distance weighing momenta `speed_weight` / M_ii(q*); -> (the law, or None where
-    no start has a nominal; how many starts have one); `progress`: as `library_nominals`'."""
-    nominals = [nominal for nominal in library_nominals(system, catch, starts, horizon, share, iterations, judge_T, seed, workers, progress) if nominal]
+def horizon_nominals(system, catch, starts: np.ndarray, horizons, share: float, iterations: int, judge_T: float, seed: int,
+                     workers: int = 1, progress: str | None = None) -> tuple[list, list[int]]:
+    """Step 2 of the module docstring over several horizons: every start of `starts` (S, n) planned
+    with horizons[0] s, then the starts still without a nominal with each further horizon in turn
+    (pass j drawing warm starts from seed + `RETRY_SEED`·j). Returns (for each start its nominal
+    (U, Z) or None; for each start the index of the horizon that gave it, or −1)."""
+    out, passes = [None] * len(starts), [-1] * len(starts)
+    for j, horizon in enumerate(horizons):
+        todo = [s for s, nominal in enumerate(out) if nominal is None]
+        if not todo:
+            break
+        found = library_nominals(system, catch, starts[todo], horizon, share, iterations, judge_T, seed + RETRY_SEED * j, workers,
+                                 None if progress is None else f"{progress} ({horizon:g} s)")
+        for s, nominal in zip(todo, found):
+            if nominal is not None:
+                out[s], passes[s] = nominal, j
+    return out, passes
+
+
+def nominals_law(system, nominals: list, box: np.ndarray, speed_weight: float) -> TrackingLaw | None:
+    """Step 3 of the module docstring: every knot of the `nominals` [(U, Z)] with its time-varying LQR
+    gains in one `TrackingLaw` with the kept `box` (n,), the nearest-point distance weighing momenta
+    `speed_weight` / M_ii(q*); None where there is no nominal."""
     if not nominals:
-        return None, 0
-    laws = [tracking_law(system, U, Z, tvlqr_gains(system, U, Z), speed_weight, box) for U, Z in nominals]
-    return TrackingLaw.join(laws), len(nominals)
+        return None
+    return TrackingLaw.join([tracking_law(system, U, Z, tvlqr_gains(system, U, Z), speed_weight, box) for U, Z in nominals])
 
 
 def paths_law(system, X: np.ndarray, U: np.ndarray, speed_weight: float, box: np.ndarray) -> TrackingLaw:
