@@ -190,12 +190,12 @@ def run_anywhere_step(run, system, catch, box: np.ndarray, config: SwingUpConfig
     if libraries:
         now = resolve_run(run.path)  # with the swing-up law and manoeuvre the stage kept, if any
         hanging, sources = _from_hanging(now)
-        laws = [TrackingLaw.join([library, *(hanging if len(plans) > 1 else hanging[:1])]) for library, plans in libraries]
-        joined = [sources if len(plans) > 1 else sources[:1] for _, plans in libraries]
+        joins = [len(hanging) if len(plans) > 1 else min(1, len(hanging)) for _, plans in libraries]  # knot sets each library joins
+        laws = [TrackingLaw.join([library, *hanging[:j]]) for (library, _), j in zip(libraries, joins)]
         entry |= anywhere_gate(run, now.controller, laws, config) | {"libraries": [plans for _, plans in libraries]}
-        chosen = joined[entry["library"]]
-        if chosen:
-            entry |= {"joined": sum(len(h.X) for h, name in zip(hanging, sources) if name in chosen), "joined_from": chosen}
+        j = joins[entry["library"]]
+        if j:
+            entry |= {"joined": sum(len(h.X) for h in hanging[:j]), "joined_from": sources[:j]}
         law = laws[entry["library"]]
     else:
         entry["used"] = False
