@@ -101,7 +101,7 @@ def test_labels_are_read_as_whole_paths_every_knot_and_labels_that_are_not_make_
     assert label_library(system, X.reshape(-1, system.n)[:-1], U.reshape(-1, system.m)[:-1], 0.3) is None
 
 
-def test_recover_judges_the_library_beside_the_fits_and_a_run_that_keeps_it_applies_it(tmp_path, monkeypatch):
+def test_recover_judges_the_library_beside_the_fits_and_a_run_that_keeps_it_applies_it(tmp_path, monkeypatch, capsys):
     system = ip.load_system("pendubot", effort={"shoulder": 8.0})
     run = ip.train(system, ip.TrainConfig.fast(epochs=5, width=8, depth=1, samples=64, dtype="float64"), out=tmp_path / "runs", progress=False)
     path = tmp_path / "run"
@@ -130,14 +130,33 @@ def test_recover_judges_the_library_beside_the_fits_and_a_run_that_keeps_it_appl
     outside = loaded.controller.fallback.outside(x)
     np.testing.assert_allclose(loaded.controller(x)[outside], loaded.controller.fallback.law(x[outside]), atol=1e-12)
     library = loaded.controller.fallback
-    monkeypatch.setattr(recovery_gate, "choose_fit", lambda run, laws, config, progress, known=None: (0, {"used": False}))
-    assert recovery_gate.library_first(loaded, library, 4, RecoveryConfig(**TINY)) is None  # refused alone: the fits follow
+    margin = RecoveryConfig(**TINY).margin
+    for best, level, verdict in ((83 - margin + 1, None, "fit"), (83 - margin, None, "lost"), (70, 83 - margin + 1, "fit")):
+        refused = {"used": False, "run": 83, "states": 100, "candidates": {0.25: best, 0.5: 60}, "level_candidates": {0.1: level}}
+        monkeypatch.setattr(recovery_gate, "choose_fit", lambda run, laws, config, progress, known=None, g=refused: (0, g))
+        got, gate = recovery_gate.library_first(loaded, library, 4, RecoveryConfig(**TINY), progress=verdict == "lost")
+        assert got == verdict and gate["library"]  # refused alone: the fits follow, unless it lags the run's law by the margin
+    assert "no law is fitted to the same paths" in capsys.readouterr().out
     monkeypatch.setattr(recovery_gate, "choose_fit", lambda run, laws, config, progress, known=None: (0, {"used": True}))
     kept, gate = recovery_gate.library_first(loaded, library, 4, RecoveryConfig(**TINY))
-    assert kept is library and gate["library"] and gate["library_points"] == library.points
+    assert kept == "kept" and gate["library"] and gate["library_points"] == library.points
     monkeypatch.undo()
     monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
     judged.clear()
     without = recover(path, RecoveryConfig(**TINY | {"library": False}), progress=False)  # the fits alone: none adds a state
     assert "LibraryLaw" not in judged and not without["used"] and not without["library"] and "library_points" not in without["gate"]
     assert not ip.load_run(path).uses_recovery
+
+    def lagging(job):  # the run's law brings every gate state to x*, the library none: no fit is tried
+        _, ctrl, x0 = job
+        judged.append(type(ctrl.fallback).__name__)
+        return np.full(len(x0), not isinstance(ctrl.fallback, LibraryLaw))
+
+    monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(lagging))
+    judged.clear()
+    entry = recover(path, RecoveryConfig(**TINY | {"library": True}), progress=False)
+    assert "LibraryLaw" in judged and "RecoveryLaw" not in judged and entry["library_lost"] and entry["fits_skipped"] and entry["first_fit_mse"] is None
+    assert not entry["used"] and entry["library"] and not ip.load_run(path).uses_recovery
+    judged.clear()
+    entry = recover(path, RecoveryConfig(**TINY | {"library": True, "always_fit": True}), progress=False)  # always_fit: the fits all the same
+    assert "RecoveryLaw" in judged and "library_lost" not in entry and not entry["used"]

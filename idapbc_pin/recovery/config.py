@@ -48,8 +48,9 @@ class RecoveryConfig(Settings):
         fit's seed alone moves the basin.
     library : also judge, beside the fits, the labelled paths read at the nearest point with the
         gains of a time-varying LQR along each (`stage.label_library`). The library is judged first,
-        from the first labels: where the gate keeps it, no law is fitted (unless `always_fit`).
-    always_fit : fit, DAgger and judge the fits even where the gate keeps the library alone.
+        from the first labels: where the gate keeps it, no law is fitted (unless `always_fit`), nor
+        where it brings `margin` or more fewer gate states to x* than the run's law.
+    always_fit : fit, DAgger and judge the fits even where the gate judges the library alone first.
     library_speed : the weight of the momenta in the library's nearest-point distance (positions
         weigh 1; momenta are divided by M_ii(x*) first).
     library_every : of the library's points outside the smallest inner box, every `library_every`-th

@@ -33,7 +33,7 @@ from .config import RecoveryConfig
 from .law import RecoveryLaw
 from ..trajectory.plans import PLAN_STEP
 
-__all__ = ["GATE_HORIZON", "LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "library_first", "read_labels", "save_labels", "save_recovery", "write_law"]
+__all__ = ["GATE_HORIZON", "LEVEL_STATES", "NEAR_SCALE", "RECOVERY_GATE_SEED", "choose_fit", "choose_inner", "energy_levels", "format_gate", "gate_choice", "library_first", "lost", "read_labels", "save_labels", "save_recovery", "write_law"]
 
 #: Seed offset of the gate's states (neither the plans', the DAgger rounds', nor an evaluation's).
 RECOVERY_GATE_SEED = 7_368_787
@@ -138,18 +138,40 @@ def choose_fit(run, laws: list, config: RecoveryConfig, progress: bool = False, 
     return k, gates[k]
 
 
-def library_first(run, library, paths: int, config, progress: bool = False, known: dict | None = None):
+def library_first(run, library, paths: int, config, progress: bool = False, known: dict | None = None) -> tuple[str, dict]:
     """The reach stage's library of `paths` labelled paths judged alone (`choose_fit`, `known` passed
-    on): (the library, its gate) where the gate keeps it, else None (the fits follow, and the library
-    is judged again beside them)."""
+    on): ("kept", its gate) where the gate keeps it; ("lost", its gate) where at its best inner box
+    or level it brings `config.margin` or more fewer gate states to x* than the run's law (`lost`:
+    no laws are fitted to the same paths); else ("fit", its gate): the fits follow, and the library
+    is judged again beside them. The gate has "library" and "library_points" set."""
     if progress:
         print(f"library: the {paths} labelled paths read at the nearest point ({library.points} points), judged first", flush=True)
     _, gate = choose_fit(run, [library], config, progress, known)
-    if not gate["used"]:
-        if progress:
-            print(f"library alone: {format_gate(gate, config.margin, config.half_loss)}; fitting laws to judge beside it", flush=True)
-        return None
-    return library, gate | {"library": True, "library_points": library.points}
+    gate = gate | {"library": True, "library_points": library.points}
+    if gate["used"]:
+        return "kept", gate
+    verdict = "lost" if lost(gate, config.margin) else "fit"
+    if progress and verdict == "lost":
+        print(f"library alone: at best {_most(gate)} of {gate['states']} gate states to x*, the run's law {gate['run']}: "
+              f"{config.margin} or more fewer, so no law is fitted to the same paths (always_fit fits them)", flush=True)
+    elif progress:
+        print(f"library alone: {format_gate(gate, config.margin, config.half_loss)}; fitting laws to judge beside it", flush=True)
+    return verdict, gate
+
+
+def _most(gate: dict) -> int | None:
+    """The most gate states any candidate of a gate (inner box, or level run from the gate's states) brings to x*."""
+    counts = [c for c in (*gate.get("candidates", {}).values(), *gate.get("level_candidates", {}).values()) if c is not None]
+    return max(counts) if counts else None
+
+
+def lost(gate: dict, margin: int) -> bool:
+    """Whether a gate's candidates all fall `margin` or more short of the run's law: the most gate
+    states any inner box or level brings to x* (those run from the gate's states) plus `margin` is
+    at most the run's law's count. The gate keeps a law that leads by `margin`; a library this far
+    behind is a sign the paths themselves mislead away from them, and the fits only imitate them."""
+    best = _most(gate)
+    return best is not None and best + int(margin) <= int(gate["run"])
 
 
 class _Confirmation:

@@ -23,7 +23,9 @@ The steps (`RecoveryConfig` holds every number):
    and beside them (`library`) the labelled paths themselves, each with the gains of a time-varying
    LQR along it, read at the nearest point (`label_library`, `library_law.LibraryLaw`): where the
    fits average the paths, the library keeps them. The library of the first labels is judged
-   first: where the gate keeps it, steps 2–3 are skipped (unless `always_fit`).
+   first: where the gate keeps it, steps 2–3 are skipped (unless `always_fit`), and so they are where
+   it brings `margin` or more fewer gate states to x* than the run's law (`gate.lost`): the fits
+   only imitate those paths, and cost minutes (docs/stages.md).
 3. **DAgger** (Ross, Gordon, Bagnell 2011), `dagger` rounds: the fitted law runs from
    `dagger_starts` new starts of the same box; the states its failures visit at 0.5, 1.5 and 3 s are
    labelled as in step 1, and a fresh law is fitted on all labels. When the first fit brings none
@@ -267,9 +269,9 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
               f"{config.starts - taught}; {len(X)} labels  [{time.perf_counter() - start:.0f} s]", flush=True)
     library = label_library(system, X, U, config.library_speed, config.library_every, min(config.inner_scales)) if config.library and not config.always_fit else None
     known = {}  # the run's law's gate verdicts, simulated once for both gates (`choose_fit`)
-    first = library_first(run, library, len(X) // LABEL_PATH, config, progress, known) if library is not None else None
-    if first is not None:
-        (law, gate), mse, rounds, skipped = first, None, [], {"fits_skipped": True}
+    verdict, first = library_first(run, library, len(X) // LABEL_PATH, config, progress, known) if library is not None else ("fit", None)
+    if verdict != "fit":  # kept alone, or lost by so much that no fit of its paths is tried
+        (law, gate), mse, rounds, skipped = (library, first), None, [], {"fits_skipped": True} | ({"library_lost": True} if verdict == "lost" else {})
     else:
         (law, gate), mse, rounds, X, U = _fits_and_dagger(run, system, X, U, config, progress, start, teacher, networks, store, known)
         skipped = {}
