@@ -35,13 +35,15 @@ from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.recovery import stage as stage_module
 from idapbc_pin.trajectory import ilqr as ilqr_module
 from idapbc_pin.trajectory.chunks import CHUNKS_DIR, ChunkStore, chunk_key
-from idapbc_pin.trajectory.ilqr import (ILQRSettings, _knot_jacobians, _rail, _rail_terms, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout,
+from idapbc_pin.trajectory.ilqr import (SPEED_WEIGHT, ILQRSettings, _knot_jacobians, _rail, _rail_terms, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout,
                                       settle_weights)
 from idapbc_pin.errors import IdapbcError
-from idapbc_pin.trajectory.plans import AUTO_ITERATIONS, PERIODS, PLAN_STEP, PlanSettings, TrackThenLaw, plan_candidates
+from idapbc_pin.trajectory.plans import AUTO_ITERATIONS, PERIODS, PLAN_STEP, PlanSettings, TrackThenLaw, plan_bound, plan_candidates
+from idapbc_pin.trajectory.tracks import KNOT, warm_starts
+from idapbc_pin.model.resting import resting_configuration
 from idapbc_pin.recovery.stage import RecoveryConfig, collect_labels
 from idapbc_pin.sim.integrate import simulate
-from idapbc_pin.sim.metrics import success
+from idapbc_pin.sim.metrics import speed_limits, success
 from idapbc_pin.sim.states import uniform_states
 
 
@@ -191,18 +193,43 @@ def test_the_rail_term_keeps_a_plan_on_the_rail_where_a_plan_without_it_runs_off
     assert far[0.0] > 5.0 and far[1e3] <= 5.0
 
 
-def test_the_rail_term_s_gradient_is_that_of_its_value():
-    system = ip.load_system("cartpole")
-    rail = _rail(system, ILQRSettings())
-    np.testing.assert_allclose(rail[0], [-4.0, -np.inf])  # ±5 m pulled in by a tenth of the range
-    np.testing.assert_allclose(rail[1], [4.0, np.inf])
-    q = np.random.default_rng(0).uniform(-6, 6, (50, 2))
-    value, grad, hess = _rail_terms(q, rail)
+def test_the_rail_and_speed_terms_gradient_is_that_of_their_value():
+    system = ip.load_system("cartpole")  # rail ±5 m, slider (driven) 10 m/s, pole 30 rad/s (not driven)
+    np.testing.assert_allclose(_rail(system, ILQRSettings())[1], [4.0, np.inf, np.inf, np.inf])  # the speed term is off by default
+    rail = _rail(system, ILQRSettings(speed=SPEED_WEIGHT))
+    np.testing.assert_allclose(rail[0], [-4.0, -np.inf, -9.0, -np.inf])  # ±5 m pulled in by a tenth of the range, 10 m/s by a tenth
+    np.testing.assert_allclose(rail[1], [4.0, np.inf, 9.0, np.inf])
+    z = np.random.default_rng(0).uniform(-12, 12, (50, 4))
+    value, grad, hess = _rail_terms(z, rail)
     h = 1e-6
-    fd = np.stack([(_rail_terms(q + h * e, rail)[0] - _rail_terms(q - h * e, rail)[0]) / (2 * h) for e in np.eye(2)], axis=1)
+    fd = np.stack([(_rail_terms(z + h * e, rail)[0] - _rail_terms(z - h * e, rail)[0]) / (2 * h) for e in np.eye(4)], axis=1)
     np.testing.assert_allclose(grad, fd, atol=1e-5)
-    assert (value > 0).sum() > 5 and np.all(value[np.abs(q[:, 0]) < 4.0] == 0.0) and np.all(grad[:, 1] == 0.0)
-    np.testing.assert_array_equal(hess[:, 0] > 0, np.abs(q[:, 0]) > 4.0)
+    inside = (np.abs(z[:, 0]) < 4.0) & (np.abs(z[:, 2]) < 9.0)
+    assert (value > 0).sum() > 5 and np.all(value[inside] == 0.0) and np.all(grad[:, [1, 3]] == 0.0)
+    np.testing.assert_array_equal(hess[:, 0] > 0, np.abs(z[:, 0]) > 4.0)
+    np.testing.assert_array_equal(hess[:, 2] > 0, np.abs(z[:, 2]) > 9.0)
+    assert _rail(ip.load_system("acrobot"), ILQRSettings()) is None and _rail(ip.load_system("acrobot"), ILQRSettings(speed=SPEED_WEIGHT)) is not None
+
+
+def test_speed_limits_are_the_urdf_s_on_the_driven_joints_only():
+    np.testing.assert_array_equal(speed_limits(ip.load_system("furuta")), [30.0, np.inf])  # the arm's motor; the pendulum is free
+    np.testing.assert_array_equal(speed_limits(ip.load_system("acrobot")), [np.inf, 30.0])
+    np.testing.assert_array_equal(speed_limits(ip.load_system("double_pendulum")), [30.0, 30.0])  # both joints driven
+    np.testing.assert_array_equal(speed_limits(ip.load_system("paper_cartpole")), [np.inf, np.inf])  # a closed form: no URDF
+
+
+def test_plans_from_hanging_keep_the_motor_near_its_rated_speed():
+    # the zoo Furuta's light arm under 10 N·m: time-optimal swings whirl it far past its URDF 30 rad/s
+    system = ip.load_system("furuta")
+    x0 = np.concatenate([resting_configuration(system), np.zeros(system.nq)])[None]
+    bound = 0.8 * plan_bound(system)
+    K = int(round(1.5 / KNOT))
+    W = warm_starts(K, bound, 0, periods=(1.0,), n_random=2)
+    peaks = {}
+    for weight in (0.0, SPEED_WEIGHT):
+        U, Z, _, _ = ilqr_plans(system, np.repeat(x0, len(W), 0), W, bound, K * KNOT, LQRController(system).S, ILQRSettings(iterations=20, speed=weight))
+        peaks[weight] = np.abs(Z[:, :, system.nq]).max(axis=1)  # the arm's peak planned speed, rad/s, per plan
+    assert np.median(peaks[0.0]) > 1.5 * 30.0 and np.median(peaks[SPEED_WEIGHT]) <= 1.1 * 30.0
 
 
 def test_tracked_ilqr_candidates_recover_states_saturated_lqr_loses(weak_pendubot, lost):
@@ -357,3 +384,15 @@ def test_every_ilqr_plan_on_the_cart_double_pendulum_gets_cheaper():
     start = ilqr_plans(system, x0, U0, system.effort, 2.0, S, ILQRSettings(iterations=0))[3]
     after = ilqr_plans(system, x0, U0, system.effort, 2.0, S, ILQRSettings(iterations=6))[3]
     assert np.all(after <= 0.5 * start)
+
+
+def test_speed_limits_reach_every_plan_of_the_two_stages():
+    """`speed_limits` turns the speed term on in the reach stage's solves and in the swing-up stage's
+    label plans; off by default."""
+    from idapbc_pin.recovery.config import SwingUpConfig
+    from idapbc_pin.recovery.swing_stage import _labels_config
+
+    furuta = ip.load_system("furuta")
+    assert PlanSettings().solver(furuta).speed == 0.0 and PlanSettings(speed_limits=True).solver(furuta).speed == SPEED_WEIGHT
+    assert _labels_config(SwingUpConfig()).plan.solver(furuta).speed == 0.0
+    assert _labels_config(SwingUpConfig(speed_limits=True)).plan.solver(furuta).speed == SPEED_WEIGHT

@@ -324,7 +324,7 @@ def test_a_longer_horizon_plans_only_the_starts_no_shorter_plan_brings_up(pendub
     starts = np.arange(5.0)[:, None] * np.ones(pendubot.n)
     calls = []
 
-    def planned(system, catch, x, horizon, share, iterations, judge_T, seed, workers, progress):
+    def planned(system, catch, x, horizon, share, iterations, judge_T, seed, workers, progress, speed=0.0):
         calls.append((horizon, x[:, 0].tolist(), seed))
         reached = {1.0: (1, 3), 2.0: (0, 3, 4), 3.0: (0, 2)}[horizon]  # the starts (by index) a plan of each horizon brings up
         return [(horizon, int(s)) if int(s) in reached else None for s in x[:, 0]]
@@ -448,7 +448,7 @@ def test_a_library_plan_that_leaves_the_swing_up_to_its_catch_is_no_nominal(monk
 
     wheel = ip.load_system("reaction_wheel")
     start = library.library_starts(wheel, 0, seed=0)  # the resting posture alone: hanging at rest
-    job = (wheel, EnergyPumpLaw(wheel), start, 0.1, 1.0, 2, 8.0, 0)
+    job = (wheel, EnergyPumpLaw(wheel), start, 0.1, 1.0, 2, 8.0, 0, 0.0)
     assert library._chunk_nominals(job) == [None]
     monkeypatch.setattr(library, "reaches", lambda system, z_end: np.ones(len(z_end), bool))
     (found,) = library._chunk_nominals(job)

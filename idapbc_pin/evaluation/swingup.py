@@ -26,7 +26,7 @@ from .._parallel import process_map
 from ..errors import IdapbcError
 from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
-from ..sim.metrics import HOLD_ANGLE, HOLD_SPEED, SUCCESS_WINDOW, holds as holds_verdict, on_rail
+from ..sim.metrics import HOLD_ANGLE, HOLD_SPEED, SUCCESS_WINDOW, holds as holds_verdict, on_rail, speed_limits
 from ..sim.states import RESTING_SPREAD, anywhere_states, circle_states, resting_states
 from ..sim.step import DEFAULT_STEP
 from ..sim.leaderboard import TIP_SHARE, LeaderboardScore, row_score, stays_from, tip_swingup_times
@@ -91,6 +91,8 @@ class SwingupScore:
         at the end (or the row diverged).
     peak_input : max |u| (N·m or N). peak_ratio : max over inputs of max |u_i| / effort_i (nan
         without a finite limit).
+    speed_ratio : max over the actuated joints of max |v_i| / v̄_i, v̄ the URDF speed limit (the
+        motor's rated speed, `sim.metrics.speed_limits`); nan where no actuated joint has one.
     energy : Σ|Δq_a · u| over the actuated joints (J).
     diverged : bool, the rollout blew up.
     off_rail : bool, a prismatic joint left its URDF position limits (`sim.metrics.on_rail`): such a
@@ -105,6 +107,7 @@ class SwingupScore:
     peak_input: np.ndarray
     peak_ratio: np.ndarray
     energy: np.ndarray
+    speed_ratio: np.ndarray
     diverged: np.ndarray
     off_rail: np.ndarray
     hanging: LeaderboardScore
@@ -115,7 +118,7 @@ class SwingupScore:
         def plain(a):
             return [None if isinstance(x, float) and not math.isfinite(x) else x for x in np.asarray(a).tolist()]
 
-        out = {k: plain(getattr(self, k)) for k in ("holds", "tip", "swingup_time", "time_to_goal", "peak_input", "peak_ratio", "energy", "diverged", "off_rail")}
+        out = {k: plain(getattr(self, k)) for k in ("holds", "tip", "swingup_time", "time_to_goal", "peak_input", "peak_ratio", "speed_ratio", "energy", "diverged", "off_rail")}
         out["hanging"] = self.hanging.to_dict()
         return out
 
@@ -141,9 +144,12 @@ def judge_swingup(system, traj) -> SwingupScore:
         ratio = np.where(np.isfinite(effort), peak_each / effort, np.nan)
     peak_ratio = np.full(N, np.nan) if np.all(np.isnan(ratio)) else np.nanmax(ratio, axis=1)
     energy = np.abs(np.diff(q @ B, axis=1) * u[:, :-1]).sum(axis=(1, 2))
+    rated = speed_limits(system)
+    limited = np.isfinite(rated)
+    speed_ratio = (np.abs(v[..., limited]).max(axis=1) / rated[limited]).max(axis=1) if limited.any() and K else np.full(N, np.nan)
     hanging = row_score(system, traj, 0, swingup[0])
     return SwingupScore(holds=holds, tip=np.isfinite(swingup), swingup_time=swingup, time_to_goal=to_goal,
-                        peak_input=peak_each.max(axis=1), peak_ratio=peak_ratio, energy=energy,
+                        peak_input=peak_each.max(axis=1), peak_ratio=peak_ratio, energy=energy, speed_ratio=speed_ratio,
                         diverged=np.asarray(traj.diverged, bool).copy(), off_rail=~rail, hanging=hanging)
 
 
@@ -179,16 +185,19 @@ class SwingupResult:
 
     def table(self) -> str:
         """A markdown table, one row per controller: holds k/N, tip k/N, median swing-up time, median
-        time to goal (over the states that have one), median peak |u| / limit, hanging-start v2 score; rows
-        that left the rail are counted beside the holds."""
+        time to goal (over the states that have one), median peak |u| / limit, median peak speed / the
+        URDF's speed limit (where an actuated joint has one), hanging-start v2 score; rows that left
+        the rail are counted beside the holds."""
         N = self.states.shape[0]
-        rows = ["| controller | holds | tip | median swing-up time | median time to goal | median peak input / limit | hanging-start score |",
-                "|---|---|---|---|---|---|---|"]
+        rated = any(np.isfinite(s.speed_ratio).any() for s in self.scores.values())
+        speed = (" median peak speed / limit |", "---|") if rated else ("", "")
+        rows = [f"| controller | holds | tip | median swing-up time | median time to goal | median peak input / limit |{speed[0]} hanging-start score |",
+                f"|---|---|---|---|---|---|{speed[1]}---|"]
         for name, s in self.scores.items():
             score = f"{s.hanging.score:.3f}" + (f" (swing-up {s.hanging.swingup_time:.2f} s)" if s.hanging.success else "")
             rail = f" ({int(s.off_rail.sum())} off the rail)" if s.off_rail.any() else ""
             rows.append(f"| {name} | {int(s.holds.sum())}/{N}{rail} | {int(s.tip.sum())}/{N} | {_median(s.swingup_time):.2f} s | "
-                        f"{_median(s.time_to_goal):.2f} s | {_median(s.peak_ratio):.2f} | {score} |")
+                        f"{_median(s.time_to_goal):.2f} s | {_median(s.peak_ratio):.2f} |" + (f" {_median(s.speed_ratio):.2f} |" if rated else "") + f" {score} |")
         return "\n".join(rows)
 
     def to_dict(self) -> dict:

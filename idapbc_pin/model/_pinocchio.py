@@ -126,8 +126,8 @@ def _build_model(path: Path) -> pin.Model:
         raise IdapbcError(f"Pinocchio could not build a model from '{path}': {msg}. Fix: check the URDF's links and joints.") from None
 
 
-def _effort(value: float) -> float:
-    """A URDF effort limit: 0 (Pinocchio's value when `<limit effort>` is absent) means none."""
+def _limit(value: float) -> float:
+    """A URDF effort or speed limit: 0 (Pinocchio's value when `<limit>` lacks it) means none."""
     return value if math.isfinite(value) and value > 0 else math.inf
 
 
@@ -157,7 +157,8 @@ def _joint_infos(model: pin.Model) -> tuple[JointInfo, ...]:
                 upper=upper,
                 damping=float(model.damping[joint.idx_v]),
                 mass=float(model.inertias[jid].mass),
-                effort=_effort(float(model.effortLimit[joint.idx_v])),
+                effort=_limit(float(model.effortLimit[joint.idx_v])),
+                speed=_limit(float(model.velocityLimit[joint.idx_v])),
             )
         )
     if not infos:

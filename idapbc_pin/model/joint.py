@@ -22,6 +22,8 @@ class JointInfo:
     mass : mass of the body this joint moves, fixed children lumped in (kg).
     effort : actuator limit |τ| ≤ effort (N·m or N) from the URDF `<limit effort>`; +inf when the
         joint has none (absent or 0).
+    speed : speed limit |v| ≤ speed (rad/s or m/s) from the URDF `<limit velocity>`; +inf when the
+        joint has none (absent or 0).
     """
 
     name: str
@@ -32,6 +34,7 @@ class JointInfo:
     damping: float
     mass: float
     effort: float = math.inf
+    speed: float = math.inf
 
     @property
     def is_angle(self) -> bool:

@@ -44,6 +44,7 @@ from ..sim.integrate import simulate
 from ..sim.leaderboard import tip_up
 from ..sim.metrics import holds, settling_time
 from ..sim.states import anywhere_states, box_gate_states, resting_states
+from ..trajectory.ilqr import SPEED_WEIGHT
 from ..trajectory.library import horizon_nominals, library_starts, nominals_law
 from ..trajectory.plans import PLAN_STEP
 from ..trajectory.tracking_law import TrackingLaw
@@ -75,7 +76,7 @@ def library_law(system, catch, box: np.ndarray, config: SwingUpConfig, progress:
     horizons = (config.library_horizon, *config.library_longer)
     found, passes = horizon_nominals(system, catch, starts, horizons, share=config.library_share, iterations=config.library_iterations,
                                      judge_T=config.judge_T, seed=config.plan_seed + 800, workers=config.workers,
-                                     progress="swing-up: library" if progress else None)
+                                     progress="swing-up: library" if progress else None, speed=SPEED_WEIGHT if config.speed_limits else 0.0)
     short = [nominal for nominal, j in zip(found, passes) if j == 0]
     laws = [(nominals_law(system, short, box, LIBRARY_SPEED_WEIGHT), [horizons[0]])] if short else []
     if any(j > 0 for j in passes):

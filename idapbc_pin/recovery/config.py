@@ -203,6 +203,9 @@ class SwingUpConfig(Settings):
         brings up (`trajectory.library.horizon_nominals`); where they give more, the gate judges a
         second library with every nominal beside the first (`anywhere_stage`); empty: none.
     library_iterations : iterations of the iLQR solves of the library's plans.
+    speed_limits : bound every actuated joint's speed in the nominals, manoeuvres and library plans by
+        its URDF `<limit velocity>`, the motor's rated speed (`trajectory.ilqr`'s speed term; set
+        `[recovery.plan] speed_limits` too for the reach stage's plans).
     workers, ray : as `RecoveryConfig`'s: processes (0: one per core) or Ray tasks; the time only.
     """
 
@@ -240,6 +243,7 @@ class SwingUpConfig(Settings):
     library_horizon: float = 1.0
     library_longer: tuple = (2.0,)
     library_iterations: int = 40
+    speed_limits: bool = False
     workers: int = 0
     ray: str | None = None
 

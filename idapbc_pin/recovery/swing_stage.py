@@ -107,7 +107,7 @@ SWING_LABEL_PLANS = {"q": 0.0, "end_box": 0.0, "alphas": (1.0, 0.3, 0.1), "hold"
 
 def _labels_config(config: SwingUpConfig) -> RecoveryConfig:
     """The reach stage's settings `collect_labels` reads, for swing-up plans."""
-    plan = PlanSettings(horizon=config.horizon, ilqr_iterations=config.ilqr_iterations, **SWING_LABEL_PLANS)
+    plan = PlanSettings(horizon=config.horizon, ilqr_iterations=config.ilqr_iterations, speed_limits=config.speed_limits, **SWING_LABEL_PLANS)
     return RecoveryConfig(plan=plan, judge_T=max(config.judge_T, 8.0), workers=config.workers, ray=config.ray, teacher="run")
 
 

@@ -25,6 +25,7 @@ __all__ = [
     "peak_input",
     "settled",
     "settling_time",
+    "speed_limits",
     "success",
     "window_samples",
 ]
@@ -76,6 +77,13 @@ def rail_limits(system) -> tuple[np.ndarray, np.ndarray]:
     lower = np.array([j.lower if lin else -np.inf for j, lin in zip(system.joints, linear)], dtype=np.float64)
     upper = np.array([j.upper if lin else np.inf for j, lin in zip(system.joints, linear)], dtype=np.float64)
     return lower, upper
+
+
+def speed_limits(system) -> np.ndarray:
+    """(nq,) the URDF speed limits (`<limit velocity>`, rad/s or m/s) of the actuated joints, the
+    motors' rated speeds; +∞ for a joint without one and for every joint the input does not drive."""
+    driven = np.abs(np.asarray(system.B, dtype=np.float64)).sum(axis=1) > 0
+    return np.array([j.speed if d else np.inf for j, d in zip(system.joints, driven)], dtype=np.float64)
 
 
 def on_rail(traj: Trajectory, system) -> np.ndarray:

@@ -5,7 +5,9 @@ A plan is a piecewise-constant input over K knots of dt seconds, planned in z = 
 the stage plans with (`System.forward_dynamics`: Pinocchio's pooled ABA with joint damping, or the
 closed form). Each problem minimises
 
-    Σ_k dt (½ q δ_kᵀ Q δ_k + ½ σ_k δ_kᵀ E δ_k + ½ r ‖u_k/ū‖² + ½ ρ ‖e(q_k)/h‖²) + ½ δ_Kᵀ E δ_K,   δ = wrap(z − z*),  z* = (q*, 0),
+    Σ_k dt (½ q δ_kᵀ Q δ_k + ½ σ_k δ_kᵀ E δ_k + ½ r ‖u_k/ū‖² + ½ ρ ‖e(q_k)/h‖² + ½ ρ_v ‖e_v(v_k)/v̄‖²) + ½ δ_Kᵀ E δ_K,
+
+    δ = wrap(z − z*),  z* = (q*, 0),
 
 with |u_i| ≤ ū_i, Q = diag(1/s²) (s: the training box's half-widths, the momenta's divided by the
 diagonal of M(q*)) and the end cost E = w S_z + b Q: S_z = Tᵀ S T is the Riccati matrix S of LQR at
@@ -17,8 +19,14 @@ and a running state cost pulls a swing towards x* too early. σ_k = 1/`settle` o
 that the plan arrives early and rests at x* with inputs near zero, and the law after it takes over
 without a jump. The rail term keeps a cart on its rail: e is
 how far each linear coordinate lies beyond its URDF limits pulled in by `rail_margin` of the range
-(`sim.metrics.rail_limits`; zero inside them, and for angles), h the range's half-width, ρ `rail`;
-it is summed over every knot, the last included.
+(`sim.metrics.rail_limits`; zero inside them, and for angles), h the range's half-width, ρ `rail`.
+The speed term keeps each motor within its rated speed: e_v is how far each actuated joint's speed
+lies beyond its URDF `<limit velocity>` v̄ pulled in by `speed_margin` of it
+(`sim.metrics.speed_limits`; zero inside, for the joints the input does not drive, and without a
+limit), ρ_v `speed`. A plan that
+whirls a motor at several times its rated speed cannot run on the robot, and a state feedback read
+from such plans drives the robot there too. Both terms are summed over every knot, the last
+included.
 
 The map over a knot is RK4 with `substeps` steps on ż = (v, a(q, v, B u)). Its Jacobians come from
 the continuous field's Jacobian at the knot's start, J = ∂ż/∂z and ∂ż/∂u (central differences of the
@@ -45,9 +53,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.angles import wrap_angles
-from ..sim.metrics import rail_limits
+from ..sim.metrics import rail_limits, speed_limits
 
-__all__ = ["ILQRSettings", "field_jacobians", "ilqr_plans", "plan_cost", "plan_weights", "rollout"]
+__all__ = ["ILQRSettings", "SPEED_WEIGHT", "field_jacobians", "ilqr_plans", "plan_cost", "plan_weights", "rollout"]
+
+#: ρ_v of the speed term where a stage bounds its plans by the motors' rated speeds (`speed_limits` of its config).
+SPEED_WEIGHT = 1e3
 
 #: Relative step of the central differences of the forward dynamics.
 _FD = 1e-6
@@ -68,6 +79,8 @@ class ILQRSettings:
     mu0 : initial Levenberg-Marquardt regularisation of the step (μ I added to V_xx in Q_uu, Q_ux).
     rail : weight ρ of the rail term (module docstring); 0 leaves it out.
     rail_margin : share of a rail's range its limits are pulled in by, on each side.
+    speed : weight ρ_v of the speed term (module docstring); 0 (the default) leaves it out.
+    speed_margin : share of a speed limit it is pulled in by.
     end_box : weight b of the end cost's b Q term (module docstring).
     settle : seconds at the plan's end over which the end cost is also paid per second; 0: none.
     """
@@ -81,6 +94,8 @@ class ILQRSettings:
     mu0: float = 1e-3
     rail: float = 1e3
     rail_margin: float = 0.1
+    speed: float = 0.0
+    speed_margin: float = 0.1
     end_box: float = 0.0
     settle: float = 0.0
 
@@ -177,24 +192,30 @@ def settle_weights(K: int, dt: float, settle: float) -> np.ndarray:
 
 
 def _rail(system, settings: ILQRSettings):
-    """(lower (nq,), upper (nq,), ρ/h² (nq,)) of the rail term: the limits pulled in by the margin
-    (∓∞ where there is no rail), and the weight per coordinate; None when no coordinate has a rail
-    or the term is off."""
+    """(lower (n,), upper (n,), weight (n,)) over z = (q, v) of the rail and speed terms (module
+    docstring): the limits pulled in by their margins (∓∞ where there is none) and the weight per
+    coordinate; None when no coordinate has a limit or both terms are off."""
     lower, upper = rail_limits(system)
-    finite = np.isfinite(lower) & np.isfinite(upper) & (upper > lower)
-    if settings.rail <= 0 or not finite.any():
-        return None
-    half = np.where(finite, 0.5 * (upper - lower), 1.0)
+    rail = np.isfinite(lower) & np.isfinite(upper) & (upper > lower) & (settings.rail > 0)
+    half = np.where(rail, 0.5 * (upper - lower), 1.0)
     pull = settings.rail_margin * 2 * half
-    weight = np.where(finite, settings.rail / half**2, 0.0)
-    return np.where(finite, lower + pull, -np.inf), np.where(finite, upper - pull, np.inf), weight
+    limit = speed_limits(system)
+    speed = np.isfinite(limit) & (settings.speed > 0)
+    vmax = np.where(speed, limit, 1.0)
+    if not (rail.any() or speed.any()):
+        return None
+    top = np.where(speed, (1.0 - settings.speed_margin) * vmax, np.inf)
+    hi = np.concatenate([np.where(rail, upper - pull, np.inf), top])
+    lo = np.concatenate([np.where(rail, lower + pull, -np.inf), -top])
+    weight = np.concatenate([np.where(rail, settings.rail / half**2, 0.0), np.where(speed, settings.speed / vmax**2, 0.0)])
+    return lo, hi, weight
 
 
-def _rail_terms(Zq, rail) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The rail term at positions Zq (..., nq): its value ½ ρ ‖e/h‖² (...), gradient ρ e/h² and
-    Hessian diagonal (ρ/h² where e ≠ 0), both (..., nq)."""
+def _rail_terms(Z, rail) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rail and speed terms at states Z (..., n) in (q, v): their value ½ Σ w_i e_i² (...), w the
+    weights of `_rail` (ρ/h², ρ_v/v̄²), gradient w e and Hessian diagonal (w where e ≠ 0), both (..., n)."""
     lower, upper, weight = rail
-    e = np.maximum(Zq - upper, 0.0) + np.minimum(Zq - lower, 0.0)  # zero where there is no rail (limits ∓∞)
+    e = np.maximum(Z - upper, 0.0) + np.minimum(Z - lower, 0.0)  # zero where there is no rail (limits ∓∞)
     grad = weight * e
     return 0.5 * (e * grad).sum(-1), grad, np.where(e != 0.0, weight, 0.0)
 
@@ -214,7 +235,7 @@ def plan_cost(system, Z: np.ndarray, U: np.ndarray, Q, Sz, r_scaled, dt, rail=No
     if sigma is not None and np.any(sigma):
         run = run + 0.5 * dt * np.einsum("k,nki,ij,nkj->n", sigma, d[:, :-1], Sz, d[:, :-1])
     if rail is not None:
-        run = run + dt * _rail_terms(Z[..., : system.nq], rail)[0].sum(1)
+        run = run + dt * _rail_terms(Z, rail)[0].sum(1)
     cost = run + 0.5 * np.einsum("ni,ij,nj->n", d[:, -1], Sz, d[:, -1])
     return np.where(np.isfinite(cost), cost, np.inf)
 
@@ -272,15 +293,15 @@ def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None, sig
     stayed positive definite (N,). Inputs whose step lands beyond the limit are clamped there and
     get no feedback. `rail`: `_rail`'s triple, or None; `sigma`: `settle_weights` (K,), or None."""
     N, K, m = U.shape
-    n, nq = Z.shape[2], system.nq
+    n = Z.shape[2]
     d = _error(system, Z)
     Vx = d[:, -1] @ Sz
     Vxx = np.broadcast_to(Sz, (N, n, n)).copy()
-    if rail is not None:  # the rail term's gradient and Hessian diagonal (× dt) at every knot, the last included
-        _, g, h = _rail_terms(Z[..., :nq], rail)
-        lx, lxx = dt * g, dt * h  # (N, K + 1, nq)
-        Vx[:, :nq] += lx[:, -1]
-        Vxx[:, range(nq), range(nq)] += lxx[:, -1]
+    if rail is not None:  # the rail and speed terms' gradient and Hessian diagonal (× dt) at every knot, the last included
+        _, g, h = _rail_terms(Z, rail)
+        lx, lxx = dt * g, dt * h  # (N, K + 1, n)
+        Vx += lx[:, -1]
+        Vxx[:, range(n), range(n)] += lxx[:, -1]
     kff, gains = np.zeros((N, K, m)), np.zeros((N, K, m, n))
     ok = np.ones(N, bool)
     R = np.diag(r_scaled) * dt
@@ -292,8 +313,8 @@ def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None, sig
         Qx, Qxx = dt * d[:, k] @ Qk, np.broadcast_to(dt * Qk, (N, n, n))
         if rail is not None:
             Qxx = Qxx.copy()
-            Qx[:, :nq] += lx[:, k]
-            Qxx[:, range(nq), range(nq)] += lxx[:, k]
+            Qx = Qx + lx[:, k]
+            Qxx[:, range(n), range(n)] += lxx[:, k]
         Qx = Qx + np.einsum("nij,nj->ni", At, Vx)
         Qu = dt * U[:, k] * r_scaled + np.einsum("nij,nj->ni", Bt, Vx)
         Qxx = Qxx + At @ Vxx @ Ak

@@ -69,15 +69,16 @@ def library_starts(system, size: int, seed: int) -> np.ndarray:
 
 
 def _chunk_nominals(job) -> list:
-    """Worker: (system, catch, starts (S, n), horizon, share, iterations, judge_T, seed) -> for each
-    start, (U (K, m), Z (K + 1, n) in (q, v)) of its cheapest plan that holds and reaches, or None."""
-    system, catch, starts, horizon, share, iterations, judge_T, seed = job
+    """Worker: (system, catch, starts (S, n), horizon, share, iterations, judge_T, seed, speed) -> for
+    each start, (U (K, m), Z (K + 1, n) in (q, v)) of its cheapest plan that holds and reaches, or None
+    (speed: ρ_v of `ilqr`'s speed term, 0 for none)."""
+    system, catch, starts, horizon, share, iterations, judge_T, seed, speed = job
     bound = share * plan_bound(system)
     K = max(1, int(round(horizon / KNOT)))
     W = warm_starts(K, bound, seed, periods=(WARM_PERIOD,), n_random=WARM_RANDOM)
     w = len(W)
     x0 = np.repeat(starts, w, axis=0)
-    settings = ILQRSettings(iterations=iterations, alphas=ALPHAS, **LIBRARY_COST)
+    settings = ILQRSettings(iterations=iterations, alphas=ALPHAS, speed=speed, **LIBRARY_COST)
     U, Z, gains, cost = ilqr_plans(system, x0, np.tile(W, (len(starts), 1, 1)), bound, K * KNOT, LQRController(system).S, settings)
     held = holds(simulate(system, TrackThenLaw(U, Z, gains, KNOT, catch, system), x0, T=judge_T, dt=PLAN_STEP, stop_settled=True), system)
     held &= reaches(system, Z[:, -1]) & sound(Z)  # the plan itself swings up; a plan that leaves it to the catch is no library entry
@@ -90,12 +91,12 @@ def _chunk_nominals(job) -> list:
 
 
 def library_nominals(system, catch, starts: np.ndarray, horizon: float, share: float, iterations: int, judge_T: float, seed: int,
-                     workers: int = 1, progress: str | None = None) -> list:
+                     workers: int = 1, progress: str | None = None, speed: float = 0.0) -> list:
     """Step 2 of the module docstring: for each start of `starts` (S, n), its nominal (U, Z), or None
     where no plan holds; chunks of `CHUNK` starts in `workers` processes (0: one per core);
     `progress`: the label of a bar over the chunks (None: no bar)."""
     chunks = [starts[i: i + CHUNK] for i in range(0, len(starts), CHUNK)]
-    jobs = [(system, catch, c, float(horizon), float(share), int(iterations), float(judge_T), int(seed) + k) for k, c in enumerate(chunks)]
+    jobs = [(system, catch, c, float(horizon), float(share), int(iterations), float(judge_T), int(seed) + k, float(speed)) for k, c in enumerate(chunks)]
     bar = tqdm(total=len(jobs), desc=progress, unit="chunk", disable=progress is None, dynamic_ncols=True, file=sys.stderr)
     out = []
     for found in process_map(_chunk_nominals, jobs, workers):
@@ -106,7 +107,7 @@ def library_nominals(system, catch, starts: np.ndarray, horizon: float, share: f
 
 
 def horizon_nominals(system, catch, starts: np.ndarray, horizons, share: float, iterations: int, judge_T: float, seed: int,
-                     workers: int = 1, progress: str | None = None) -> tuple[list, list[int]]:
+                     workers: int = 1, progress: str | None = None, speed: float = 0.0) -> tuple[list, list[int]]:
     """Step 2 of the module docstring over several horizons: every start of `starts` (S, n) planned
     with horizons[0] s, then the starts still without a nominal with each further horizon in turn
     (pass j drawing warm starts from seed + `RETRY_SEED`·j). Returns (for each start its nominal
@@ -117,7 +118,7 @@ def horizon_nominals(system, catch, starts: np.ndarray, horizons, share: float, 
         if not todo:
             break
         found = library_nominals(system, catch, starts[todo], horizon, share, iterations, judge_T, seed + RETRY_SEED * j, workers,
-                                 None if progress is None else f"{progress} ({horizon:g} s)")
+                                 None if progress is None else f"{progress} ({horizon:g} s)", speed)
         for s, nominal in zip(todo, found):
             if nominal is not None:
                 out[s], passes[s] = nominal, j

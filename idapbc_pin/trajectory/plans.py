@@ -37,7 +37,7 @@ from ..control.baseline import LQRController
 from ..errors import IdapbcError
 from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
-from .ilqr import ILQRSettings, ilqr_plans
+from .ilqr import SPEED_WEIGHT, ILQRSettings, ilqr_plans
 
 __all__ = ["METHODS", "PLAN_STEP", "PlanSettings", "PlanThenLaw", "TrackThenLaw", "plan_bound", "plan_candidates", "planning_system", "search_plan", "search_plans"]
 
@@ -69,6 +69,8 @@ class PlanSettings:
     end_box : ilqr: weight of the end cost's box term (`ilqr.ILQRSettings.end_box`).
     alphas : ilqr: step sizes of the line search, largest first.
     hold : ilqr: track each candidate with its input held over each knot (`TrackThenLaw`).
+    speed_limits : ilqr: bound each actuated joint's planned speed by its URDF `<limit velocity>`
+        (the speed term of `ilqr`, weight `ilqr.SPEED_WEIGHT`).
     knots : cem: pieces of the piecewise-constant plan.
     population : cem: plans simulated per iteration.
     iterations : cem: cross-entropy iterations.
@@ -84,6 +86,7 @@ class PlanSettings:
     end_box: float = 100.0
     alphas: tuple = REACH_ALPHAS
     hold: bool = True
+    speed_limits: bool = False
     knots: int = 20
     population: int = 48
     iterations: int = 8
@@ -100,9 +103,10 @@ class PlanSettings:
 
     def solver(self, system) -> ILQRSettings:
         """The `ILQRSettings` of the solves for `system`: this plan's iterations (`AUTO_ITERATIONS`
-        by its joints when 0), substeps, running cost, end box and step sizes."""
+        by its joints when 0), substeps, running cost, end box, step sizes and speed term."""
         its = self.ilqr_iterations or AUTO_ITERATIONS[int(system.nq > 2)]
-        return ILQRSettings(iterations=its, substeps=self.substeps, q=self.q, end_box=self.end_box, alphas=tuple(self.alphas))
+        return ILQRSettings(iterations=its, substeps=self.substeps, q=self.q, end_box=self.end_box, alphas=tuple(self.alphas),
+                            speed=SPEED_WEIGHT if self.speed_limits else 0.0)
 
     @property
     def ilqr_knots(self) -> int:

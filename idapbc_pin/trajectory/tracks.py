@@ -4,7 +4,8 @@ time-varying LQR read at the nearest point (`TrackingLaw`): `tracking_laws`.
 1. **Nominals.** iLQR plans (`ilqr.ilqr_plans`) of `SwingUpConfig.horizon` seconds from the exact
    resting posture, with the inputs held to `track_share` of the effort limits (the rest is left to
    the feedback), warm-started from `WARM_PERIODS` sinusoids at four phases and two amplitudes and
-   from `WARM_RANDOM` random steps of 0.2 s. Their cost is `SETTLED`: a running cost on the state
+   from `WARM_RANDOM` random steps of 0.2 s (with `speed_limits`, each motor's planned speed bounded by
+   its URDF rating: `ilqr`'s speed term). Their cost is `SETTLED`: a running cost on the state
    and a stiff one on the input, the end pinned on every coordinate and reached `settle` seconds
    before the end, so that a nominal swings up with little torque and speed, and rests at x* when
    the run's law takes over (the costs of the RealAIGym leaderboard's score). Each plan is tracked
@@ -35,7 +36,7 @@ from ..sim.integrate import DIVERGENCE_BOUND, simulate
 from ..sim.metrics import holds
 from ..sim.states import resting_states
 from .holds import count_holds
-from .ilqr import ILQRSettings, _knot_jacobians, ilqr_plans, plan_weights, rollout
+from .ilqr import SPEED_WEIGHT, ILQRSettings, _knot_jacobians, ilqr_plans, plan_weights, rollout
 from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
 
@@ -81,7 +82,7 @@ def nominal_plans(system, teacher, x_rest: np.ndarray, config) -> list[tuple[np.
     W = warm_starts(K, bound, config.plan_seed)
     x0 = np.repeat(np.atleast_2d(x_rest), len(W), axis=0)
     for cost_terms in (SETTLED, PLAIN):
-        settings = ILQRSettings(iterations=config.track_iterations, alphas=ALPHAS, **cost_terms)
+        settings = ILQRSettings(iterations=config.track_iterations, alphas=ALPHAS, speed=SPEED_WEIGHT if config.speed_limits else 0.0, **cost_terms)
         U, Z, gains, cost = ilqr_plans(system, x0, W, bound, K * KNOT, LQRController(system).S, settings)
         tracked = TrackThenLaw(U, Z, gains, KNOT, teacher, system, hold=True)  # each input held over its knot, as the plan was rolled out
         held = holds(simulate(system, tracked, x0, T=config.judge_T, dt=PLAN_STEP, stop_settled=False), system) & sound(Z)
