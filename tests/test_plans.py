@@ -35,7 +35,7 @@ from idapbc_pin.model.angles import wrap_angles
 from idapbc_pin.recovery import stage as stage_module
 from idapbc_pin.trajectory import ilqr as ilqr_module
 from idapbc_pin.trajectory.chunks import CHUNKS_DIR, ChunkStore, chunk_key
-from idapbc_pin.trajectory.ilqr import (SPEED_WEIGHT, ILQRSettings, _knot_jacobians, _rail, _rail_terms, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout,
+from idapbc_pin.trajectory.ilqr import (SPEED_WEIGHT, ILQRSettings, _knot_jacobians, _limit_terms, _state_limits, field_jacobians, ilqr_plans, plan_cost, plan_weights, rollout,
                                       settle_weights)
 from idapbc_pin.errors import IdapbcError
 from idapbc_pin.trajectory.plans import AUTO_ITERATIONS, PERIODS, PLAN_STEP, PlanSettings, TrackThenLaw, plan_bound, plan_candidates
@@ -195,20 +195,20 @@ def test_the_rail_term_keeps_a_plan_on_the_rail_where_a_plan_without_it_runs_off
 
 def test_the_rail_and_speed_terms_gradient_is_that_of_their_value():
     system = ip.load_system("cartpole")  # rail ±5 m, slider (driven) 10 m/s, pole 30 rad/s (not driven)
-    np.testing.assert_allclose(_rail(system, ILQRSettings())[1], [4.0, np.inf, np.inf, np.inf])  # the speed term is off by default
-    rail = _rail(system, ILQRSettings(speed=SPEED_WEIGHT))
+    np.testing.assert_allclose(_state_limits(system, ILQRSettings())[1], [4.0, np.inf, np.inf, np.inf])  # the speed term is off by default
+    rail = _state_limits(system, ILQRSettings(speed=SPEED_WEIGHT))
     np.testing.assert_allclose(rail[0], [-4.0, -np.inf, -9.0, -np.inf])  # ±5 m pulled in by a tenth of the range, 10 m/s by a tenth
     np.testing.assert_allclose(rail[1], [4.0, np.inf, 9.0, np.inf])
     z = np.random.default_rng(0).uniform(-12, 12, (50, 4))
-    value, grad, hess = _rail_terms(z, rail)
+    value, grad, hess = _limit_terms(z, rail)
     h = 1e-6
-    fd = np.stack([(_rail_terms(z + h * e, rail)[0] - _rail_terms(z - h * e, rail)[0]) / (2 * h) for e in np.eye(4)], axis=1)
+    fd = np.stack([(_limit_terms(z + h * e, rail)[0] - _limit_terms(z - h * e, rail)[0]) / (2 * h) for e in np.eye(4)], axis=1)
     np.testing.assert_allclose(grad, fd, atol=1e-5)
     inside = (np.abs(z[:, 0]) < 4.0) & (np.abs(z[:, 2]) < 9.0)
     assert (value > 0).sum() > 5 and np.all(value[inside] == 0.0) and np.all(grad[:, [1, 3]] == 0.0)
     np.testing.assert_array_equal(hess[:, 0] > 0, np.abs(z[:, 0]) > 4.0)
     np.testing.assert_array_equal(hess[:, 2] > 0, np.abs(z[:, 2]) > 9.0)
-    assert _rail(ip.load_system("acrobot"), ILQRSettings()) is None and _rail(ip.load_system("acrobot"), ILQRSettings(speed=SPEED_WEIGHT)) is not None
+    assert _state_limits(ip.load_system("acrobot"), ILQRSettings()) is None and _state_limits(ip.load_system("acrobot"), ILQRSettings(speed=SPEED_WEIGHT)) is not None
 
 
 def test_speed_limits_are_the_urdf_s_on_the_driven_joints_only():

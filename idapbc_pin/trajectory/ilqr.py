@@ -23,10 +23,9 @@ how far each linear coordinate lies beyond its URDF limits pulled in by `rail_ma
 The speed term keeps each motor within its rated speed: e_v is how far each actuated joint's speed
 lies beyond its URDF `<limit velocity>` v̄ pulled in by `speed_margin` of it
 (`sim.metrics.speed_limits`; zero inside, for the joints the input does not drive, and without a
-limit), ρ_v `speed`. A plan that
-whirls a motor at several times its rated speed cannot run on the robot, and a state feedback read
-from such plans drives the robot there too. Both terms are summed over every knot, the last
-included.
+limit), ρ_v `speed`. A plan that whirls a motor at several times its rated speed cannot run on the
+robot, and a state feedback read from such plans drives the robot there too. Both terms are summed
+over every knot, the last included.
 
 The map over a knot is RK4 with `substeps` steps on ż = (v, a(q, v, B u)). Its Jacobians come from
 the continuous field's Jacobian at the knot's start, J = ∂ż/∂z and ∂ż/∂u (central differences of the
@@ -191,7 +190,7 @@ def settle_weights(K: int, dt: float, settle: float) -> np.ndarray:
     return np.where(np.arange(K) * dt >= K * dt - settle - 1e-9, 1.0 / settle, 0.0)
 
 
-def _rail(system, settings: ILQRSettings):
+def _state_limits(system, settings: ILQRSettings):
     """(lower (n,), upper (n,), weight (n,)) over z = (q, v) of the rail and speed terms (module
     docstring): the limits pulled in by their margins (∓∞ where there is none) and the weight per
     coordinate; None when no coordinate has a limit or both terms are off."""
@@ -211,9 +210,9 @@ def _rail(system, settings: ILQRSettings):
     return lo, hi, weight
 
 
-def _rail_terms(Z, rail) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _limit_terms(Z, rail) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rail and speed terms at states Z (..., n) in (q, v): their value ½ Σ w_i e_i² (...), w the
-    weights of `_rail` (ρ/h², ρ_v/v̄²), gradient w e and Hessian diagonal (w where e ≠ 0), both (..., n)."""
+    weights of `_state_limits` (ρ/h², ρ_v/v̄²), gradient w e and Hessian diagonal (w where e ≠ 0), both (..., n)."""
     lower, upper, weight = rail
     e = np.maximum(Z - upper, 0.0) + np.minimum(Z - lower, 0.0)  # zero where there is no rail (limits ∓∞)
     grad = weight * e
@@ -228,14 +227,14 @@ def _error(system, Z):
 
 def plan_cost(system, Z: np.ndarray, U: np.ndarray, Q, Sz, r_scaled, dt, rail=None, sigma=None) -> np.ndarray:
     """The plans' costs (N,) for states Z (N, K + 1, n) in (q, v) and inputs U (N, K, m) (module
-    docstring; Sz: the end cost E); `rail`: `_rail`'s triple, or None for no rail term; `sigma`: the
+    docstring; Sz: the end cost E); `rail`: `_state_limits`'s triple, or None for no rail or speed term; `sigma`: the
     `settle_weights` (K,), or None for none."""
     d = _error(system, Z)
     run = 0.5 * dt * (np.einsum("nki,ij,nkj->n", d[:, :-1], Q, d[:, :-1]) + np.einsum("nki,i,nki->n", U, r_scaled, U))
     if sigma is not None and np.any(sigma):
         run = run + 0.5 * dt * np.einsum("k,nki,ij,nkj->n", sigma, d[:, :-1], Sz, d[:, :-1])
     if rail is not None:
-        run = run + dt * _rail_terms(Z, rail)[0].sum(1)
+        run = run + dt * _limit_terms(Z, rail)[0].sum(1)
     cost = run + 0.5 * np.einsum("ni,ij,nj->n", d[:, -1], Sz, d[:, -1])
     return np.where(np.isfinite(cost), cost, np.inf)
 
@@ -256,7 +255,7 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
     N, K, m = U0.shape
     dt = horizon / K
     Q, Sz, r_scaled = plan_weights(system, S, settings, bound)
-    rail = _rail(system, settings)
+    rail = _state_limits(system, settings)
     sigma = settle_weights(K, dt, settings.settle)
     q0, v0 = system.split(x0)
     U = np.clip(U0, -bound, bound)
@@ -291,14 +290,14 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
 def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None, sigma=None):
     """The backward pass: feed-forward k (N, K, m), gains (N, K, m, n), and which problems' passes
     stayed positive definite (N,). Inputs whose step lands beyond the limit are clamped there and
-    get no feedback. `rail`: `_rail`'s triple, or None; `sigma`: `settle_weights` (K,), or None."""
+    get no feedback. `rail`: `_state_limits`'s triple, or None; `sigma`: `settle_weights` (K,), or None."""
     N, K, m = U.shape
     n = Z.shape[2]
     d = _error(system, Z)
     Vx = d[:, -1] @ Sz
     Vxx = np.broadcast_to(Sz, (N, n, n)).copy()
     if rail is not None:  # the rail and speed terms' gradient and Hessian diagonal (× dt) at every knot, the last included
-        _, g, h = _rail_terms(Z, rail)
+        _, g, h = _limit_terms(Z, rail)
         lx, lxx = dt * g, dt * h  # (N, K + 1, n)
         Vx += lx[:, -1]
         Vxx[:, range(n), range(n)] += lxx[:, -1]
