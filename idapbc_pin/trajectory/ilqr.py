@@ -210,10 +210,10 @@ def _state_limits(system, settings: ILQRSettings):
     return lo, hi, weight
 
 
-def _limit_terms(Z, rail) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _limit_terms(Z, limits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rail and speed terms at states Z (..., n) in (q, v): their value ½ Σ w_i e_i² (...), w the
     weights of `_state_limits` (ρ/h², ρ_v/v̄²), gradient w e and Hessian diagonal (w where e ≠ 0), both (..., n)."""
-    lower, upper, weight = rail
+    lower, upper, weight = limits
     e = np.maximum(Z - upper, 0.0) + np.minimum(Z - lower, 0.0)  # zero where there is no rail (limits ∓∞)
     grad = weight * e
     return 0.5 * (e * grad).sum(-1), grad, np.where(e != 0.0, weight, 0.0)
@@ -225,16 +225,16 @@ def _error(system, Z):
     return wrap_angles(Z - z_star, np.asarray(system.angle_mask, bool))
 
 
-def plan_cost(system, Z: np.ndarray, U: np.ndarray, Q, Sz, r_scaled, dt, rail=None, sigma=None) -> np.ndarray:
+def plan_cost(system, Z: np.ndarray, U: np.ndarray, Q, Sz, r_scaled, dt, limits=None, sigma=None) -> np.ndarray:
     """The plans' costs (N,) for states Z (N, K + 1, n) in (q, v) and inputs U (N, K, m) (module
-    docstring; Sz: the end cost E); `rail`: `_state_limits`'s triple, or None for no rail or speed term; `sigma`: the
+    docstring; Sz: the end cost E); `limits`: `_state_limits`'s triple, or None for no rail or speed term; `sigma`: the
     `settle_weights` (K,), or None for none."""
     d = _error(system, Z)
     run = 0.5 * dt * (np.einsum("nki,ij,nkj->n", d[:, :-1], Q, d[:, :-1]) + np.einsum("nki,i,nki->n", U, r_scaled, U))
     if sigma is not None and np.any(sigma):
         run = run + 0.5 * dt * np.einsum("k,nki,ij,nkj->n", sigma, d[:, :-1], Sz, d[:, :-1])
-    if rail is not None:
-        run = run + dt * _limit_terms(Z, rail)[0].sum(1)
+    if limits is not None:
+        run = run + dt * _limit_terms(Z, limits)[0].sum(1)
     cost = run + 0.5 * np.einsum("ni,ij,nj->n", d[:, -1], Sz, d[:, -1])
     return np.where(np.isfinite(cost), cost, np.inf)
 
@@ -255,13 +255,13 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
     N, K, m = U0.shape
     dt = horizon / K
     Q, Sz, r_scaled = plan_weights(system, S, settings, bound)
-    rail = _state_limits(system, settings)
+    limits = _state_limits(system, settings)
     sigma = settle_weights(K, dt, settings.settle)
     q0, v0 = system.split(x0)
     U = np.clip(U0, -bound, bound)
     Z = rollout(system, np.concatenate([q0, v0], axis=1), U, dt, settings.substeps)
     n = Z.shape[2]
-    cost = plan_cost(system, Z, U, Q, Sz, r_scaled, dt, rail, sigma)
+    cost = plan_cost(system, Z, U, Q, Sz, r_scaled, dt, limits, sigma)
     mu = np.full(N, settings.mu0)
     alphas = np.asarray(settings.alphas)
     L = len(alphas)
@@ -271,13 +271,13 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
         if moved.any():  # a problem that took no step keeps its Jacobians: the same rows give the same arrays
             Am, Bm = _knot_jacobians(system, Z[moved, :-1].reshape(-1, n), U[moved].reshape(-1, m), dt)
             A[moved], B[moved] = Am.reshape(-1, K, n, n), Bm.reshape(-1, K, n, m)
-        kff, gains, ok = _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail, sigma)
+        kff, gains, ok = _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, limits, sigma)
         if it == settings.iterations:
             break
         # batched line search: every problem tries every alpha in one rollout
         rep = lambda a: np.repeat(a[:, None], L, 1).reshape((N * L,) + a.shape[1:])  # noqa: E731
         Zn, Un = _forward(system, rep(Z), rep(U), (alphas[None, :, None, None] * kff[:, None]).reshape(N * L, K, m), rep(gains), bound, dt, settings.substeps)
-        cn = plan_cost(system, Zn, Un, Q, Sz, r_scaled, dt, rail, sigma).reshape(N, L)
+        cn = plan_cost(system, Zn, Un, Q, Sz, r_scaled, dt, limits, sigma).reshape(N, L)
         best = np.argmin(cn, axis=1)
         better = ok & (cn[np.arange(N), best] < cost)
         idx = (np.arange(N) * L + best)[better]
@@ -287,17 +287,17 @@ def _solve(system, x0, U0, bound, horizon, S, settings):
     return U, Z, gains, cost
 
 
-def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None, sigma=None):
+def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, limits=None, sigma=None):
     """The backward pass: feed-forward k (N, K, m), gains (N, K, m, n), and which problems' passes
     stayed positive definite (N,). Inputs whose step lands beyond the limit are clamped there and
-    get no feedback. `rail`: `_state_limits`'s triple, or None; `sigma`: `settle_weights` (K,), or None."""
+    get no feedback. `limits`: `_state_limits`'s triple, or None; `sigma`: `settle_weights` (K,), or None."""
     N, K, m = U.shape
     n = Z.shape[2]
     d = _error(system, Z)
     Vx = d[:, -1] @ Sz
     Vxx = np.broadcast_to(Sz, (N, n, n)).copy()
-    if rail is not None:  # the rail and speed terms' gradient and Hessian diagonal (× dt) at every knot, the last included
-        _, g, h = _limit_terms(Z, rail)
+    if limits is not None:  # the rail and speed terms' gradient and Hessian diagonal (× dt) at every knot, the last included
+        _, g, h = _limit_terms(Z, limits)
         lx, lxx = dt * g, dt * h  # (N, K + 1, n)
         Vx += lx[:, -1]
         Vxx[:, range(n), range(n)] += lxx[:, -1]
@@ -310,7 +310,7 @@ def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, rail=None, sig
         At, Bt = np.swapaxes(Ak, 1, 2), np.swapaxes(Bk, 1, 2)
         Qk = Q if sigma is None or not sigma[k] else Q + sigma[k] * Sz
         Qx, Qxx = dt * d[:, k] @ Qk, np.broadcast_to(dt * Qk, (N, n, n))
-        if rail is not None:
+        if limits is not None:
             Qxx = Qxx.copy()
             Qx = Qx + lx[:, k]
             Qxx[:, range(n), range(n)] += lxx[:, k]
