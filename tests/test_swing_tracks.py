@@ -324,19 +324,20 @@ def test_a_longer_horizon_plans_only_the_starts_no_shorter_plan_brings_up(pendub
     starts = np.arange(5.0)[:, None] * np.ones(pendubot.n)
     calls = []
 
-    def planned(system, catch, x, horizon, share, iterations, judge_T, seed, workers, progress, speed=0.0):
+    def planned(system, catch, x, horizon, share, iterations, judge_T, seed, workers, progress, speed=0.0, refine=0, tip=0.0):
         calls.append((horizon, x[:, 0].tolist(), seed))
+        assert (refine, tip) == (5, 0.9)  # every pass refines and judges the end alike
         reached = {1.0: (1, 3), 2.0: (0, 3, 4), 3.0: (0, 2)}[horizon]  # the starts (by index) a plan of each horizon brings up
         return [(horizon, int(s)) if int(s) in reached else None for s in x[:, 0]]
 
     monkeypatch.setattr(library, "library_nominals", planned)
-    found, passes = library.horizon_nominals(pendubot, None, starts, (1.0, 2.0, 3.0), 1.0, 1, 3.0, seed=7)
+    found, passes = library.horizon_nominals(pendubot, None, starts, (1.0, 2.0, 3.0), 1.0, 1, 3.0, seed=7, refine=5, tip=0.9)
     assert found == [(2.0, 0), (1.0, 1), (3.0, 2), (1.0, 3), (2.0, 4)] and passes == [1, 0, 2, 0, 1]
     assert calls == [(1.0, [0, 1, 2, 3, 4], 7), (2.0, [0, 2, 4], 7 + library.RETRY_SEED), (3.0, [2], 7 + 2 * library.RETRY_SEED)]
     calls.clear()
-    assert library.horizon_nominals(pendubot, None, starts[[1, 3]], (1.0, 2.0), 1.0, 1, 3.0, seed=7) == ([(1.0, 1), (1.0, 3)], [0, 0])
+    assert library.horizon_nominals(pendubot, None, starts[[1, 3]], (1.0, 2.0), 1.0, 1, 3.0, seed=7, refine=5, tip=0.9) == ([(1.0, 1), (1.0, 3)], [0, 0])
     assert len(calls) == 1  # every start brought up: no longer plans
-    assert library.horizon_nominals(pendubot, None, starts[[2]], (1.0, 2.0), 1.0, 1, 3.0, seed=7) == ([None], [-1])
+    assert library.horizon_nominals(pendubot, None, starts[[2]], (1.0, 2.0), 1.0, 1, 3.0, seed=7, refine=5, tip=0.9) == ([None], [-1])
 
 
 def test_the_tracking_laws_tree_finds_the_same_nearest_point_as_every_point():
@@ -448,11 +449,28 @@ def test_a_library_plan_that_leaves_the_swing_up_to_its_catch_is_no_nominal(monk
 
     wheel = ip.load_system("reaction_wheel")
     start = library.library_starts(wheel, 0, seed=0)  # the resting posture alone: hanging at rest
-    job = (wheel, EnergyPumpLaw(wheel), start, 0.1, 1.0, 2, 8.0, 0, 0.0)
+    job = (wheel, EnergyPumpLaw(wheel), start, 0.1, 1.0, 2, 0, 0.0, 8.0, 0, 0.0)
     assert library._chunk_nominals(job) == [None]
     monkeypatch.setattr(library, "reaches", lambda system, z_end: np.ones(len(z_end), bool))
     (found,) = library._chunk_nominals(job)
     assert found is not None and not reaches(wheel, found[1][-1:])[0]
+
+
+def test_refining_a_starts_cheapest_plans_brings_their_end_nearer_x_star():
+    """`_chunk_nominals`' refine: iLQR stopped after a few iterations leaves a plan's end short of its
+    pin at x*; further iterations of each start's cheapest plans bring the nominal's end nearer (the
+    reaction wheel from the first of three postures at rest: 3 iterations, then 30 more)."""
+    from idapbc_pin.control.energy_pump import EnergyPumpLaw
+    from idapbc_pin.model.angles import wrap_angles
+    from idapbc_pin.trajectory import library
+
+    wheel = ip.load_system("reaction_wheel")
+    starts = library.library_starts(wheel, 3, seed=0)[1:2]
+    ends = []
+    for refine in (0, 30):
+        (found,) = library._chunk_nominals((wheel, EnergyPumpLaw(wheel), starts, 1.0, 0.6, 3, refine, 0.0, 8.0, 0, 0.0))
+        ends.append(np.abs(wrap_angles(found[1][-1, :wheel.nq] - wheel.x_star[:wheel.nq], np.ones(wheel.nq, bool))).max())
+    assert ends[1] < ends[0] - 0.1
 
 
 def test_a_plan_whose_rollout_blew_up_is_no_nominal_though_its_catch_holds(monkeypatch):

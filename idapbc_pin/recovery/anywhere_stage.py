@@ -76,7 +76,8 @@ def library_law(system, catch, box: np.ndarray, config: SwingUpConfig, progress:
     horizons = (config.library_horizon, *config.library_longer)
     found, passes = horizon_nominals(system, catch, starts, horizons, share=config.library_share, iterations=config.library_iterations,
                                      judge_T=config.judge_T, seed=config.plan_seed + 800, workers=config.workers,
-                                     progress="swing-up: library" if progress else None, speed=SPEED_WEIGHT if config.speed_limits else 0.0)
+                                     progress="swing-up: library" if progress else None, speed=SPEED_WEIGHT if config.speed_limits else 0.0,
+                                     refine=config.library_refine, tip=config.library_tip)
     short = [nominal for nominal, j in zip(found, passes) if j == 0]
     laws = [(nominals_law(system, short, box, LIBRARY_SPEED_WEIGHT), [horizons[0]])] if short else []
     if any(j > 0 for j in passes):

@@ -203,6 +203,11 @@ class SwingUpConfig(Settings):
         brings up (`trajectory.library.horizon_nominals`); where they give more, the gate judges a
         second library with every nominal beside the first (`anywhere_stage`); empty: none.
     library_iterations : iterations of the iLQR solves of the library's plans.
+    library_refine : further iterations of each start's two cheapest plans (0: none): the end pin at
+        x* takes more iterations than the swing (`trajectory.library`).
+    library_tip : the tip's normalised height (0 hanging, 1 at x*; `sim.leaderboard.tip_share`) at
+        which each library plan must end (0: not read): a plan cut short of x* leaves the last of its
+        swing-up to the catch, which is slow.
     speed_limits : bound every actuated joint's speed in the nominals, manoeuvres and library plans by
         its URDF `<limit velocity>`, the motor's rated speed (`trajectory.ilqr`'s speed term; set
         `[recovery.plan] speed_limits` too for the reach stage's plans).
@@ -243,6 +248,8 @@ class SwingUpConfig(Settings):
     library_horizon: float = 1.0
     library_longer: tuple = (2.0,)
     library_iterations: int = 40
+    library_refine: int = 160
+    library_tip: float = 0.98
     speed_limits: bool = False
     workers: int = 0
     ray: str | None = None
@@ -250,11 +257,12 @@ class SwingUpConfig(Settings):
     def __post_init__(self):
         ok = (all(0 < r <= 1 for r in self.inner_scales) and all(0 < r < float("inf") for r in self.funnels) and 0 < self.track_share <= 1 and 0 < self.library_share <= 1
               and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations, self.library_iterations) >= 1
-              and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library) >= 0
+              and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library, self.library_refine) >= 0
+              and 0 <= self.library_tip <= 1
               and 0 < self.library_horizon <= self.judge_T - 2.0 and all(0 < h <= self.judge_T - 2.0 for h in self.library_longer) and self.time_margin >= 0
               and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10 and self.kept_momenta >= 0
               and all(0 < h <= self.judge_T - 2.0 for h in self.manoeuvre_horizons))
         if not ok:
             raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch, ilqr_iterations, track_iterations and library_iterations "
-                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales, track_share and library_share in (0, 1], funnels finite and > 0, circle in [0, 10], kept_momenta ≥ 0, horizon, "
+                              "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales, track_share and library_share in (0, 1], library_tip in [0, 1], funnels finite and > 0, circle in [0, 10], kept_momenta ≥ 0, horizon, "
                               "manoeuvre_horizons, library_horizon and library_longer > 0 and judge_T ≥ each of them + 2 s. Fix: pass valid values.")

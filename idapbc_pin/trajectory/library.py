@@ -35,6 +35,7 @@ time-varying LQR along it, every point of every path read at the nearest point, 
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -42,6 +43,7 @@ from tqdm.auto import tqdm
 from .._parallel import process_map
 from ..control.baseline import LQRController
 from ..sim.integrate import simulate
+from ..sim.leaderboard import tip_share
 from ..sim.metrics import holds
 from ..sim.states import circle_states
 from .ilqr import ILQRSettings, ilqr_plans
@@ -49,7 +51,7 @@ from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
 from .tracks import ALPHAS, KNOT, reaches, sound, tracking_law, tvlqr_gains, warm_starts
 
-__all__ = ["CHUNK", "LIBRARY_COST", "RETRY_SEED", "WARM_PERIOD", "WARM_RANDOM", "horizon_nominals", "library_nominals", "library_starts", "nominals_law",
+__all__ = ["CHUNK", "LIBRARY_COST", "REFINE_KEEP", "RETRY_SEED", "WARM_PERIOD", "WARM_RANDOM", "horizon_nominals", "library_nominals", "library_starts", "nominals_law",
            "paths_law"]
 
 #: The library's plan cost (`ilqr.ILQRSettings` fields): time priced above torque, at rest at x* at the end.
@@ -60,6 +62,8 @@ WARM_PERIOD, WARM_RANDOM = 1.0, 2
 CHUNK = 16
 #: Seed offset of each further horizon's warm starts (`horizon_nominals`).
 RETRY_SEED = 1000
+#: Plans of each start (its cheapest) that the refining iterations solve further (`library_nominals`' `refine`).
+REFINE_KEEP = 2
 
 
 def library_starts(system, size: int, seed: int) -> np.ndarray:
@@ -69,19 +73,27 @@ def library_starts(system, size: int, seed: int) -> np.ndarray:
 
 
 def _chunk_nominals(job) -> list:
-    """Worker: (system, catch, starts (S, n), horizon, share, iterations, judge_T, seed, speed) -> for
-    each start, (U (K, m), Z (K + 1, n) in (q, v)) of its cheapest plan that holds and reaches, or None
-    (speed: ρ_v of `ilqr`'s speed term, 0 for none)."""
-    system, catch, starts, horizon, share, iterations, judge_T, seed, speed = job
+    """Worker: (system, catch, starts (S, n), horizon, share, iterations, refine, tip, judge_T, seed,
+    speed) -> for each start, (U (K, m), Z (K + 1, n) in (q, v)) of its cheapest plan that holds and
+    reaches, or None (refine: further iterations of each start's `REFINE_KEEP` cheapest plans; tip:
+    the tip's normalised height each plan must end at, 0 for none; speed: ρ_v of `ilqr`'s speed
+    term, 0 for none)."""
+    system, catch, starts, horizon, share, iterations, refine, tip, judge_T, seed, speed = job
     bound = share * plan_bound(system)
     K = max(1, int(round(horizon / KNOT)))
     W = warm_starts(K, bound, seed, periods=(WARM_PERIOD,), n_random=WARM_RANDOM)
     w = len(W)
     x0 = np.repeat(starts, w, axis=0)
     settings = ILQRSettings(iterations=iterations, alphas=ALPHAS, speed=speed, **LIBRARY_COST)
-    U, Z, gains, cost = ilqr_plans(system, x0, np.tile(W, (len(starts), 1, 1)), bound, K * KNOT, LQRController(system).S, settings)
+    S = LQRController(system).S
+    U, Z, gains, cost = ilqr_plans(system, x0, np.tile(W, (len(starts), 1, 1)), bound, K * KNOT, S, settings)
+    if refine > 0:  # the cheapest plans of each start solved further: where the end pin is hard to reach, 40 iterations stop short of it
+        best = np.sort(np.argsort(cost.reshape(len(starts), w), axis=1, kind="stable")[:, :REFINE_KEEP] + w * np.arange(len(starts))[:, None], axis=1).ravel()
+        U[best], Z[best], gains[best], cost[best] = ilqr_plans(system, x0[best], U[best], bound, K * KNOT, S, replace(settings, iterations=refine))
     held = holds(simulate(system, TrackThenLaw(U, Z, gains, KNOT, catch, system), x0, T=judge_T, dt=PLAN_STEP, stop_settled=True), system)
     held &= reaches(system, Z[:, -1]) & sound(Z)  # the plan itself swings up; a plan that leaves it to the catch is no library entry
+    if tip > 0:  # and ends up: a plan cut short of its pin would leave the last of the swing-up to the catch
+        held &= tip_share(system, Z[:, -1, :system.nq]) >= tip
     out = []
     for s in range(len(starts)):
         rows = [i for i in range(s * w, (s + 1) * w) if held[i]]
@@ -91,12 +103,12 @@ def _chunk_nominals(job) -> list:
 
 
 def library_nominals(system, catch, starts: np.ndarray, horizon: float, share: float, iterations: int, judge_T: float, seed: int,
-                     workers: int = 1, progress: str | None = None, speed: float = 0.0) -> list:
+                     workers: int = 1, progress: str | None = None, speed: float = 0.0, refine: int = 0, tip: float = 0.0) -> list:
     """Step 2 of the module docstring: for each start of `starts` (S, n), its nominal (U, Z), or None
     where no plan holds; chunks of `CHUNK` starts in `workers` processes (0: one per core);
     `progress`: the label of a bar over the chunks (None: no bar)."""
     chunks = [starts[i: i + CHUNK] for i in range(0, len(starts), CHUNK)]
-    jobs = [(system, catch, c, float(horizon), float(share), int(iterations), float(judge_T), int(seed) + k, float(speed)) for k, c in enumerate(chunks)]
+    jobs = [(system, catch, c, float(horizon), float(share), int(iterations), int(refine), float(tip), float(judge_T), int(seed) + k, float(speed)) for k, c in enumerate(chunks)]
     bar = tqdm(total=len(jobs), desc=progress, unit="chunk", disable=progress is None, dynamic_ncols=True, file=sys.stderr)
     out = []
     for found in process_map(_chunk_nominals, jobs, workers):
@@ -107,7 +119,8 @@ def library_nominals(system, catch, starts: np.ndarray, horizon: float, share: f
 
 
 def horizon_nominals(system, catch, starts: np.ndarray, horizons, share: float, iterations: int, judge_T: float, seed: int,
-                     workers: int = 1, progress: str | None = None, speed: float = 0.0) -> tuple[list, list[int]]:
+                     workers: int = 1, progress: str | None = None, speed: float = 0.0, refine: int = 0,
+                     tip: float = 0.0) -> tuple[list, list[int]]:
     """Step 2 of the module docstring over several horizons: every start of `starts` (S, n) planned
     with horizons[0] s, then the starts still without a nominal with each further horizon in turn
     (pass j drawing warm starts from seed + `RETRY_SEED`·j). Returns (for each start its nominal
@@ -118,7 +131,7 @@ def horizon_nominals(system, catch, starts: np.ndarray, horizons, share: float, 
         if not todo:
             break
         found = library_nominals(system, catch, starts[todo], horizon, share, iterations, judge_T, seed + RETRY_SEED * j, workers,
-                                 None if progress is None else f"{progress} ({horizon:g} s)", speed)
+                                 None if progress is None else f"{progress} ({horizon:g} s)", speed, refine, tip)
         for s, nominal in zip(todo, found):
             if nominal is not None:
                 out[s], passes[s] = nominal, j
