@@ -473,6 +473,55 @@ def test_refining_a_starts_cheapest_plans_brings_their_end_nearer_x_star():
     assert ends[1] < ends[0] - 0.1
 
 
+def test_only_the_starts_whose_plans_all_end_short_of_the_tip_are_refined(monkeypatch):
+    """`_chunk_nominals`' refine with a tip: the second iLQR solve takes the `REFINE_KEEP` cheapest
+    plans of exactly the starts none of whose first plans ends with the tip at `tip`, and no other."""
+    from idapbc_pin.control.energy_pump import EnergyPumpLaw
+    from idapbc_pin.sim.leaderboard import tip_share
+    from idapbc_pin.trajectory import library
+
+    wheel = ip.load_system("reaction_wheel")
+    starts = library.library_starts(wheel, 5, seed=0)
+    calls, solve = [], library.ilqr_plans
+
+    def spy(system, x0, U0, *args, **kwargs):
+        out = solve(system, x0, U0, *args, **kwargs)
+        calls.append((x0.copy(), out[1]))
+        return out
+
+    monkeypatch.setattr(library, "ilqr_plans", spy)
+    library._chunk_nominals((wheel, EnergyPumpLaw(wheel), starts, 1.0, 0.6, 3, 4, 0.98, 8.0, 0, 0.0))
+    (x_first, Z_first), (x_refined, _) = calls
+    w = len(x_first) // len(starts)
+    short = (tip_share(wheel, Z_first[:, -1, :wheel.nq]) < 0.98).reshape(len(starts), w).all(axis=1)
+    assert 0 < short.sum() < len(starts)  # the case holds both kinds of start
+    np.testing.assert_array_equal(x_refined, np.repeat(starts[short], library.REFINE_KEEP, axis=0))
+
+
+def test_a_library_plan_cut_short_of_x_star_is_no_nominal_where_its_tip_must_end_up():
+    """`_chunk_nominals`' tip: the reaction wheel's 1-s plan from a posture at rest, stopped after 3
+    iterations, ends short of x* with the tip below 0.98 of its upright height; its catch holds,
+    so without the rule it is a nominal, and with `library_tip` 0.98 it is not."""
+    from idapbc_pin.control.energy_pump import EnergyPumpLaw
+    from idapbc_pin.sim.leaderboard import tip_share
+    from idapbc_pin.trajectory import library
+
+    wheel = ip.load_system("reaction_wheel")
+    starts = library.library_starts(wheel, 3, seed=0)[1:2]
+    job = lambda tip: (wheel, EnergyPumpLaw(wheel), starts, 1.0, 0.6, 3, 0, tip, 8.0, 0, 0.0)  # noqa: E731
+    (found,) = library._chunk_nominals(job(0.0))
+    assert found is not None and tip_share(wheel, found[1][-1, :wheel.nq]) < 0.98
+    assert library._chunk_nominals(job(0.98)) == [None]
+
+
+@pytest.mark.parametrize("field, value", [("library_tip", 1.5), ("library_tip", -0.1), ("library_refine", -1)])
+def test_a_library_tip_outside_0_1_or_a_negative_refine_is_a_bad_setting(field, value):
+    from idapbc_pin.recovery.config import SwingUpConfig
+
+    with pytest.raises(ip.IdapbcError, match="bad swing-up setting.*library_tip in \\[0, 1\\]"):
+        SwingUpConfig(**{field: value})
+
+
 def test_a_plan_whose_rollout_blew_up_is_no_nominal_though_its_catch_holds(monkeypatch):
     """iLQR can hand back a rollout that blew up (states of 1e55); its inputs, clipped to the limits,
     can still leave a catch that swings up by itself to hold at x*, and its time-varying LQR then

@@ -13,9 +13,12 @@ many starts instead, each with a short horizon:
    input, the end pinned on every coordinate and reached `settle` s before the end. Each plan is
    tracked by its own iLQR gains and caught by `catch` (the swing-up stage's teacher); of a start's
    plans that hold at x* over `judge_T` and swing up by themselves (their last state within the
-   training box's angles of x*: `tracks.reaches`), the cheapest is its nominal. A plan that leaves
-   the swing-up to the catch would pull the law's nearest knots towards where it ends, away from
-   x*. The starts left without a nominal are planned again with each further horizon in turn: a
+   training box's angles of x*: `tracks.reaches`; with `tip`, the tip's normalised height at
+   least `tip` there), the cheapest is its nominal. A plan that leaves the swing-up to the catch
+   would pull the law's nearest knots towards where it ends, away from x*. The swing converges in
+   a few tens of iterations, the pin at x* takes more: with `refine`, where no plan of a start ends
+   with its tip at `tip`, its `REFINE_KEEP` cheapest are solved that many iterations further (a
+   start with a plan that ends up keeps its plans as solved). The starts left without a nominal are planned again with each further horizon in turn: a
    robot with long, heavy links cannot swing up from most postures in the time a small one needs,
    and the library would otherwise cover few of them.
 3. **The law**: each nominal with its time-varying LQR gains (`tracks.tvlqr_gains`) in x = (q, p)
@@ -75,7 +78,8 @@ def library_starts(system, size: int, seed: int) -> np.ndarray:
 def _chunk_nominals(job) -> list:
     """Worker: (system, catch, starts (S, n), horizon, share, iterations, refine, tip, judge_T, seed,
     speed) -> for each start, (U (K, m), Z (K + 1, n) in (q, v)) of its cheapest plan that holds and
-    reaches, or None (refine: further iterations of each start's `REFINE_KEEP` cheapest plans; tip:
+    reaches, or None (refine: further iterations of the `REFINE_KEEP` cheapest plans of each start
+    none of whose plans ends with the tip at `tip` (every start where tip is 0); tip:
     the tip's normalised height each plan must end at, 0 for none; speed: ρ_v of `ilqr`'s speed
     term, 0 for none)."""
     system, catch, starts, horizon, share, iterations, refine, tip, judge_T, seed, speed = job
@@ -87,8 +91,10 @@ def _chunk_nominals(job) -> list:
     settings = ILQRSettings(iterations=iterations, alphas=ALPHAS, speed=speed, **LIBRARY_COST)
     S = LQRController(system).S
     U, Z, gains, cost = ilqr_plans(system, x0, np.tile(W, (len(starts), 1, 1)), bound, K * KNOT, S, settings)
-    if refine > 0:  # the cheapest plans of each start solved further: where the end pin is hard to reach, 40 iterations stop short of it
-        best = np.sort(np.argsort(cost.reshape(len(starts), w), axis=1, kind="stable")[:, :REFINE_KEEP] + w * np.arange(len(starts))[:, None], axis=1).ravel()
+    short = np.ones(len(starts), bool) if tip <= 0 else (tip_share(system, Z[:, -1, :system.nq]) < tip).reshape(len(starts), w).all(axis=1)
+    if refine > 0 and short.any():  # where 40 iterations leave every plan of a start short of the pin at x*, its cheapest are solved further
+        first = np.argsort(cost.reshape(len(starts), w), axis=1, kind="stable")[:, :REFINE_KEEP] + w * np.arange(len(starts))[:, None]
+        best = np.sort(first[short], axis=1).ravel()
         U[best], Z[best], gains[best], cost[best] = ilqr_plans(system, x0[best], U[best], bound, K * KNOT, S, replace(settings, iterations=refine))
     held = holds(simulate(system, TrackThenLaw(U, Z, gains, KNOT, catch, system), x0, T=judge_T, dt=PLAN_STEP, stop_settled=True), system)
     held &= reaches(system, Z[:, -1]) & sound(Z)  # the plan itself swings up; a plan that leaves it to the catch is no library entry
