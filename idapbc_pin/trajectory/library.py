@@ -18,9 +18,10 @@ many starts instead, each with a short horizon:
    would pull the law's nearest knots towards where it ends, away from x*. The swing converges in
    a few tens of iterations, the pin at x* takes more: with `refine`, where no plan of a start ends
    with its tip at `tip`, its `REFINE_KEEP` cheapest are solved that many iterations further (a
-   start with a plan that ends up keeps its plans as solved). The starts left without a nominal are planned again with each further horizon in turn: a
-   robot with long, heavy links cannot swing up from most postures in the time a small one needs,
-   and the library would otherwise cover few of them.
+   start with a plan that ends up keeps its plans as solved). The starts left without a nominal
+   are planned again with each further horizon in turn: a robot with long, heavy links cannot swing
+   up from most postures in the time a small one needs, and the library would otherwise cover few
+   of them.
 3. **The law**: each nominal with its time-varying LQR gains (`tracks.tvlqr_gains`) in x = (q, p)
    (`tracks.tracking_law`), every knot of every nominal in one `TrackingLaw`. The law is the same
    kind as any tracking law (the same arrays, the same export); it reads the nearest point over all
