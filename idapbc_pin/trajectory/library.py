@@ -92,8 +92,9 @@ def _chunk_nominals(job) -> list:
     settings = ILQRSettings(iterations=iterations, alphas=ALPHAS, speed=speed, **LIBRARY_COST)
     S = LQRController(system).S
     U, Z, gains, cost = ilqr_plans(system, x0, np.tile(W, (len(starts), 1, 1)), bound, K * KNOT, S, settings)
-    short = np.ones(len(starts), bool) if tip <= 0 else (tip_share(system, Z[:, -1, :system.nq]) < tip).reshape(len(starts), w).all(axis=1)
-    if refine > 0 and short.any():  # where 40 iterations leave every plan of a start short of the pin at x*, its cheapest are solved further
+    short = np.zeros(len(starts), bool) if refine <= 0 else np.ones(len(starts), bool) if tip <= 0 else \
+        (tip_share(system, Z[:, -1, :system.nq]) < tip).reshape(len(starts), w).all(axis=1)
+    if short.any():  # where 40 iterations leave every plan of a start short of the pin at x*, its cheapest are solved further
         first = np.argsort(cost.reshape(len(starts), w), axis=1, kind="stable")[:, :REFINE_KEEP] + w * np.arange(len(starts))[:, None]
         best = np.sort(first[short], axis=1).ravel()
         U[best], Z[best], gains[best], cost[best] = ilqr_plans(system, x0[best], U[best], bound, K * KNOT, S, replace(settings, iterations=refine))
