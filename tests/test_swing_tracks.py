@@ -514,6 +514,39 @@ def test_a_library_plan_cut_short_of_x_star_is_no_nominal_where_its_tip_must_end
     assert library._chunk_nominals(job(0.98)) == [None]
 
 
+def test_only_plans_that_end_up_are_rolled_out_and_the_nominals_are_those_of_judging_every_plan(monkeypatch):
+    """`_chunk_nominals` rolls out only the plans whose own end passes the checks (`reaches`, `sound`,
+    the tip): the rollouts decide nothing for the others. Its nominals are those of rolling out
+    every plan and then applying the same checks (the reaction wheel from five postures at rest,
+    3 iterations: some plans end short and some do not)."""
+    from idapbc_pin.control.energy_pump import EnergyPumpLaw
+    from idapbc_pin.sim.leaderboard import tip_share
+    from idapbc_pin.trajectory import library
+
+    wheel = ip.load_system("reaction_wheel")
+    starts, catch = library.library_starts(wheel, 5, seed=0), EnergyPumpLaw(wheel)
+    plans, judged = [], []
+    solve, roll = library.ilqr_plans, library.simulate
+    monkeypatch.setattr(library, "ilqr_plans", lambda *a, **k: plans.append(solve(*a, **k)) or plans[-1])
+    monkeypatch.setattr(library, "simulate", lambda system, law, x0, **k: judged.append(x0.copy()) or roll(system, law, x0, **k))
+    found = library._chunk_nominals((wheel, catch, starts, 1.0, 0.6, 3, 0, 0.98, 8.0, 0, 0.0))
+    ((U, Z, gains, cost),), (x_judged,) = plans, judged
+    ends = reaches(wheel, Z[:, -1]) & (tip_share(wheel, Z[:, -1, :wheel.nq]) >= 0.98)
+    assert 0 < ends.sum() < len(ends)  # the case holds both kinds of plan
+    w = len(U) // len(starts)
+    x0 = np.repeat(starts, w, axis=0)
+    np.testing.assert_array_equal(x_judged, x0[ends])
+    every = roll(wheel, library.TrackThenLaw(U, Z, gains, library.KNOT, catch, wheel), x0, T=8.0, dt=library.PLAN_STEP, stop_settled=True)
+    held = library.holds(every, wheel) & ends
+    for s, nominal in enumerate(found):
+        rows = [i for i in range(s * w, (s + 1) * w) if held[i]]
+        if not rows:
+            assert nominal is None
+        else:
+            best = min(rows, key=lambda i: (cost[i], i))
+            np.testing.assert_array_equal(nominal[0], U[best])
+
+
 @pytest.mark.parametrize("field, value", [("library_tip", 1.5), ("library_tip", -0.1), ("library_refine", -1)])
 def test_a_library_tip_outside_0_1_or_a_negative_refine_is_a_bad_setting(field, value):
     from idapbc_pin.recovery.config import SwingUpConfig

@@ -14,14 +14,14 @@ many starts instead, each with a short horizon:
    tracked by its own iLQR gains and caught by `catch` (the swing-up stage's teacher); of a start's
    plans that hold at x* over `judge_T` and swing up by themselves (their last state within the
    training box's angles of x*: `tracks.reaches`; with `tip`, the tip's normalised height at
-   least `tip` there), the cheapest is its nominal. A plan that leaves the swing-up to the catch
-   would pull the law's nearest knots towards where it ends, away from x*. The swing converges in
-   a few tens of iterations, the pin at x* takes more: with `refine`, where no plan of a start ends
-   with its tip at `tip`, its `REFINE_KEEP` cheapest are solved that many iterations further (a
-   start with a plan that ends up keeps its plans as solved). The starts left without a nominal
-   are planned again with each further horizon in turn: a robot with long, heavy links cannot swing
-   up from most postures in the time a small one needs, and the library would otherwise cover few
-   of them.
+   least `tip` there; only plans that end so are rolled out), the cheapest is its nominal. A plan
+   that leaves the swing-up to the catch would pull the law's nearest knots towards where it ends,
+   away from x*. The swing converges in a few tens of iterations, the pin at x* takes more: with
+   `refine`, where no plan of a start ends with its tip at `tip`, its `REFINE_KEEP` cheapest are
+   solved that many iterations further (a start with a plan that ends up keeps its plans as
+   solved). The starts left without a nominal are planned again with each further horizon in
+   turn: a robot with long, heavy links cannot swing up from most postures in the time a small one
+   needs, and the library would otherwise cover few of them.
 3. **The law**: each nominal with its time-varying LQR gains (`tracks.tvlqr_gains`) in x = (q, p)
    (`tracks.tracking_law`), every knot of every nominal in one `TrackingLaw`. The law is the same
    kind as any tracking law (the same arrays, the same export); it reads the nearest point over all
@@ -98,10 +98,14 @@ def _chunk_nominals(job) -> list:
         first = np.argsort(cost.reshape(len(starts), w), axis=1, kind="stable")[:, :REFINE_KEEP] + w * np.arange(len(starts))[:, None]
         best = np.sort(first[short], axis=1).ravel()
         U[best], Z[best], gains[best], cost[best] = ilqr_plans(system, x0[best], U[best], bound, K * KNOT, S, replace(settings, iterations=refine))
-    held = holds(simulate(system, TrackThenLaw(U, Z, gains, KNOT, catch, system), x0, T=judge_T, dt=PLAN_STEP, stop_settled=True), system)
-    held &= reaches(system, Z[:, -1]) & sound(Z)  # the plan itself swings up; a plan that leaves it to the catch is no library entry
+    ends = reaches(system, Z[:, -1]) & sound(Z)  # the plan itself swings up; a plan that leaves it to the catch is no library entry
     if tip > 0:  # and ends up: a plan cut short of its pin would leave the last of the swing-up to the catch
-        held &= tip_share(system, Z[:, -1, :system.nq]) >= tip
+        ends &= tip_share(system, Z[:, -1, :system.nq]) >= tip
+    held = np.zeros(len(x0), bool)
+    rows = np.flatnonzero(ends)  # only these are judged: a rollout's verdict does not depend on the other rows
+    if rows.size:
+        tracked = TrackThenLaw(U[rows], Z[rows], gains[rows], KNOT, catch, system)
+        held[rows] = holds(simulate(system, tracked, x0[rows], T=judge_T, dt=PLAN_STEP, stop_settled=True), system)
     out = []
     for s in range(len(starts)):
         rows = [i for i in range(s * w, (s + 1) * w) if held[i]]
