@@ -318,22 +318,21 @@ def test_a_library_reads_each_nominal_at_its_own_knots(pendubot, monkeypatch):
 def test_a_longer_horizon_plans_only_the_starts_no_shorter_plan_brings_up(pendubot, monkeypatch):
     """`horizon_nominals`: every start is planned with the first horizon; each further horizon plans
     only the starts still without a nominal (its own warm-start seed), and a start keeps the nominal
-    of the first horizon that gave it one."""
+    of the first horizon that gave it one. The refining and the tip apply to the first horizon only."""
     from idapbc_pin.trajectory import library
 
     starts = np.arange(5.0)[:, None] * np.ones(pendubot.n)
     calls = []
 
     def planned(system, catch, x, horizon, share, iterations, judge_T, seed, workers, progress, speed=0.0, refine=0, tip=0.0):
-        calls.append((horizon, x[:, 0].tolist(), seed))
-        assert (refine, tip) == (5, 0.9)  # every pass refines and judges the end alike
+        calls.append((horizon, x[:, 0].tolist(), seed, refine, tip))
         reached = {1.0: (1, 3), 2.0: (0, 3, 4), 3.0: (0, 2)}[horizon]  # the starts (by index) a plan of each horizon brings up
         return [(horizon, int(s)) if int(s) in reached else None for s in x[:, 0]]
 
     monkeypatch.setattr(library, "library_nominals", planned)
     found, passes = library.horizon_nominals(pendubot, None, starts, (1.0, 2.0, 3.0), 1.0, 1, 3.0, seed=7, refine=5, tip=0.9)
     assert found == [(2.0, 0), (1.0, 1), (3.0, 2), (1.0, 3), (2.0, 4)] and passes == [1, 0, 2, 0, 1]
-    assert calls == [(1.0, [0, 1, 2, 3, 4], 7), (2.0, [0, 2, 4], 7 + library.RETRY_SEED), (3.0, [2], 7 + 2 * library.RETRY_SEED)]
+    assert calls == [(1.0, [0, 1, 2, 3, 4], 7, 5, 0.9), (2.0, [0, 2, 4], 7 + library.RETRY_SEED, 0, 0.0), (3.0, [2], 7 + 2 * library.RETRY_SEED, 0, 0.0)]
     calls.clear()
     assert library.horizon_nominals(pendubot, None, starts[[1, 3]], (1.0, 2.0), 1.0, 1, 3.0, seed=7, refine=5, tip=0.9) == ([(1.0, 1), (1.0, 3)], [0, 0])
     assert len(calls) == 1  # every start brought up: no longer plans

@@ -203,12 +203,13 @@ class SwingUpConfig(Settings):
         brings up (`trajectory.library.horizon_nominals`); where they give more, the gate judges a
         second library with every nominal beside the first (`anywhere_stage`); empty: none.
     library_iterations : iterations of the iLQR solves of the library's plans.
-    library_refine : further iterations of the two cheapest plans of each start none of whose plans
-        ends with its tip at `library_tip` (0: none): the end pin at x* takes more iterations than
-        the swing (`trajectory.library`).
+    library_refine : further iterations of the two cheapest `library_horizon` plans of each start
+        none of whose plans ends with its tip at `library_tip` (0: none): the end pin at x* takes
+        more iterations than the swing (`trajectory.library`).
     library_tip : the tip's normalised height (0 hanging, 1 at x*; `sim.leaderboard.tip_share`) at
-        which each library plan must end (0: not read): a plan cut short of x* leaves the last of its
-        swing-up to the catch, which is slow.
+        which each `library_horizon` plan must end (0: not read): a plan cut short of x* leaves the
+        last of its swing-up to the catch, which is slow. The `library_longer` plans, a fallback
+        for the starts the short ones cannot bring up, are not held to it.
     speed_limits : bound every actuated joint's speed in the nominals, manoeuvres and library plans by
         its URDF `<limit velocity>`, the motor's rated speed (`trajectory.ilqr`'s speed term; set
         `[recovery.plan] speed_limits` too for the reach stage's plans).

@@ -20,8 +20,8 @@ many starts instead, each with a short horizon:
    `refine`, where no plan of a start ends with its tip at `tip`, its `REFINE_KEEP` cheapest are
    solved that many iterations further (a start with a plan that ends up keeps its plans as
    solved). The starts left without a nominal are planned again with each further horizon in
-   turn: a robot with long, heavy links cannot swing up from most postures in the time a small one
-   needs, and the library would otherwise cover few of them.
+   turn, without `tip` and `refine`: a robot with long, heavy links cannot swing up from most
+   postures in the time a small one needs, and the library would otherwise cover few of them.
 3. **The law**: each nominal with its time-varying LQR gains (`tracks.tvlqr_gains`) in x = (q, p)
    (`tracks.tracking_law`), every knot of every nominal in one `TrackingLaw`. The law is the same
    kind as any tracking law (the same arrays, the same export); it reads the nearest point over all
@@ -135,15 +135,18 @@ def horizon_nominals(system, catch, starts: np.ndarray, horizons, share: float, 
                      tip: float = 0.0) -> tuple[list, list[int]]:
     """Step 2 of the module docstring over several horizons: every start of `starts` (S, n) planned
     with horizons[0] s, then the starts still without a nominal with each further horizon in turn
-    (pass j drawing warm starts from seed + `RETRY_SEED`·j). Returns (for each start its nominal
-    (U, Z) or None; for each start the index of the horizon that gave it, or −1)."""
+    (pass j drawing warm starts from seed + `RETRY_SEED`·j). `refine` and `tip` apply to the first
+    horizon's plans only: a longer plan is a start's fallback where the robot cannot swing up in
+    the first, and its loose end leaves a few knots to the catch rather than the start uncovered.
+    Returns (for each start its nominal (U, Z) or None; for each start the index of the horizon
+    that gave it, or −1)."""
     out, passes = [None] * len(starts), [-1] * len(starts)
     for j, horizon in enumerate(horizons):
         todo = [s for s, nominal in enumerate(out) if nominal is None]
         if not todo:
             break
         found = library_nominals(system, catch, starts[todo], horizon, share, iterations, judge_T, seed + RETRY_SEED * j, workers,
-                                 None if progress is None else f"{progress} ({horizon:g} s)", speed, refine, tip)
+                                 None if progress is None else f"{progress} ({horizon:g} s)", speed, refine if j == 0 else 0, tip if j == 0 else 0.0)
         for s, nominal in zip(todo, found):
             if nominal is not None:
                 out[s], passes[s] = nominal, j
