@@ -7,8 +7,9 @@ from anywhere and loses nothing near hanging or in the box.
    it up in the first of `library_longer` that does (`library_iterations` iLQR iterations; for the
    `library_horizon` plans `library_refine` more for the cheapest of a start none of whose plans
    ends with its tip at `library_tip`, and each plan ending so), within `library_share` of the
-   limits and caught by the stage's teacher (`PumpThenRun`) into a hold over `judge_T`; the nominals' knots read at the nearest point (speed weight `LIBRARY_SPEED_WEIGHT`),
-   around the run's own outer law, outside its kept box. A short plan from hanging must lean on its
+   limits and caught by the stage's teacher (`PumpThenRun`) into a hold over `judge_T`; the
+   nominals' knots read at the nearest point (speed weight `LIBRARY_SPEED_WEIGHT`), around the
+   run's own outer law, outside its kept box. A short plan from hanging must lean on its
    catch, so the library alone reads poor knots near hanging: the knots of a nominal from the
    resting posture the stage kept join it, the run's manoeuvre's (its fastest swing-up from rest),
    else the tracking law's the swing-up gate kept. Where the longer horizons gave more nominals, a
