@@ -102,7 +102,7 @@ def _chunk_nominals(job) -> list:
     if tip > 0:  # and ends up: a plan cut short of its pin would leave the last of the swing-up to the catch
         ends &= tip_share(system, Z[:, -1, :system.nq]) >= tip
     held = np.zeros(len(x0), bool)
-    rows = np.flatnonzero(ends)  # only these are judged: a rollout's verdict does not depend on the other rows
+    rows = np.flatnonzero(ends)  # only these are judged: a row's rollout does not depend on the others (to the last bits, `simulate`)
     if rows.size:
         tracked = TrackThenLaw(U[rows], Z[rows], gains[rows], KNOT, catch, system)
         held[rows] = holds(simulate(system, tracked, x0[rows], T=judge_T, dt=PLAN_STEP, stop_settled=True), system)
