@@ -392,6 +392,27 @@ def test_standalone_torque_float32_networks(runs, tmp_path):
     _close(out["batched"], _expected_torque(system, controller, q, v), 2e-5)
 
 
+def test_standalone_brakes_a_cart_near_its_rail_end_as_the_library_does(runs, tmp_path):
+    """The rail guard (`control.rail_guard`) is exported: cart states near either end of the zoo
+    cartpole's ±5 m rail, moving either way, get the library's torques, one state at a time, to 1e-9;
+    full braking (±50 N) on the states the guard brakes, and some it does not."""
+    run = runs["cartpole"]
+    system = run.system
+    guard = run.controller.guard
+    rng = np.random.default_rng(3)
+    n = 200
+    q = np.column_stack([rng.choice([-1.0, 1.0], n) * rng.uniform(3.0, 4.9, n), rng.uniform(-np.pi, np.pi, n)])
+    v = np.column_stack([rng.uniform(-8.0, 8.0, n), rng.uniform(-6.0, 6.0, n)])
+    brake = guard.braking(system.state_from(q, v))[0][:, 0]
+    assert 0 < brake.sum() < n
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    assert json.loads((folder / "controller.json").read_text())["rail_guard"]["upper"] == [pytest.approx(4.75)]
+    one_by_one = np.array([system.saturate(run.controller(xk)) @ system.B.T for xk in system.state_from(q, v)])
+    np.testing.assert_allclose(np.abs(one_by_one[brake, 0]), 50.0)
+    out = _run_standalone(folder, q, v, tmp_path)
+    _close(out["single"], one_by_one, 1e-9)
+
+
 def test_continuous_joint_maps_like_the_library(runs, tmp_path):
     """A continuous elbow is (cos θ, sin θ) in Pinocchio: the standalone maps it as the library does.
     The shoulder is left unlimited here (null in controller.json, inf in EFFORT)."""

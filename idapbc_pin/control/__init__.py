@@ -7,6 +7,8 @@
   give; `baseline`: `LQRController`, the reference every learned law is compared with.
 * `controller`: `Controller`, the law u = (gᵀg)⁻¹gᵀ(f̃_d − f) in numpy, and `OuterLaw`, the protocol
   of a law that replaces it where it does not act (`idapbc_pin.recovery`).
+* `rail_guard`: `RailGuard`, full braking of a cart that could no longer stop before its rail's end,
+  applied by `Controller` after every other law.
 * `energy_pump`: `EnergyPumpLaw`, the classical energy-pumping swing-up with an LQR catch, the
   swing-up reference (`idapbc_pin.evaluation.swingup`).
 * `desired_flow` and `_runtime`: f̃_d in numpy from frozen weights (run time and export).

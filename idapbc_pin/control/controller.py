@@ -25,6 +25,7 @@ from ..model import System
 from ._runtime import snapshot
 from .desired_flow import DesiredFlow
 from .nets import IdaPbcNets
+from .rail_guard import RailGuard
 
 __all__ = ["Controller", "OuterLaw"]
 
@@ -61,12 +62,15 @@ class Controller:
     fallback : the `OuterLaw` that replaces the learned one where it does not act, through its
         ``apply(x, u, energy)``; a run's own comes from
         `Run.controller`. None: the learned law everywhere.
+    guard : brake a cart wherever it could no longer stop before its rail's end (`RailGuard`, after
+        every other law; only where the system has such a rail). False: the laws alone.
     """
 
-    def __init__(self, system: System, nets: IdaPbcNets, fallback: OuterLaw | None = None):
+    def __init__(self, system: System, nets: IdaPbcNets, fallback: OuterLaw | None = None, guard: bool = True):
         self.system = system
         self.nets = nets.eval()
         self.fallback = fallback
+        self.guard = RailGuard.of(system) if guard else None
         self._dtype = nets.x_star.dtype
         self._device = nets.x_star.device
         self._g_pinv = self._np(nets.g_pinv)  # (gᵀg)⁻¹gᵀ, (m, n)
@@ -93,7 +97,7 @@ class Controller:
         The law is evaluated at x* + wrap(x − x*) when the networks wrap angles (`IdaPbcNets.wrap`,
         `TrainConfig.wrap_angles`): a state one turn away from x* gets the torque of x*'s neighbour.
         With a `fallback`, the states it covers (outside the training box, or outside a recovery
-        law's inner box) get its law instead.
+        law's inner box) get its law instead; then the `guard` brakes a cart near its rail's end.
         """
         xb, single = self._batch(x)
         xb = self.nets.wrap(xb)
@@ -107,6 +111,8 @@ class Controller:
                 u[mask] = self._networks(xb[mask])
         if self.fallback is not None:  # a recovery law with a level reads H_d on the rows it may take
             u = self.fallback.apply(xb, u, energy=lambda x: self.flow().energy(x))
+        if self.guard is not None:  # wrapping leaves a cart's position as it is
+            u = self.guard.apply(xb, u)
         return u[0] if single else u
 
     def _networks(self, xb: np.ndarray) -> np.ndarray:
@@ -180,11 +186,15 @@ class Controller:
         nets.H, nets.J, nets.R = self.nets.H, self.nets.J, self.nets.R.with_rho(rho)
         for name, buf in self.nets._buffers.items():  # None buffers too (angle_mask)
             nets.register_buffer(name, buf, persistent=name not in self.nets._non_persistent_buffers_set)
-        return Controller(self.system, nets, self.fallback)
+        return Controller(self.system, nets, self.fallback, self.guard is not None)
 
     def with_fallback(self, fallback: OuterLaw | None) -> "Controller":
         """Same networks, another law where they do not act (None: the learned law everywhere)."""
-        return Controller(self.system, self.nets, fallback)
+        return Controller(self.system, self.nets, fallback, self.guard is not None)
+
+    def with_guard(self, guard: bool) -> "Controller":
+        """Same laws, with or without the rail guard (`RailGuard`)."""
+        return Controller(self.system, self.nets, self.fallback, guard)
 
     @property
     def rho(self) -> float:

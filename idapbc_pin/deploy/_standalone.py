@@ -101,6 +101,7 @@ class ExportedController:
             self.swing, fallback = _arrays(fallback), fallback.get("wraps")
         self.fallback = None if fallback is None else _arrays(fallback)
         self.manoeuvre = None if meta.get("manoeuvre") is None else _arrays(meta["manoeuvre"])
+        self.guard = None if meta.get("rail_guard") is None else _arrays(meta["rail_guard"])  # exports before it had none
         self.recovery = fallback is not None and fallback.get("kind") == "recovery"
         self.flow = _load_sibling(directory, "desired_flow").load_flow(directory / meta["weights"])
         self.model = pin.buildModelFromUrdf(str(directory / meta["urdf"]))
@@ -150,7 +151,33 @@ class ExportedController:
         x = np.concatenate([q, p], axis=1)
         u = (self.flow(x)[:, self.nv :] - p_dot) @ self.B_pinv_T
         u = u if self.fallback is None else self.outside_box(x, u)
-        return u if self.swing is None else self.swing_up(x, u)
+        u = u if self.swing is None else self.swing_up(x, u)
+        return u if self.guard is None else self.rail_guard(q, v, u)
+
+    def rail_guard(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """u (N, m) with full braking on each rail where the cart is past an end less the margin, or heads
+        for one it could no longer stop short of: k v² / (2 a_b) ≥ d, a_b the deceleration under full
+        braking (ABA, joint damping), k the guard's "safety"."""
+        g = self.guard
+        j, a = g["coordinate"].astype(int), g["input"].astype(int)
+        s, w = q[:, j], v[:, j]
+        past = np.where(s > g["upper"], 1.0, np.where(s < g["lower"], -1.0, 0.0))
+        toward = np.where(past != 0, past, np.sign(w))
+        u_b = -toward * g["sign"] * g["effort"]
+        brake_u = np.zeros_like(u)
+        brake_u[:, a] = u_b
+        tau = brake_u @ self.B.T - self.damping * v
+        acc = np.stack([pin.aba(self.model, self.data, qc, v[k], tau[k]) for k, qc in enumerate(self.configuration(q))])[:, j]
+        deceleration = -toward * acc
+        room = np.where(toward > 0, g["upper"] - s, s - g["lower"])
+        stop = np.where(deceleration > 1e-9, g["safety"] * w**2 / (2.0 * np.maximum(deceleration, 1e-9)), np.inf)
+        brake = (past != 0) | ((w != 0) & (stop >= room))
+        if not brake.any():
+            return u
+        u = u.copy()
+        for i, col in enumerate(a):
+            u[brake[:, i], col] = u_b[brake[:, i], i]
+        return u
 
     def outside_box(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """On the rows of x (N, n) outside the fallback's box, u* − Kδ (linear) or the recovery law;

@@ -79,6 +79,7 @@ def _controller_record(run, flow, onnx: bool) -> dict:
         "wrap": None if run.nets.angle_mask is None else run.nets.angle_mask.cpu().numpy().tolist(),  # angles wrapped to within π of x*
         "fallback": None if run.fallback is None else run.fallback.to_json(),  # the linear law outside the training box
         "manoeuvre": None if run.manoeuvre is None else run.manoeuvre.to_json(),  # the swing-up manoeuvre from rest
+        "rail_guard": None if run.controller.guard is None else run.controller.guard.to_json(),  # full braking near a rail's end
         "speed_filter": speed_filter.SpeedFilter().to_json(),  # the settings controller.SpeedFilter() starts from
         "state_names": list(system.state_names),
         "dtype": str(flow.dtype),

@@ -160,6 +160,14 @@ def deploy_readme(record: dict) -> str:
                  "because, simulated under the effort limits, it held more near-resting states at x* than the law alone, or as many and "
                  "swung up better from rest (the RealAIGym leaderboard's v2 score: time, energy, torque, smoothness, speed); start it from rest, "
                  "and fall back to `torque(q, v)` if the robot is far from its nominal.\n")
+    guard = record.get("rail_guard")
+    if guard is not None:
+        ends = ", ".join(f"{record['joints'][j]} [{lo:g}, {hi:g}] m" for j, lo, hi in zip(guard["coordinate"], guard["lower"], guard["upper"]))
+        line += "    u_j  ← −sign(v_j) ū_j  where k v_j² / (2 a_b) ≥ the distance to the end v_j heads for  (the rail guard)\n"
+        text += (f"\nLast, a rail guard ({ends}: the rail's ends less a margin; controller.json's \"rail_guard\") brakes the cart at full "
+                 "force wherever it could no longer stop before the end it heads for: a_b is the deceleration full braking gives at the "
+                 f"state (Pinocchio's ABA, joint damping included), k = {guard['safety']:g}; past an end it pushes the cart back. "
+                 "Elsewhere the input is the law's.\n")
     body = _BODY.format(dtype=record["dtype"], n=2 * nv, nv=nv, x_star=x_star, joints=_joint_table(record), onnx_row=onnx_row,
                         fallback_line=line, fallback_text=text)
     return title + body

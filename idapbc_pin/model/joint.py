@@ -5,7 +5,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["JointInfo"]
+import numpy as np
+
+__all__ = ["JointInfo", "rail_limits"]
 
 
 @dataclass(frozen=True)
@@ -40,3 +42,12 @@ class JointInfo:
     def is_angle(self) -> bool:
         """True for rotational coordinates (wrapped to (−π, π] when judging success)."""
         return self.kind in ("revolute", "continuous", "analytic-angle")
+
+
+def rail_limits(joints) -> tuple[np.ndarray, np.ndarray]:
+    """(lower (nq,), upper (nq,)) of the coordinates of `joints` (`JointInfo`s): the position limits of
+    every linear coordinate (a prismatic joint: a cart on its rail), m; ∓∞ for angles (a swing-up may
+    turn a joint past its URDF range) and for a joint without limits."""
+    lower = np.array([-np.inf if j.is_angle else j.lower for j in joints], dtype=np.float64)
+    upper = np.array([np.inf if j.is_angle else j.upper for j in joints], dtype=np.float64)
+    return lower, upper

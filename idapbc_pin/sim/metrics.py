@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.angles import wrap_angles
+from ..model.joint import rail_limits as joint_rail_limits
 from .trajectory import Trajectory
 
 __all__ = [
@@ -71,12 +72,8 @@ HOLD_ANGLE, HOLD_SPEED = 0.1, 0.5
 
 def rail_limits(system) -> tuple[np.ndarray, np.ndarray]:
     """(lower (nq,), upper (nq,)): the URDF position limits of every linear coordinate (a prismatic
-    joint: a cart on its rail), m; ∓∞ for angles (a swing-up may turn a joint past its URDF range)
-    and for a joint without limits."""
-    linear = [not j.is_angle for j in system.joints]
-    lower = np.array([j.lower if lin else -np.inf for j, lin in zip(system.joints, linear)], dtype=np.float64)
-    upper = np.array([j.upper if lin else np.inf for j, lin in zip(system.joints, linear)], dtype=np.float64)
-    return lower, upper
+    joint: a cart on its rail), m; ∓∞ for angles and for a joint without limits (`model.joint.rail_limits`)."""
+    return joint_rail_limits(system.joints)
 
 
 def speed_limits(system) -> np.ndarray:
