@@ -10,6 +10,8 @@ Claims:
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -77,6 +79,4 @@ def test_robots_without_a_rail_have_no_guard(name):
 
 
 def test_a_rail_without_an_effort_limit_has_no_guard(cartpole):
-    import dataclasses
-
     assert RailGuard.of(dataclasses.replace(cartpole, effort=[np.inf])) is None
