@@ -413,6 +413,27 @@ def test_standalone_brakes_a_cart_near_its_rail_end_as_the_library_does(runs, tm
     _close(out["single"], one_by_one, 1e-9)
 
 
+def test_standalone_governs_speed_and_energy_as_the_library_does(runs, tmp_path):
+    """The speed and energy governor (`control.speed_governor`) is exported: from moving states of the
+    pendubot (speeds up to the joints' ratings), where it acts on most, the standalone torques equal
+    the library's one state at a time to 1e-9; without the governor they differ there."""
+    from idapbc_pin.sim.states import moving_states
+
+    run = runs["pendubot"]
+    system = run.system
+    x = moving_states(system, 200, seed=4)
+    q, v = system.split(x)
+    s_e, s_v, _, _ = run.controller.governor.shares(x)
+    assert ((s_e > 0) | (s_v.max(axis=1) > 0)).mean() > 0.5
+    folder = ip.export(run, tmp_path / "export", onnx=False)
+    assert json.loads((folder / "controller.json").read_text())["governor"]["energy_rows"] == [0, 1]
+    one_by_one = np.array([system.saturate(run.controller(xk)) @ system.B.T for xk in x])
+    ungoverned = np.array([system.saturate(run.controller.with_governor(False)(xk)) @ system.B.T for xk in x])
+    assert np.abs(one_by_one - ungoverned).max() > 1.0
+    out = _run_standalone(folder, q, v, tmp_path)
+    _close(out["single"], one_by_one, 1e-9)
+
+
 def test_continuous_joint_maps_like_the_library(runs, tmp_path):
     """A continuous elbow is (cos θ, sin θ) in Pinocchio: the standalone maps it as the library does.
     The shoulder is left unlimited here (null in controller.json, inf in EFFORT)."""

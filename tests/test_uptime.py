@@ -82,12 +82,12 @@ def test_uptime_equals_a_plain_loop_over_episodes_and_segments(pendubot):
     """The batched segments (every episode's segment j together, to the longest) give each episode's
     uptime as one rollout per segment of its own length does."""
     laws = {"LQR": LQRController(pendubot)}
-    res = uptime_test(pendubot, laws, episodes=3, seed=1, T=6.0, resets=3, jitter=0.5)
+    res = uptime_test(pendubot, laws, episodes=3, seed=1, T=6.0, resets=3, jitter=0.5, reset="put")
     assert res.steps.shape == (3, 3) and res.states.shape == (3, 3, 4)
     ref = _uptime_by_loop(pendubot, laws["LQR"], res.steps, res.states, 3000, 0.002)
     np.testing.assert_allclose(res.uptime["LQR"], ref, rtol=0, atol=1.5 / 3000)  # at most a sample's rounding
     assert res.uptime["LQR"].max() > 0  # some reset lands where LQR catches it
-    again = uptime_test(pendubot, laws, episodes=3, seed=1, T=6.0, resets=3, jitter=0.5)
+    again = uptime_test(pendubot, laws, episodes=3, seed=1, T=6.0, resets=3, jitter=0.5, reset="put")
     np.testing.assert_array_equal(again.uptime["LQR"], res.uptime["LQR"])
     assert "| LQR |" in res.table() and set(res.to_dict()["mean"]) == {"LQR"}
 
@@ -95,7 +95,7 @@ def test_uptime_equals_a_plain_loop_over_episodes_and_segments(pendubot):
 def test_no_input_never_gets_up_and_a_jitter_past_half_the_spacing_is_refused(pendubot):
     """u = 0 from hanging with no reset: uptime 0; resets that could swap order are refused."""
     zero = lambda x: np.zeros((len(x), 1))
-    res = uptime_test(pendubot, {"zero": zero}, episodes=2, seed=0, T=4.0, resets=0, jitter=0.0)
+    res = uptime_test(pendubot, {"zero": zero}, episodes=2, seed=0, T=4.0, resets=0, jitter=0.0)  # no reset: the drive never runs
     assert res.uptime["zero"].tolist() == [0.0, 0.0]
     with pytest.raises(ValueError, match="jitter"):
         uptime_test(pendubot, {"zero": zero}, episodes=1, T=4.0, resets=3, jitter=0.6)
@@ -112,12 +112,26 @@ def test_anywhere_states_move_from_the_whole_circle():
     assert np.abs(v[1:]).max() <= 1.0 and v[1:].min() < -0.95 and v[1:].max() > 0.95
 
 
+def test_moving_states_reach_every_joint_s_rating_from_the_whole_circle():
+    """Every row moving: postures from the full circle, each joint's speed U(−v̄, v̄) with v̄ its URDF
+    rating (30 rad/s on the zoo pendubot), the same for the same seed."""
+    system = ip.load_system("pendubot")
+    x = swingup_states(system, n=400, seed=2, starts="moving")
+    q, v = system.split(x)
+    d = q - np.asarray(system.x_star)[:2]
+    assert np.abs(d).max() <= math.pi and d.min() < -3.0 and d.max() > 3.0
+    assert np.abs(v).max() <= 30.0 and (np.abs(v) > 27.0).any(axis=0).all() and (v != 0).all()
+    np.testing.assert_array_equal(swingup_states(system, n=400, seed=2, starts="moving"), x)
+
+
 def test_the_uptime_constants_are_the_leaderboards():
     assert (uptime_module.UPTIME_T, uptime_module.UPTIME_RESETS, uptime_module.UPTIME_JITTER, uptime_module.UPTIME_EPISODES) == (60.0, 15, 1.0, 5)
+    assert (uptime_module.DRIVE_T, uptime_module.DRIVE_KP, uptime_module.DRIVE_KI, uptime_module.DRIVE_KD, uptime_module.PID_DT) == (0.2, 10.0, 0.1, 1.0, 0.001)
+    assert uptime_module.RESETS[0] == "drive"  # the leaderboard's reset is the default
 
 
 def test_a_drive_reset_holds_a_posture_against_gravity_and_pushes_towards_the_drawn_one(pendubot):
-    """The leaderboard's reset: PD + gravity compensation on every joint within its URDF limit. Aimed
+    """The leaderboard's reset: PID + gravity compensation on every joint within its URDF limit. Aimed
     at the posture it starts in, at rest, it holds it (∇U from Pinocchio's generalised gravity);
     aimed at hanging from upright, it swings the shoulder down and leaves the robot moving."""
     from idapbc_pin.evaluation.uptime import DRIVE_T, _drive, drive_bound
@@ -126,21 +140,75 @@ def test_a_drive_reset_holds_a_posture_against_gravity_and_pushes_towards_the_dr
     q0 = np.array([[1.0, 0.5], [-2.0, 1.2]])
     assert np.abs(pendubot.plant.gravity(q0)).max() < 6.0  # compensable within the limit
     x0 = pendubot.state_from(q0, np.zeros_like(q0))
-    qs, x = _drive(pendubot, x0, q0, int(round(DRIVE_T / 0.002)), 0.002)
+    xs, x = _drive(pendubot, x0, q0, int(round(DRIVE_T / 0.002)), 0.002)
     q, v = pendubot.split(x)
-    assert qs.shape == (2, 100, 2) and np.abs(q - q0).max() < 1e-6 and np.abs(v).max() < 1e-5
+    assert xs.shape == (2, 100, 4) and np.abs(q - q0).max() < 1e-6 and np.abs(v).max() < 1e-5
     up = np.asarray(pendubot.x_star)[None, :2]
-    qs, x = _drive(pendubot, pendubot.state_from(up, np.zeros_like(up)), np.zeros_like(up), 100, 0.002)
+    xs, x = _drive(pendubot, pendubot.state_from(up, np.zeros_like(up)), np.zeros_like(up), 100, 0.002)
     q, v = pendubot.split(x)
     assert ((q - up) * (0.0 - up) >= 0).all() and np.abs(q - up).max() > 0.1 and np.abs(v).max() > 1.0
+
+
+def _pid_drive_by_hand(system, x, targets, ticks, dt):
+    """One episode's drives in a row, a plain loop over steps: the leaderboard's point PID (kp 10,
+    ki 0.1, kd 1 with a 1-ms step, errors not wrapped and kept across the drives, no derivative on
+    its first two calls), clipped to ±6 N·m, plus ∇U(q), clipped again; RK4 with the torque held."""
+    errors = []
+    q, v = (a[0].copy() for a in system.split(x[None]))
+    for target in targets:
+        for _ in range(ticks):
+            e = target - q
+            errors.append(e)
+            d = (errors[-1] - errors[-2]) / 0.001 if len(errors) > 2 else np.zeros_like(e)
+            pid = 10.0 * e + 0.1 * np.sum(errors, axis=0) * 0.001 + 1.0 * d
+            tau = np.clip(np.clip(pid, -6.0, 6.0) + system.plant.gravity(q[None])[0], -6.0, 6.0)
+            acc = lambda q_, v_: system.forward_dynamics(q_[None], v_[None], tau[None])[0]
+            k1q, k1v = v, acc(q, v)
+            k2q, k2v = v + 0.5 * dt * k1v, acc(q + 0.5 * dt * k1q, v + 0.5 * dt * k1v)
+            k3q, k3v = v + 0.5 * dt * k2v, acc(q + 0.5 * dt * k2q, v + 0.5 * dt * k2v)
+            k4q, k4v = v + dt * k3v, acc(q + dt * k3q, v + dt * k3v)
+            q, v = q + dt / 6 * (k1q + 2 * k2q + 2 * k3q + k4q), v + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
+    return q, v
+
+
+def test_the_drive_is_the_leaderboards_pid_with_its_memory_kept_across_resets(pendubot):
+    """Two drives in a row through one `_PID` memory equal the plain loop above; a fresh memory for
+    the second drive (the integral and the derivative's first step forgotten) does not."""
+    from idapbc_pin.evaluation.uptime import _PID, _drive
+
+    x0 = pendubot.state_from(np.array([[0.3, -0.2]]), np.array([[2.0, -1.0]]))
+    targets = [np.array([[2.5, -1.0]]), np.array([[-2.0, 0.5]])]
+    pid = _PID(np.zeros((1, 2)), np.zeros((1, 2)))
+    x = x0
+    for target in targets:
+        _, x = _drive(pendubot, x, target, 100, 0.002, pid)
+    q_ref, v_ref = _pid_drive_by_hand(pendubot, x0[0], [t[0] for t in targets], 100, 0.002)
+    q, v = pendubot.split(x)
+    np.testing.assert_allclose(q[0], q_ref, atol=1e-9)
+    np.testing.assert_allclose(v[0], v_ref, atol=1e-8)
+    _, x_half = _drive(pendubot, x0, targets[0], 100, 0.002)
+    _, x_fresh = _drive(pendubot, x_half, targets[1], 100, 0.002)
+    assert np.abs(x_fresh - x).max() > 1e-5  # far above the 1e-8 agreement above
+
+
+def test_the_uptime_test_reads_speeds_outside_the_drives(pendubot):
+    """A law that spins the shoulder at full effort forever runs past the 20 rad/s rating: its peak
+    speed / rating is > 1 and it spends time above the rating; LQR, resting or catching, reads
+    below the rating wherever the speeds count (the drives and the 0.5 s after them left out)."""
+    spin = lambda x: np.full((len(np.atleast_2d(x)), 1), 6.0)
+    res = uptime_test(pendubot, {"spin": spin, "LQR": LQRController(pendubot)}, episodes=2, seed=1, T=8.0, resets=2, jitter=0.5)
+    assert res.reset == "drive"
+    assert res.speed["spin"].max() > 1.0 and res.over_rating["spin"].max() > 0.2
+    assert res.speed["LQR"].max() < res.speed["spin"].max()
+    assert "peak speed / rating" in res.table() and set(res.to_dict()["time_over_rating"]) == {"spin", "LQR"}
 
 
 def test_uptime_with_drive_resets_is_recorded_reproducible_and_differs_from_put(pendubot):
     laws = {"LQR": LQRController(pendubot)}
     kw = dict(episodes=2, seed=1, T=6.0, resets=3, jitter=0.5)
-    drive = uptime_test(pendubot, laws, reset="drive", **kw)
+    drive = uptime_test(pendubot, laws, **kw)
     again = uptime_test(pendubot, laws, reset="drive", **kw)
-    put = uptime_test(pendubot, laws, **kw)
+    put = uptime_test(pendubot, laws, reset="put", **kw)
     np.testing.assert_array_equal(drive.uptime["LQR"], again.uptime["LQR"])
     assert drive.reset == "drive" and drive.to_dict()["reset"] == "drive" and put.reset == "put"
     assert not np.array_equal(drive.uptime["LQR"], put.uptime["LQR"])

@@ -48,9 +48,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _simulate_swingup(args: argparse.Namespace, run, seed: int) -> int:
-    """`simulate RUN --from hanging|circle`: the swing-up evaluation (20 starts and 10 s unless --n /
-    --T say otherwise), beside saturated LQR and the energy-pumping law; swingup.json (hanging, with
-    swingup.png) or swingup-circle.json."""
+    """`simulate RUN --from hanging|circle|moving`: the swing-up evaluation (20 starts and 10 s unless
+    --n / --T say otherwise), beside saturated LQR and the energy-pumping law; swingup.json (hanging,
+    with swingup.png), swingup-circle.json or swingup-moving.json."""
     from ..evaluation.swingup import evaluate_run_swingup, swingup_file
     from ..reporting.swingup_figure import swingup_figure
 
@@ -60,8 +60,10 @@ def _simulate_swingup(args: argparse.Namespace, run, seed: int) -> int:
     n = 20 if args.n == library_default(simulate_run, "n") else args.n
     T = 10.0 if args.T == library_default(simulate_run, "T") else args.T
     result = evaluate_run_swingup(run, n=n, T=T, seed=seed, workers=workers_of(args), starts=args.start, judge=args.judge)
-    where = "near-resting states" if args.start == "hanging" else "states at rest, every angle from the full circle"
-    print(f"swing-up of {run.system.name} from {n} {where} (the first exactly at rest, hanging), judged by {args.judge}, T = {T:g} s, RK4 at 2 ms, "
+    where = {"hanging": "near-resting states (the first exactly at rest, hanging)",
+             "circle": "states at rest, every angle from the full circle (the first exactly at rest, hanging)",
+             "moving": "moving states, every angle from the full circle and every speed up to its joint's URDF rating"}[args.start]
+    print(f"swing-up of {run.system.name} from {n} {where}, judged by {args.judge}, T = {T:g} s, RK4 at 2 ms, "
           f"the law held at 500 Hz, effort limits on every controller:")
     print(result.table())
     print(f"wrote {Path(args.run) / swingup_file(args.start)}")
@@ -166,14 +168,17 @@ def add_eval_commands(subparsers) -> None:
     p.add_argument("--episodes", type=int, default=library_default(evaluate_run_anywhere, "episodes"), metavar="E",
                    help="with --from anywhere: uptime episodes of 60 s, each with 15 resets (default %(default)s)")
     p.add_argument("--reset", choices=RESETS, default=library_default(evaluate_run_anywhere, "reset"),
-                   help="with --from anywhere: how the uptime test resets: put the state at a posture at rest (default), or drive "
-                        "towards it for 0.2 s with a PD law on every joint, as the leaderboard's own test")
-    p.add_argument("--from", dest="start", choices=("box", "hanging", "circle", "anywhere"), default="box",
+                   help="with --from anywhere: how the uptime test resets: drive towards a posture for 0.2 s with the leaderboard's "
+                        "PID and gravity compensation on every joint, releasing the robot moving (default, as the leaderboard's own test), "
+                        "or put the state at the posture at rest")
+    p.add_argument("--from", dest="start", choices=("box", "hanging", "circle", "anywhere", "moving"), default="box",
                    help="box (default): states uniform in the box; hanging: the swing-up evaluation from 20 near-resting states "
                         "(the first exactly at rest) over 10 s, beside saturated LQR and the energy-pumping law (swingup.json, "
                         "swingup.png); circle: the same from 20 states at rest, every angle drawn from the full circle "
                         "(swingup-circle.json); anywhere: the run's state feedback from 20 states anywhere on the torus, "
-                        "moving, and the uptime test (60-s episodes with 15 resets to random postures; anywhere.json)")
+                        "moving, and the uptime test (60-s episodes with 15 resets, each a 0.2-s drive towards a random posture; "
+                        "anywhere.json); moving: the swing-up evaluation from 20 states anywhere, every joint's speed up to its URDF "
+                        "rating (swingup-moving.json)")
     p.set_defaults(func=_cmd_simulate)
 
     p = subparsers.add_parser("certify", help="the paper's conditions checked on dense samples (a sampled certificate); certificate.json")

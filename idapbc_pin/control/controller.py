@@ -26,6 +26,7 @@ from ._runtime import snapshot
 from .desired_flow import DesiredFlow
 from .nets import IdaPbcNets
 from .rail_guard import RailGuard
+from .speed_governor import SpeedGovernor
 
 __all__ = ["Controller", "OuterLaw"]
 
@@ -64,13 +65,17 @@ class Controller:
         `Run.controller`. None: the learned law everywhere.
     guard : brake a cart wherever it could no longer stop before its rail's end (`RailGuard`, after
         every other law; only where the system has such a rail). False: the laws alone.
+    governor : take energy out wherever the robot holds clearly more than the upright needs or a motor
+        runs near its rating (`SpeedGovernor`, after the outer laws, before the rail guard; only where
+        every input has a finite effort limit). False: the laws alone.
     """
 
-    def __init__(self, system: System, nets: IdaPbcNets, fallback: OuterLaw | None = None, guard: bool = True):
+    def __init__(self, system: System, nets: IdaPbcNets, fallback: OuterLaw | None = None, guard: bool = True, governor: bool = True):
         self.system = system
         self.nets = nets.eval()
         self.fallback = fallback
         self.guard = RailGuard.of(system) if guard else None
+        self.governor = SpeedGovernor.of(system) if governor else None
         self._dtype = nets.x_star.dtype
         self._device = nets.x_star.device
         self._g_pinv = self._np(nets.g_pinv)  # (gᵀg)⁻¹gᵀ, (m, n)
@@ -97,7 +102,8 @@ class Controller:
         The law is evaluated at x* + wrap(x − x*) when the networks wrap angles (`IdaPbcNets.wrap`,
         `TrainConfig.wrap_angles`): a state one turn away from x* gets the torque of x*'s neighbour.
         With a `fallback`, the states it covers (outside the training box, or outside a recovery
-        law's inner box) get its law instead; then the `guard` brakes a cart near its rail's end.
+        law's inner box) get its law instead; then the `governor` takes energy out where the robot
+        holds too much or runs near a motor's rating, and the `guard` brakes a cart near its rail's end.
         """
         xb, single = self._batch(x)
         xb = self.nets.wrap(xb)
@@ -111,6 +117,8 @@ class Controller:
                 u[mask] = self._networks(xb[mask])
         if self.fallback is not None:  # a recovery law with a level reads H_d on the rows it may take
             u = self.fallback.apply(xb, u, energy=lambda x: self.flow().energy(x))
+        if self.governor is not None:
+            u = self.governor.apply(xb, u)
         if self.guard is not None:  # wrapping leaves a cart's position as it is
             u = self.guard.apply(xb, u)
         return u[0] if single else u
@@ -186,15 +194,19 @@ class Controller:
         nets.H, nets.J, nets.R = self.nets.H, self.nets.J, self.nets.R.with_rho(rho)
         for name, buf in self.nets._buffers.items():  # None buffers too (angle_mask)
             nets.register_buffer(name, buf, persistent=name not in self.nets._non_persistent_buffers_set)
-        return Controller(self.system, nets, self.fallback, self.guard is not None)
+        return Controller(self.system, nets, self.fallback, self.guard is not None, self.governor is not None)
 
     def with_fallback(self, fallback: OuterLaw | None) -> "Controller":
         """Same networks, another law where they do not act (None: the learned law everywhere)."""
-        return Controller(self.system, self.nets, fallback, self.guard is not None)
+        return Controller(self.system, self.nets, fallback, self.guard is not None, self.governor is not None)
 
     def with_guard(self, guard: bool) -> "Controller":
         """Same laws, with or without the rail guard (`RailGuard`)."""
-        return Controller(self.system, self.nets, self.fallback, guard)
+        return Controller(self.system, self.nets, self.fallback, guard, self.governor is not None)
+
+    def with_governor(self, governor: bool) -> "Controller":
+        """Same laws, with or without the speed and energy governor (`SpeedGovernor`)."""
+        return Controller(self.system, self.nets, self.fallback, self.guard is not None, governor)
 
     @property
     def rho(self) -> float:

@@ -80,6 +80,7 @@ def _controller_record(run, flow, onnx: bool) -> dict:
         "fallback": None if run.fallback is None else run.fallback.to_json(),  # the linear law outside the training box
         "manoeuvre": None if run.manoeuvre is None else run.manoeuvre.to_json(),  # the swing-up manoeuvre from rest
         "rail_guard": None if run.controller.guard is None else run.controller.guard.to_json(),  # full braking near a rail's end
+        "governor": None if run.controller.governor is None else run.controller.governor.to_json(),  # energy out past E* or a rating
         "speed_filter": speed_filter.SpeedFilter().to_json(),  # the settings controller.SpeedFilter() starts from
         "state_names": list(system.state_names),
         "dtype": str(flow.dtype),

@@ -160,6 +160,15 @@ def deploy_readme(record: dict) -> str:
                  "because, simulated under the effort limits, it held more near-resting states at x* than the law alone, or as many and "
                  "swung up better from rest (the RealAIGym leaderboard's v2 score: time, energy, torque, smoothness, speed); start it from rest, "
                  "and fall back to `torque(q, v)` if the robot is far from its nominal.\n")
+    governor = record.get("governor")
+    if governor is not None:
+        rated = ", ".join(f"{record['actuated'][i]} {r:g}" for i, r in enumerate(governor["rating"]) if r is not None) or "none"
+        line += "    u    ← governed(u)  where E_g > E* + margin·ΔE or a motor nears its rating  (the speed and energy governor)\n"
+        text += (f"\nThen a speed and energy governor (controller.json's \"governor\") keeps any of these laws from whirling the robot: where "
+                 f"the energy E_g of the posture's coordinates exceeds the upright's E* by more than {governor['energy_margin']:g} of the "
+                 "swing from rest to upright, or a motor runs past "
+                 f"{governor['speed_start']:g} of its rated speed (URDF `<limit velocity>`: {rated}), no input adds energy and each brakes, at "
+                 f"the full effort {governor['energy_band']:g} of that swing further up or at the rating. Elsewhere the input is the law's.\n")
     guard = record.get("rail_guard")
     if guard is not None:
         ends = ", ".join(f"{record['joints'][j]} [{lo:g}, {hi:g}] m" for j, lo, hi in zip(guard["coordinate"], guard["lower"], guard["upper"]))

@@ -7,7 +7,9 @@ catch, under the effort limits:
   the first exactly hanging at rest, the others every angle from the full circle and every speed
   U(−1, 1) rad/s), T = 10 s: holds at x* and the time to x* (`evaluation.swingup`);
 * **the uptime test** of the RealAIGym global policy leaderboard (`evaluation.uptime`): 60-s
-  episodes with 15 resets to random postures at rest, scored by the share of time with the tip up.
+  episodes with 15 resets, each a 0.2-s PID drive towards a random posture that leaves the robot
+  moving (or, with ``reset="put"``, the state put there at rest), scored by the share of time with
+  the tip up, with each law's peak speed over the joints' ratings.
 
 Only state feedbacks take part: a manoeuvre read by a clock from a command at rest has no meaning
 after a reset. The result goes to the run directory as ``anywhere.json``.
@@ -42,8 +44,8 @@ class AnywhereResult:
             f"T = {T:g} s:", self.torus.table(), "",
             f"uptime test: {E} episodes of {self.uptime.T:g} s, {self.uptime.resets} resets "
             + ("to postures at rest from the full circle " if self.uptime.reset == "put" else
-               f"by a {DRIVE_T:g}-s PD drive towards postures from the full circle, as the leaderboard's own test ") +
-            f"(±{self.uptime.jitter:g} s of jitter); the share of time with the tip up:", self.uptime.table()])
+               f"by a {DRIVE_T:g}-s PID drive towards postures from the full circle, released moving, as the leaderboard's own test ") +
+            f"(±{self.uptime.jitter:g} s of jitter); the share of time with the tip up; speeds over the URDF ratings outside the drives and the 0.5 s after each:", self.uptime.table()])
 
     def to_dict(self) -> dict:
         """JSON-ready: both results."""
@@ -62,7 +64,7 @@ def anywhere_controllers(run) -> dict:
 
 def evaluate_run_anywhere(run, n: int = 20, T: float = 10.0, seed: int = 0, episodes: int = UPTIME_EPISODES, workers: int = 1,
                           judge: str = "pinocchio", uptime_T: float | None = None, resets: int | None = None,
-                          reset: str = "put") -> AnywhereResult:
+                          reset: str = "drive") -> AnywhereResult:
     """The global evaluation of `run` (module docstring): `n` states from the torus over `T` s and
     `episodes` uptime episodes of `uptime_T` s with `resets` resets (None: the leaderboard's 60 s
     and 15, each reset as `reset` says: `uptime.RESETS`), both drawn with `seed`, on the judge plant

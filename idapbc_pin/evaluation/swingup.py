@@ -26,8 +26,8 @@ from .._parallel import process_map
 from ..errors import IdapbcError
 from ..model.angles import wrap_angles
 from ..sim.integrate import simulate
-from ..sim.metrics import HOLD_ANGLE, HOLD_SPEED, SUCCESS_WINDOW, holds as holds_verdict, on_rail, speed_limits
-from ..sim.states import RESTING_SPREAD, anywhere_states, circle_states, resting_states
+from ..sim.metrics import HOLD_ANGLE, HOLD_SPEED, SUCCESS_WINDOW, holds as holds_verdict, on_rail, speed_over_rating
+from ..sim.states import RESTING_SPREAD, anywhere_states, circle_states, moving_states, resting_states
 from ..sim.step import DEFAULT_STEP
 from ..sim.leaderboard import TIP_SHARE, LeaderboardScore, row_score, stays_from, tip_swingup_times
 
@@ -55,8 +55,12 @@ START_SPREAD = RESTING_SPREAD
 
 
 #: The start sets: "hanging" (near the resting posture), "circle" (at rest, angles from the full
-#: circle) and "anywhere" (angles from the full circle, speeds U(−1, 1): `sim.states.anywhere_states`).
-STARTS = ("hanging", "circle", "anywhere")
+#: circle), "anywhere" (angles from the full circle, speeds U(−1, 1): `sim.states.anywhere_states`)
+#: and "moving" (angles from the full circle, speeds up to each joint's rating: `sim.states.moving_states`).
+STARTS = ("hanging", "circle", "anywhere", "moving")
+#: From moving starts: a row counts as caught when it holds and is in the hold box from CATCH_BY s on,
+#: and the late speed figure leaves out the first RELEASE_GRACE s (the start's own speed).
+CATCH_BY, RELEASE_GRACE = 5.0, 0.5
 #: The judge's step (s): the law held at 500 Hz. The row of a run's swing-up manoeuvre from rest.
 DT = DEFAULT_STEP
 MANOEUVRE_ROW = "NIDA-PBC manoeuvre"
@@ -68,13 +72,16 @@ def swingup_states(system, n: int = 20, seed: int = 0, starts: str = "hanging") 
     p = M(q) v (`idapbc_pin.sim.states.resting_states`, which the swing-up stage draws its starts
     from too). ``"circle"``: the others at rest with every angle drawn from the full circle
     (`idapbc_pin.sim.states.circle_states`). ``"anywhere"``: the same postures, moving
-(`idapbc_pin.sim.states.anywhere_states`)."""
+(`idapbc_pin.sim.states.anywhere_states`). ``"moving"``: every row anywhere and moving, each speed
+up to its joint's rating (`idapbc_pin.sim.states.moving_states`)."""
     if starts not in STARTS:
         raise IdapbcError(f"unknown swing-up starts {starts!r}. Fix: one of {', '.join(STARTS)}.")
     if starts == "circle":
         return circle_states(system, int(n), seed)
     if starts == "anywhere":
         return anywhere_states(system, int(n), seed)
+    if starts == "moving":
+        return moving_states(system, int(n), seed)
     return resting_states(system, int(n), seed, START_SPREAD)
 
 
@@ -91,8 +98,9 @@ class SwingupScore:
         at the end (or the row diverged).
     peak_input : max |u| (N·m or N). peak_ratio : max over inputs of max |u_i| / effort_i (nan
         without a finite limit).
-    speed_ratio : max over the actuated joints of max |v_i| / v̄_i, v̄ the URDF speed limit (the
-        motor's rated speed, `sim.metrics.speed_limits`); nan where no actuated joint has one.
+    speed_ratio : max over the rated joints (passive ones too) of max |v_i| / v̄_i, v̄ the URDF
+        `<limit velocity>` (`sim.metrics.speed_over_rating`); 0 where no joint has one.
+    late_speed_ratio : the same after the first `RELEASE_GRACE` s.
     energy : Σ|Δq_a · u| over the actuated joints (J).
     diverged : bool, the rollout blew up.
     off_rail : bool, a prismatic joint left its URDF position limits (`sim.metrics.on_rail`): such a
@@ -108,6 +116,7 @@ class SwingupScore:
     peak_ratio: np.ndarray
     energy: np.ndarray
     speed_ratio: np.ndarray
+    late_speed_ratio: np.ndarray
     diverged: np.ndarray
     off_rail: np.ndarray
     hanging: LeaderboardScore
@@ -118,7 +127,8 @@ class SwingupScore:
         def plain(a):
             return [None if isinstance(x, float) and not math.isfinite(x) else x for x in np.asarray(a).tolist()]
 
-        out = {k: plain(getattr(self, k)) for k in ("holds", "tip", "swingup_time", "time_to_goal", "peak_input", "peak_ratio", "speed_ratio", "energy", "diverged", "off_rail")}
+        out = {k: plain(getattr(self, k)) for k in ("holds", "tip", "swingup_time", "time_to_goal", "peak_input", "peak_ratio", "speed_ratio", "late_speed_ratio",
+                                                "energy", "diverged", "off_rail")}
         out["hanging"] = self.hanging.to_dict()
         return out
 
@@ -144,12 +154,14 @@ def judge_swingup(system, traj) -> SwingupScore:
         ratio = np.where(np.isfinite(effort), peak_each / effort, np.nan)
     peak_ratio = np.full(N, np.nan) if np.all(np.isnan(ratio)) else np.nanmax(ratio, axis=1)
     energy = np.abs(np.diff(q @ B, axis=1) * u[:, :-1]).sum(axis=(1, 2))
-    rated = speed_limits(system)
-    limited = np.isfinite(rated)
-    speed_ratio = (np.abs(v[..., limited]).max(axis=1) / rated[limited]).max(axis=1) if limited.any() and K else np.full(N, np.nan)
+    fast = speed_over_rating(system, v) if K else np.zeros((N, 1))  # (N, K)
+    late = t >= RELEASE_GRACE - 1e-9
+    fast[np.asarray(traj.diverged, bool)] = np.inf
+    speed_ratio = fast.max(axis=1)
+    late_speed_ratio = fast[:, late].max(axis=1) if late.any() else np.zeros(N)
     hanging = row_score(system, traj, 0, swingup[0])
     return SwingupScore(holds=holds, tip=np.isfinite(swingup), swingup_time=swingup, time_to_goal=to_goal,
-                        peak_input=peak_each.max(axis=1), peak_ratio=peak_ratio, energy=energy, speed_ratio=speed_ratio,
+                        peak_input=peak_each.max(axis=1), peak_ratio=peak_ratio, energy=energy, speed_ratio=speed_ratio, late_speed_ratio=late_speed_ratio,
                         diverged=np.asarray(traj.diverged, bool).copy(), off_rail=~rail, hanging=hanging)
 
 
@@ -186,18 +198,25 @@ class SwingupResult:
     def table(self) -> str:
         """A markdown table, one row per controller: holds k/N, tip k/N, median swing-up time, median
         time to goal (over the states that have one), median peak |u| / limit, median peak speed / the
-        URDF's speed limit (where an actuated joint has one), hanging-start v2 score; rows that left
-        the rail are counted beside the holds."""
+        URDF's rating (where a joint has one), hanging-start v2 score; rows that left the rail are
+        counted beside the holds. From moving starts, also the rows caught by `CATCH_BY` s and the
+        largest speed / rating after `RELEASE_GRACE` s, instead of the hanging-start score."""
         N = self.states.shape[0]
-        rated = any(np.isfinite(s.speed_ratio).any() for s in self.scores.values())
-        speed = (" median peak speed / limit |", "---|") if rated else ("", "")
-        rows = [f"| controller | holds | tip | median swing-up time | median time to goal | median peak input / limit |{speed[0]} hanging-start score |",
-                f"|---|---|---|---|---|---|{speed[1]}---|"]
+        rated = any((s.speed_ratio > 0).any() for s in self.scores.values())
+        moving = self.starts == "moving"
+        speed = (" median peak speed / rating |", "---|") if rated else ("", "")
+        last = (f" at x* by {CATCH_BY:g} s | max speed / rating after {RELEASE_GRACE:g} s |", "---|---|") if moving else (" hanging-start score |", "---|")
+        rows = [f"| controller | holds | tip | median swing-up time | median time to goal | median peak input / limit |{speed[0]}{last[0]}",
+                f"|---|---|---|---|---|---|{speed[1]}{last[1]}"]
         for name, s in self.scores.items():
-            score = f"{s.hanging.score:.3f}" + (f" (swing-up {s.hanging.swingup_time:.2f} s)" if s.hanging.success else "")
+            if moving:
+                caught = int((s.holds & (np.nan_to_num(s.time_to_goal, nan=np.inf) <= CATCH_BY)).sum())
+                tail = f" {caught}/{N} | {float(np.max(s.late_speed_ratio)):.2f} |"
+            else:
+                tail = f" {s.hanging.score:.3f}" + (f" (swing-up {s.hanging.swingup_time:.2f} s)" if s.hanging.success else "") + " |"
             rail = f" ({int(s.off_rail.sum())} off the rail)" if s.off_rail.any() else ""
             rows.append(f"| {name} | {int(s.holds.sum())}/{N}{rail} | {int(s.tip.sum())}/{N} | {_median(s.swingup_time):.2f} s | "
-                        f"{_median(s.time_to_goal):.2f} s | {_median(s.peak_ratio):.2f} |" + (f" {_median(s.speed_ratio):.2f} |" if rated else "") + f" {score} |")
+                        f"{_median(s.time_to_goal):.2f} s | {_median(s.peak_ratio):.2f} |" + (f" {_median(s.speed_ratio):.2f} |" if rated else "") + tail)
         return "\n".join(rows)
 
     def to_dict(self) -> dict:

@@ -3,9 +3,9 @@
 The RealAIGym global policy test (simulation leaderboard v3) asks of a state feedback what a robot on
 a bench asks of it: to get up, and stay up, whatever state it is put in. One episode of `T` = 60 s
 starts at rest in the resting posture (a chain hanging). At `resets` = 15 times, spaced T/(resets+1)
-apart with a jitter U(−`jitter`, `jitter`) s each (±1 s), the state is put directly at a posture drawn
+apart with a jitter U(−`jitter`, `jitter`) s each (±1 s), the robot is reset towards a posture drawn
 uniformly from the full circle (every angle x*'s + U(−π, π); a linear coordinate at the resting
-posture's), at rest. The law runs on, with no clock and no notice. The score is the **uptime**: the
+posture's), below. The law runs on, with no clock and no notice. The score is the **uptime**: the
 share of the episode's samples at which the tip is up (`sim.leaderboard.tip_up`: the tip test's
 normalised height ≥ 0.95, the leaderboard's 0.9 of the upright height above the pivot for a chain
 hanging from it, with a cart on its rail at that sample). A row of a segment that diverged counts as down for the
@@ -15,19 +15,29 @@ whole segment.
 between two resets is simulated once for every episode together (`simulate`, RK4 at 2 ms, the law
 held at 500 Hz, effort limits on), up to the longest, and each episode reads its own length of it.
 
-How a reset moves the robot (`RESETS`): ``"put"`` (the default) puts the state at the drawn
-posture, at rest. ``"drive"`` resets as the leaderboard's own test does: for `DRIVE_T` = 0.2 s a PD
-law with gravity compensation, on every joint within its URDF effort limit (`drive_bound`), drives
-the robot from wherever it is towards the drawn posture (the angles taken within π of the resting
-posture's, the error not wrapped), u = clip(clip(kp (q_d − q) − kd v, ±ū) + ∇U(q), ±ū); then the law
-resumes from the state the drive left, moving. The drive's 0.2 s count in the episode like any
-other. There the robot is pushed off towards a posture; here, by default, it is put there at rest,
-so each reset asks for a whole swing-up from rest.
+How a reset moves the robot (`RESETS`). ``"drive"`` (the default) resets as the leaderboard's own
+test does: for `DRIVE_T` = 0.2 s the law is not called, and a PID law with gravity compensation on
+every joint drives the robot from wherever it is towards the drawn posture (its angles within π of
+the resting posture's), then the law resumes from the state the drive left, **moving**; the drive's
+0.2 s count in the episode like any other. The PID is upstream's `PointPIDController` as the test
+builds it: kp = 10, ki = 0.1, kd = 1 with its step taken as `PID_DT` = 1 ms while the loop runs at
+2 ms, the error q_d − q not wrapped (q is the plant's own, unwrapped), its history kept across the
+episode's resets (the integral, and the derivative's first step of a reset, read the previous
+reset's errors), no derivative on the episode's first two calls:
+
+    e_k = q_d − q_k,  u = clip(clip(kp e_k + ki PID_DT Σ_{i≤k} e_i + kd (e_k − e_{k−1}) / PID_DT, ±ū) + ∇U(q_k), ±ū),
+
+ū each joint's limit (`drive_bound`). ``"put"`` puts the state at the drawn posture, at rest, so
+each reset asks for a whole swing-up from rest.
+
+Besides the uptime, the test reads how fast the law drives the robot (`UptimeResult.speed`): the
+largest |v_j| / v̄_j over the rated joints (`sim.metrics.speed_over_rating`, v̄ the URDF
+`<limit velocity>`) and the share of samples with it above 1, both outside the drive windows and
+the `RELEASE_GRACE` s after each (the robot is released moving: its speed then is the drive's).
 
 Reference: github.com/dfki-ric-underactuated-lab/double_pendulum, the global policy testing
-controller (v2), its leaderboard script (simulation v3: 15 resets, 0.2 s each) and ``get_uptime`` of
-the leaderboard analysis; written independently. Its PID has kp = 10, ki = 0.1, kd = 1 and divides
-the error's change over a 2-ms step by 1 ms: kd = 2 per rad/s here, the integral left out.
+controller (v2), its point PID controller, its leaderboard script (simulation v3: 15 resets,
+0.2 s each) and ``get_uptime`` of the leaderboard analysis; written independently.
 """
 
 from __future__ import annotations
@@ -41,19 +51,23 @@ from .._parallel import process_map
 from ..model.resting import resting_configuration
 from ..sim.integrate import simulate
 from ..sim.leaderboard import tip_up
+from ..sim.metrics import speed_over_rating
 from ..sim.step import DEFAULT_STEP
 
-__all__ = ["DRIVE_KD", "DRIVE_KP", "DRIVE_T", "RESETS", "UPTIME_EPISODES", "UPTIME_JITTER", "UPTIME_RESETS", "UPTIME_T", "UptimeResult",
+__all__ = ["DRIVE_KD", "DRIVE_KI", "DRIVE_KP", "DRIVE_T", "PID_DT", "RELEASE_GRACE", "RESETS", "UPTIME_EPISODES", "UPTIME_JITTER", "UPTIME_RESETS", "UPTIME_T", "UptimeResult",
            "drive_bound", "reset_schedule", "reset_postures", "uptime_test"]
 
 #: The leaderboard's episode: T s, `UPTIME_RESETS` resets with ±`UPTIME_JITTER` s of jitter; the mean over `UPTIME_EPISODES` episodes.
 UPTIME_T, UPTIME_RESETS, UPTIME_JITTER, UPTIME_EPISODES = 60.0, 15, 1.0, 5
 #: Seed offset of the schedules and postures (apart from the other evaluations' start states).
 UPTIME_SEED = 60_000
-#: How a reset moves the robot (module docstring).
-RESETS = ("put", "drive")
-#: The drive of a "drive" reset: its length (s), kp (N·m/rad or N/m) and kd (N·m·s/rad or N·s/m).
-DRIVE_T, DRIVE_KP, DRIVE_KD = 0.2, 10.0, 2.0
+#: How a reset moves the robot (module docstring); the first is the default.
+RESETS = ("drive", "put")
+#: The drive of a "drive" reset: its length (s) and the PID's gains kp (N·m/rad), ki (N·m/(rad·s)),
+#: kd (N·m·s/rad) with the step PID_DT (s) it was built with (the leaderboard's).
+DRIVE_T, DRIVE_KP, DRIVE_KI, DRIVE_KD, PID_DT = 0.2, 10.0, 0.1, 1.0, 0.001
+#: Seconds after each drive window left out of the speed figures: the robot is released moving.
+RELEASE_GRACE = 0.5
 
 
 def reset_schedule(rng: np.random.Generator, T: float = UPTIME_T, resets: int = UPTIME_RESETS, jitter: float = UPTIME_JITTER,
@@ -106,29 +120,50 @@ def drive_bound(system) -> np.ndarray:
     return np.where(np.isfinite(own) & (own > 0), own, fallback)
 
 
-def _drive(system, x: np.ndarray, target: np.ndarray, ticks: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+@dataclass
+class _PID:
+    """The drive's PID memory over one batch of episodes (E,): the sum of its errors (E, nq), the last
+    error (E, nq) and how many times it was called (the same for every episode)."""
+
+    total: np.ndarray
+    last: np.ndarray
+    calls: int = 0
+
+    def __call__(self, target: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """kp e + ki PID_DT Σe + kd Δe / PID_DT (E, nq) at positions q (E, nq), e = target − q unwrapped."""
+        e = target - q
+        self.total = self.total + e
+        self.calls += 1
+        d = (e - self.last) / PID_DT if self.calls > 2 else np.zeros_like(e)
+        self.last = e
+        return DRIVE_KP * e + DRIVE_KI * PID_DT * self.total + DRIVE_KD * d
+
+
+def _drive(system, x: np.ndarray, target: np.ndarray, ticks: int, dt: float, pid: _PID | None = None) -> tuple[np.ndarray, np.ndarray]:
     """A "drive" reset (module docstring) from the states x (E, n) towards the postures target
-    (E, nq) over `ticks` steps of dt (RK4, the torque held per step): (q at the start of each step
-    (E, ticks, nq), the state at the end (E, n))."""
+    (E, nq) over `ticks` steps of dt (RK4, the torque held per step), with the episodes' PID memory
+    `pid` (updated; None: a fresh one): (the states at the start of each step (E, ticks, n), the state
+    at the end (E, n))."""
     bound = drive_bound(system)
     q, v = (np.array(a, float) for a in system.split(x))
+    pid = _PID(np.zeros_like(q), np.zeros_like(q)) if pid is None else pid
 
     def accel(q, v):
         rest = np.zeros_like(q)
         gravity = -np.einsum("nij,nj->ni", system.mass_matrix(q), system.forward_dynamics(q, rest, rest))  # ∇U(q)
-        tau = np.clip(np.clip(DRIVE_KP * (target - q) - DRIVE_KD * v, -bound, bound) + gravity, -bound, bound)
+        tau = np.clip(np.clip(pid(target, q), -bound, bound) + gravity, -bound, bound)
         return lambda q2, v2: system.forward_dynamics(q2, v2, tau)
 
-    qs = []
+    xs = []
     for _ in range(ticks):
-        qs.append(q)
+        xs.append(np.concatenate([q, v], axis=1))
         f = accel(q, v)
         k1q, k1v = v, f(q, v)
         k2q, k2v = v + 0.5 * dt * k1v, f(q + 0.5 * dt * k1q, v + 0.5 * dt * k1v)
         k3q, k3v = v + 0.5 * dt * k2v, f(q + 0.5 * dt * k2q, v + 0.5 * dt * k2v)
         k4q, k4v = v + dt * k3v, f(q + dt * k3q, v + dt * k3v)
         q, v = q + dt / 6.0 * (k1q + 2 * k2q + 2 * k3q + k4q), v + dt / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
-    return np.stack(qs, axis=1), system.state_from(q, v)
+    return np.stack(xs, axis=1), system.state_from(q, v)
 
 
 def _drive_targets(system, states: np.ndarray) -> np.ndarray:
@@ -140,23 +175,29 @@ def _drive_targets(system, states: np.ndarray) -> np.ndarray:
     return q.reshape(states.shape[:-1] + (system.nq,))
 
 
-def _episode_uptime(job) -> np.ndarray:
-    """Worker: (system, law, schedule, dt, reset) -> (E, K) bool, the tip up at each control step of each episode."""
+def _episode_uptime(job) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Worker: (system, law, schedule, dt, reset) -> (up, ratio, counted), each (E, K): the tip up at
+    each control step of each episode, the largest speed / rating there (`speed_over_rating`; inf in a
+    diverged segment), and whether the step counts for the speed figures (outside the drive windows
+    and the `RELEASE_GRACE` s after each)."""
     system, law, sched, dt, reset = job
     E, R = sched.steps.shape
     bounds = np.concatenate([np.zeros((E, 1), np.int64), sched.steps, np.full((E, 1), sched.K, np.int64)], axis=1)
-    up = np.zeros((E, sched.K), bool)
+    up, ratio, counted = np.zeros((E, sched.K), bool), np.zeros((E, sched.K)), np.ones((E, sched.K), bool)
+    grace = int(round(RELEASE_GRACE / dt))
     rows, x_end = np.arange(E), np.tile(sched.start, (E, 1))
     targets = _drive_targets(system, sched.states) if reset == "drive" else None
+    pid = _PID(np.zeros((E, system.nq)), np.zeros((E, system.nq)))
     for j in range(R + 1):
         x0, first = (np.tile(sched.start, (E, 1)) if j == 0 else sched.states[:, j - 1]), bounds[:, j].copy()
         if j and reset == "drive":
             D = int(min(round(DRIVE_T / dt), (bounds[:, j + 1] - bounds[:, j]).min()))
             x_end = np.where(np.isfinite(x_end).all(axis=1, keepdims=True), x_end, sched.states[:, j - 1])
-            qd, x0 = _drive(system, x_end, targets[:, j - 1], D, dt)
-            driven = tip_up(system, qd)  # (E, D)
+            xd, x0 = _drive(system, x_end, targets[:, j - 1], D, dt, pid)
+            driven = tip_up(system, xd[..., : system.nq])  # (E, D)
             for e in range(E):
                 up[e, first[e]: first[e] + D] = driven[e]
+                counted[e, first[e]: first[e] + D + grace] = False
             first += D
         lengths = bounds[:, j + 1] - first
         L = int(lengths.max())
@@ -165,10 +206,13 @@ def _episode_uptime(job) -> np.ndarray:
         traj = simulate(system, law, x0, T=L * dt, dt=dt)
         seg = tip_up(system, traj.q[:, :L])  # (E, L): the state at the start of each held step
         seg[traj.diverged] = False
+        fast = speed_over_rating(system, traj.v[:, :L])
+        fast[traj.diverged] = np.inf
         for e in range(E):
             up[e, first[e]: bounds[e, j + 1]] = seg[e, : lengths[e]]
+            ratio[e, first[e]: bounds[e, j + 1]] = fast[e, : lengths[e]]
         x_end = np.where(traj.diverged[:, None], np.nan, traj.x[rows, np.maximum(lengths, 0)])
-    return up
+    return up, ratio, counted
 
 
 @dataclass(frozen=True, eq=False)
@@ -181,6 +225,9 @@ class UptimeResult:
     steps : (E, resets) the reset steps of each episode. states : (E, resets, n) the states put there.
     uptime : controller name -> (E,) the share of each episode's control steps with the tip up.
     reset : how each reset moved the robot (`RESETS`).
+    speed : controller name -> (E,) the largest speed / rating of each episode (`speed_over_rating`),
+        outside the drive windows and the `RELEASE_GRACE` s after each (0 without rated joints).
+    over_rating : controller name -> (E,) the share of those samples with a speed above its rating.
     """
 
     system: str
@@ -191,14 +238,19 @@ class UptimeResult:
     steps: np.ndarray
     states: np.ndarray
     uptime: dict = field(default_factory=dict)
-    reset: str = "put"
+    reset: str = "drive"
+    speed: dict = field(default_factory=dict)
+    over_rating: dict = field(default_factory=dict)
 
     def table(self) -> str:
-        """A markdown table: each controller's mean uptime and its range over the episodes."""
+        """A markdown table: each controller's mean uptime and its range over the episodes, its peak
+        speed / rating and the share of time above the rating (outside the drives and their grace)."""
         E = self.steps.shape[0]
-        rows = [f"| controller | uptime, mean of {E} episodes | min | max |", "|---|---|---|---|"]
+        rows = [f"| controller | uptime, mean of {E} episodes | min | max | peak speed / rating | time above rating |", "|---|---|---|---|---|---|"]
         for name, u in self.uptime.items():
-            rows.append(f"| {name} | {float(np.mean(u)):.3f} | {float(np.min(u)):.3f} | {float(np.max(u)):.3f} |")
+            peak, over = self.speed.get(name, np.full(E, np.nan)), self.over_rating.get(name, np.full(E, np.nan))
+            rows.append(f"| {name} | {float(np.mean(u)):.3f} | {float(np.min(u)):.3f} | {float(np.max(u)):.3f} | "
+                        f"{float(np.max(peak)):.2f} | {100 * float(np.mean(over)):.2f} % |")
         return "\n".join(rows)
 
     def to_dict(self) -> dict:
@@ -206,12 +258,14 @@ class UptimeResult:
         return {"system": self.system, "T": self.T, "resets": self.resets, "reset": self.reset, "jitter": self.jitter, "dt": self.dt,
                 "reset_times": (self.steps * self.dt).tolist(), "reset_states": self.states.tolist(),
                 "uptime": {k: [float(x) for x in u] for k, u in self.uptime.items()},
-                "mean": {k: float(np.mean(u)) for k, u in self.uptime.items()}}
+                "mean": {k: float(np.mean(u)) for k, u in self.uptime.items()},
+                "speed_over_rating": {k: [float(x) if np.isfinite(x) else None for x in u] for k, u in self.speed.items()},
+                "time_over_rating": {k: [float(x) for x in u] for k, u in self.over_rating.items()}}
 
 
 def uptime_test(system, controllers: dict, episodes: int = UPTIME_EPISODES, seed: int = 0, T: float = UPTIME_T,
                 resets: int = UPTIME_RESETS, jitter: float = UPTIME_JITTER, dt: float = DEFAULT_STEP, workers: int = 1,
-                reset: str = "put") -> UptimeResult:
+                reset: str = "drive") -> UptimeResult:
     """The global-policy uptime test (module docstring) of `controllers` (name -> state feedback
     (N, n) -> (N, m), no clock) on `system` (the true plant: a `System` or its MuJoCo twin), on the
     same `episodes` schedules drawn with `seed`, each reset as `reset` says (`RESETS`); one worker
@@ -221,7 +275,9 @@ def uptime_test(system, controllers: dict, episodes: int = UPTIME_EPISODES, seed
     if reset not in RESETS:
         raise ValueError(f"unknown reset {reset!r}: one of {', '.join(RESETS)}")
     sched = _schedules(system, int(episodes), seed, float(T), int(resets), float(jitter), float(dt))
-    ups = process_map(_episode_uptime, [(system, law, sched, float(dt), reset) for law in controllers.values()], workers)
-    uptime = {name: up.mean(axis=1) for name, up in zip(controllers, ups)}
+    outs = list(process_map(_episode_uptime, [(system, law, sched, float(dt), reset) for law in controllers.values()], workers))
+    uptime = {name: up.mean(axis=1) for name, (up, _, _) in zip(controllers, outs)}
+    speed = {name: np.where(counted, ratio, 0.0).max(axis=1) for name, (_, ratio, counted) in zip(controllers, outs)}
+    over = {name: ((ratio > 1.0) & counted).sum(axis=1) / np.maximum(counted.sum(axis=1), 1) for name, (_, ratio, counted) in zip(controllers, outs)}
     return UptimeResult(system=str(system.name), T=float(T), resets=int(resets), jitter=float(jitter), dt=float(dt),
-                        steps=sched.steps, states=sched.states, uptime=uptime, reset=reset)
+                        steps=sched.steps, states=sched.states, uptime=uptime, reset=reset, speed=speed, over_rating=over)

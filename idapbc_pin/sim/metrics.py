@@ -27,6 +27,8 @@ __all__ = [
     "settled",
     "settling_time",
     "speed_limits",
+    "speed_over_rating",
+    "joint_ratings",
     "success",
     "window_samples",
 ]
@@ -81,6 +83,23 @@ def speed_limits(system) -> np.ndarray:
     motors' rated speeds; +∞ for a joint without one and for every joint the input does not drive."""
     driven = np.abs(np.asarray(system.B, dtype=np.float64)).sum(axis=1) > 0
     return np.array([j.speed if d else np.inf for j, d in zip(system.joints, driven)], dtype=np.float64)
+
+
+def joint_ratings(system) -> np.ndarray:
+    """(nq,) every joint's rated speed, the URDF `<limit velocity>` (rad/s or m/s), passive joints
+    included; +∞ for a joint without one (a closed-form system has none)."""
+    return np.array([j.speed for j in system.joints], dtype=np.float64)
+
+
+def speed_over_rating(system, v) -> np.ndarray:
+    """(...,) max over the rated joints of |v_j| / v̄_j for speeds v (..., nq) (`joint_ratings`); 0
+    where no joint has a rating."""
+    rated = joint_ratings(system)
+    limited = np.isfinite(rated) & (rated > 0)
+    v = np.asarray(v, dtype=np.float64)
+    if not limited.any():
+        return np.zeros(v.shape[:-1])
+    return (np.abs(v[..., limited]) / rated[limited]).max(axis=-1)
 
 
 def on_rail(traj: Trajectory, system) -> np.ndarray:

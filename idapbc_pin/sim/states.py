@@ -6,7 +6,7 @@ import numpy as np
 
 from ..errors import IdapbcError
 
-__all__ = ["ANYWHERE_SPEED", "RESTING_SPREAD", "anywhere_states", "box_gate_states", "circle_states", "evaluation_box", "half_box", "initial_states", "resting_states", "scaled_box", "uniform_states"]
+__all__ = ["ANYWHERE_SPEED", "moving_states", "RESTING_SPREAD", "anywhere_states", "box_gate_states", "circle_states", "evaluation_box", "half_box", "initial_states", "resting_states", "scaled_box", "uniform_states"]
 
 
 def half_box(system) -> tuple[np.ndarray, np.ndarray]:
@@ -117,4 +117,24 @@ def anywhere_states(system, n: int, seed: int = 0, speed: float = ANYWHERE_SPEED
     rng.uniform(-np.pi, np.pi, q[1:].shape)  # the postures' draw (circle_states), so the speeds come after it
     v = np.zeros_like(q)
     v[1:] = rng.uniform(-speed, speed, v[1:].shape)
+    return system.state_from(q, v)
+
+
+def moving_states(system, n: int, seed: int = 0) -> np.ndarray:
+    """n start states x = (q, p) (n, 2·nq) anywhere and moving: every angle x*'s + U(−π, π) (rad),
+    every linear coordinate at the resting posture's (m), and every joint's speed U(−v̄, v̄) with v̄
+    its URDF rated speed (`<limit velocity>`, rad/s or m/s; `ANYWHERE_SPEED` for a joint without
+    one), p = M(q) v; drawn from numpy's default_rng(seed), the postures first. No row is at rest."""
+    from ..model.resting import resting_configuration
+
+    if n < 1:
+        raise IdapbcError(f"moving starts need n ≥ 1, got {n}. Fix: pass n ≥ 1.")
+    rng = np.random.default_rng(seed)
+    nq = system.nq
+    q = np.tile(resting_configuration(system), (int(n), 1))
+    angle = np.asarray(system.angle_mask, bool)[:nq]
+    q = np.where(angle, np.asarray(system.x_star, float)[:nq] + rng.uniform(-np.pi, np.pi, q.shape), q)
+    rated = np.array([j.speed for j in system.joints], float)
+    rated = np.where(np.isfinite(rated) & (rated > 0), rated, ANYWHERE_SPEED)
+    v = rng.uniform(-1.0, 1.0, q.shape) * rated
     return system.state_from(q, v)
