@@ -8,14 +8,15 @@ directory adds a table for its own system with its controller beside the two ref
 ``--train``, each robot is first trained as a user would, ``idapbc-pin train ROBOT --fast --swing-up``
 (the default path: training, the box evaluation, the recovery stage where the limits bind, the
 swing-up stage), timed, and its run is judged beside the references. The RealAIGym rows carry the
-leaderboard's published figures as a quoted line. ``--starts hanging circle anywhere`` adds tables
-from states at rest with every angle drawn from the full circle, and from anywhere on the torus with
-speeds (the first again exactly hanging); ``--uptime`` adds the global policy test (the RealAIGym
-simulation v3 uptime: 60-s episodes with 15 resets) of the state feedbacks, twice: with each reset
-putting the robot at a random posture at rest, and with the leaderboard's own reset, a 0.2-s PD
-drive towards it (`evaluation.uptime`).
+leaderboard's published figures as a quoted line. ``--starts hanging circle anywhere moving`` adds
+tables from states at rest with every angle drawn from the full circle, from anywhere on the torus
+with speeds (the first again exactly hanging), and from moving states with every joint's speed up to
+its URDF rating; ``--uptime`` adds the global policy test (the RealAIGym simulation v3 uptime: 60-s
+episodes with 15 resets) of the state feedbacks, twice: with the leaderboard's own reset, a 0.2-s
+PID drive towards a random posture that releases the robot moving (`evaluation.uptime`), and with
+each reset putting the robot at the posture at rest; each with the laws' peak speed over the ratings.
 Run: python benchmarks/bench_swingup.py [--n 20] [--T 10] [--only [NAME ...]] [--run RUN ...] [--train] [--workers 1]
-         [--starts hanging circle anywhere] [--uptime [E]]
+         [--starts hanging circle anywhere moving] [--uptime [E]]
 """
 
 from __future__ import annotations
@@ -106,12 +107,13 @@ def report(title: str, system, controllers: dict, args, published: str | None = 
             laws["NIDA-PBC manoeuvre (then the run's law)"] = run.manoeuvre.law(run.controller)
         result = evaluate_swingup(system, laws, n=args.n, T=args.T, seed=args.seed, workers=args.workers, starts=starts)
         where = {"hanging": "near hanging", "circle": "at rest, angles from the full circle",
-                 "anywhere": "anywhere on the torus, angles from the full circle and speeds U(-1, 1) rad/s"}[starts]
+                 "anywhere": "anywhere on the torus, angles from the full circle and speeds U(-1, 1) rad/s",
+                 "moving": "moving, angles from the full circle and every speed up to its joint's URDF rating"}[starts]
         print(f"\n### {title}, from {where} (actuated {limit}; {time.perf_counter() - t0:.1f} s)\n")
         print(result.table())
     if args.uptime:  # state feedbacks only: a manoeuvre's clock means nothing after a reset
-        for reset, how in (("put", "to postures at rest from the full circle"),
-                           ("drive", f"each a {DRIVE_T:g}-s PD drive towards a posture, as the leaderboard's own test")):
+        for reset, how in (("drive", f"each a {DRIVE_T:g}-s PID drive towards a posture, released moving, as the leaderboard's own test"),
+                           ("put", "to postures at rest from the full circle")):
             t0 = time.perf_counter()
             result = uptime_test(system, controllers, episodes=args.uptime, seed=args.seed, workers=args.workers, reset=reset)
             print(f"\n### {title}, the global policy test: {args.uptime} episodes of 60 s, 15 resets {how} "

@@ -461,7 +461,23 @@ def test_simulate_from_anywhere_judges_the_state_feedback_on_the_torus_and_in_th
     assert record["torus"]["starts"] == "anywhere" and np.abs(record["torus"]["states"][1][2:]).max() > 0  # moving
     assert set(record["uptime"]["mean"]) == {"NIDA-PBC", "LQR", "energy pump + LQR"}
     assert np.shape(record["uptime"]["reset_times"]) == (2, 2) and all(0 <= u <= 1 for u in record["uptime"]["uptime"]["LQR"])
+    assert record["uptime"]["reset"] == "drive" and "peak speed / rating" in text  # the leaderboard's reset by default
+    assert set(record["uptime"]["time_over_rating"]) == {"NIDA-PBC", "LQR", "energy pump + LQR"}
     assert main(["simulate", str(run.path), "--from", "anywhere", "--no-limits"]) == 2
+
+
+def test_simulate_from_moving_states_reports_the_catch_and_the_late_speed(swung_run, capsys):
+    """`simulate --from moving`: states anywhere with speeds up to the ratings, the rows caught by
+    5 s and the largest speed / rating after 0.5 s, into swingup-moving.json."""
+    from idapbc_pin.cli.main import main
+
+    run, _ = swung_run
+    assert main(["simulate", str(run.path), "--from", "moving", "--n", "3", "--T", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "from 3 moving states" in text and "at x* by 5 s" in text and "max speed / rating after 0.5 s" in text
+    record = json.loads((run.path / "swingup-moving.json").read_text())
+    assert record["starts"] == "moving" and np.abs(np.asarray(record["states"])[:, 2:]).min() > 0  # every row moving
+    assert all(r is not None for r in record["scores"]["NIDA-PBC"]["late_speed_ratio"])
 
 
 def test_the_figure_of_a_swing_up_run_ends_with_its_swing_up_from_hanging(swung_run):

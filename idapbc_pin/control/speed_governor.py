@@ -94,7 +94,10 @@ class SpeedGovernor:
 
     def energy(self, x) -> tuple[np.ndarray, np.ndarray]:
         """(E_g (N,) in J, w (N, m) = ∂Ė_g/∂u) at states x (N, n) = (q, p)."""
-        q, v = self.system.split(np.atleast_2d(np.asarray(x, dtype=np.float64)))
+        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        q, v = self.system.split(x)
+        if len(self.energy_rows) == self.system.nq:  # every coordinate: E_g = H = ½ vᵀp + U, w = Bᵀv
+            return 0.5 * np.einsum("ni,ni->n", v, x[:, self.system.nq:]) + self.system.potential(q), v @ np.asarray(self.system.B, dtype=np.float64)
         M = self.system.mass_matrix(q)
         r = self.energy_rows
         Mv_r = np.einsum("nij,nj->ni", M[:, r][:, :, r], v[:, r])  # M_rr v_r
