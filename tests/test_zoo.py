@@ -18,12 +18,14 @@ from idapbc_pin.model.zoo import ZOO, ZooEntry, zoo_dir, zoo_entry, zoo_names, z
 # others (cart, Furuta arm, wheel) U is flat. Continuous joints count 2 in Pinocchio's nq.
 EXPECTED = {
     "acrobot": (("shoulder", "elbow"), 2, {"shoulder", "elbow"}),
+    "arm_passive_middle": (("j1", "j2", "j3"), 3, {"j1", "j2", "j3"}),
     "cart_double_pendulum": (("slider", "hinge1", "hinge2"), 3, {"hinge1", "hinge2"}),
     "cart_double_pendulum_short_rail": (("slider", "hinge1", "hinge2"), 3, {"hinge1", "hinge2"}),
     "cartpole": (("slider", "hinge"), 2, {"hinge"}),
     "double_pendulum": (("shoulder", "elbow"), 2, {"shoulder", "elbow"}),
     "furuta": (("arm", "pendulum"), 2, {"pendulum"}),
     "pendubot": (("shoulder", "elbow"), 2, {"shoulder", "elbow"}),
+    "quad_pendulum": (("j1", "j2", "j3", "j4"), 4, {"j1", "j2", "j3", "j4"}),
     "reaction_wheel": (("pivot", "wheel"), 3, {"pivot"}),
     "triple_pendulum": (("shoulder", "elbow", "wrist"), 3, {"shoulder", "elbow", "wrist"}),
 }
