@@ -1,8 +1,9 @@
 """The anchor chooses a form of P that works on ill-conditioned chains, and says which.
 
-Light distal links (the zoo's quad_pendulum) give a Riccati P with a condition number of 1e9–1e11,
-for which R = ½P⁻¹Q'P⁻¹ comes out not positive definite in floating point: the anchor passes such a
-form over for the next of `FALLBACK_FORMS`, stays exact at x*, and the run reports the choice.
+Light distal links (the zoo's quad_pendulum) give a Riccati P with a condition number of 1e8–1e11;
+at the weights where R = ½P⁻¹Q'P⁻¹ comes out not positive definite in floating point, the anchor
+passes that form over for the next of `FALLBACK_FORMS`, stays exact at x*, and the run reports the
+choice. The automatic weight once died on such a candidate weight before training began.
 """
 
 from __future__ import annotations
@@ -30,11 +31,24 @@ def test_the_riccati_form_fails_on_the_four_link_chain_at_a_candidate_weight(qua
         _anchor_of_form(quad, TrainConfig.fast(), "box", 0.1, "riccati")
 
 
-def test_the_four_link_chain_gets_an_exact_anchor_in_another_form(quad):
-    config = TrainConfig.fast()
-    settings = anchor_settings(quad, config)  # raised before: the candidate 0.1 had no anchor
+def test_the_automatic_weight_no_longer_dies_on_the_four_link_chain(quad):
+    """`anchor_settings` tried the candidate 0.1 and raised; now a candidate gets an anchor in some form."""
+    scaling, anchor_q = anchor_settings(quad, TrainConfig.fast())
+    assert scaling == "box" and anchor_q in (10.0, 1.0, 0.1, 0.01)
+    assert formed_anchor(quad, TrainConfig.fast(), (scaling, anchor_q))[0] is not None
+
+
+@pytest.mark.parametrize("anchor_q", [0.0, 0.1])
+def test_the_four_link_chain_gets_an_exact_anchor(quad, anchor_q):
+    """Automatic weight, and the weight 0.1 whose Riccati form fails: an exact pH form of the LQR loop,
+    in the Riccati form where it works and in another (named, with why) where it does not."""
+    config = TrainConfig.fast(anchor_q=anchor_q)
+    settings = anchor_settings(quad, config)
     anchor, form, why = formed_anchor(quad, config, settings)
-    assert form != "riccati" and "'riccati'" in why
+    if anchor_q == 0.1:
+        assert form != "riccati" and "'riccati' gave no positive-definite R" in why
+    else:
+        assert (form, why) == ("riccati", "")
     assert p_condition(quad, anchor.P, settings[0]) <= MAX_P_COND
     A, B = quad.linearization()
     np.testing.assert_allclose(anchor.A_cl, A - B @ anchor.K, rtol=0, atol=1e-14 * np.abs(anchor.A_cl).max())
@@ -48,22 +62,24 @@ def test_the_four_link_chain_gets_an_exact_anchor_in_another_form(quad):
     np.testing.assert_allclose(g_perp @ (anchor.A_cl - A), 0.0, atol=1e-10 * np.abs(anchor.K).max())
 
 
-def test_networks_on_the_four_link_chain_close_the_lqr_loop_at_the_target(quad):
-    """float64 networks anchored in the chosen form: the closed loop's Jacobian at x* is A − BK."""
+@pytest.mark.parametrize("anchor_q", [0.0, 0.1])
+def test_networks_on_the_four_link_chain_close_the_lqr_loop_at_the_target(quad, anchor_q):
+    """float64 networks anchored in the chosen form: the closed loop's Jacobian at x* is A − BK, and
+    the resolved config (config.json) records the form."""
     from idapbc_pin.control.controller import Controller
     from idapbc_pin.control.nets import build_nets
     from idapbc_pin.training.train import resolved_config
 
-    config = resolved_config(quad, TrainConfig.fast(dtype="float64"))
-    assert config.anchor_p == formed_anchor(quad, TrainConfig.fast())[1] != "riccati"  # config.json records the form
+    config = resolved_config(quad, TrainConfig.fast(dtype="float64", anchor_q=anchor_q))
+    assert config.anchor_p == formed_anchor(quad, TrainConfig.fast(anchor_q=anchor_q))[1]
     torch.manual_seed(0)
     ctrl = Controller(quad, build_nets(quad, config))
     A_cl = formed_anchor(quad, config)[0].A_cl
     np.testing.assert_allclose(ctrl.closed_loop_jacobian(), A_cl, rtol=0, atol=1e-6 * np.abs(A_cl).max())
 
 
-@pytest.mark.parametrize("name", [n for n in zoo_names() if n != "quad_pendulum"])
-def test_the_other_zoo_robots_keep_the_configured_form(name):
+@pytest.mark.parametrize("name", zoo_names())
+def test_the_zoo_robots_keep_the_configured_form(name):
     system = ip.load_system(name)
     for config in (TrainConfig.fast(), TrainConfig.fast(anchor_p="box")):
         _, form, why = formed_anchor(system, config)

@@ -68,9 +68,9 @@ AUTO_SLOWEST_POLE = 2.0
 #: and the Riccati solution spanning 1e8–1e11).
 FALLBACK_FORMS = ("riccati", "box", "lyapunov")
 #: Largest condition number of P, in the networks' units (`p_condition`), taken without trying the
-#: next form of `FALLBACK_FORMS`: above the reaction wheel's Riccati P (1.7e8, which trains), below the
-#: four-link chain's (1.2e9, whose R is positive definite only just).
-MAX_P_COND = 5e8
+#: next form of `FALLBACK_FORMS`: the order at which R = ½P⁻¹Q'P⁻¹ stops coming out positive definite
+#: in float64 (the four-link chain's Riccati P at anchor_q = 0.1: 1e10).
+MAX_P_COND = 1e9
 
 
 def anchor_settings(system: System, config: TrainConfig) -> tuple[str, float]:
