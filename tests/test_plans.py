@@ -396,3 +396,46 @@ def test_speed_limits_reach_every_plan_of_the_two_stages():
     assert PlanSettings().solver(furuta).speed == 0.0 and PlanSettings(speed_limits=True).solver(furuta).speed == SPEED_WEIGHT
     assert _labels_config(SwingUpConfig()).plan.solver(furuta).speed == 0.0
     assert _labels_config(SwingUpConfig(speed_limits=True)).plan.solver(furuta).speed == SPEED_WEIGHT
+
+
+def test_a_backward_pass_with_an_exactly_singular_quu_takes_no_step_and_raises_nothing():
+    """Two inputs acting on one joint in the ratio 20 : 43, no input cost: Q_uu = c·(20, 43)ᵀ(20, 43) is
+    exactly singular, which numpy's eigvalsh calls positive and its LU refuses ("Singular matrix")."""
+    system = ip.load_system("arm_passive_middle")
+    N, K, m, n = 2, 3, 2, system.n
+    A = np.broadcast_to(np.eye(n), (N, K, n, n)).copy()
+    B = np.zeros((N, K, n, m))
+    B[:, :, 3, 0], B[:, :, 3, 1] = 20.0, 43.0
+    Z, U = np.full((N, K + 1, n), 0.1), np.zeros((N, K, m))
+    quu = np.array([[400.0, 860.0], [860.0, 1849.0]])
+    with pytest.raises(np.linalg.LinAlgError):  # the premise
+        np.linalg.inv(quu)
+    kff, gains, ok = ilqr_module._backward(system, Z, U, A, B, np.zeros((n, n)), np.eye(n), np.zeros(m), 0.05, np.zeros(N), np.full(m, np.inf))
+    assert not ok.any()  # a pass that broke down: the problem takes no step
+    assert np.isfinite(kff).all() and np.isfinite(gains).all()
+
+
+def test_plans_with_two_inputs_that_act_alike_stay_finite_and_never_cost_more_than_their_warm_start(monkeypatch):
+    """The three-link arm's two motors made to act alike (the second's column of B twice the first's),
+    no input cost, no regularisation: every plan comes back finite, within its limits, and no worse."""
+    system = ip.load_system("arm_passive_middle")
+    jacobians = ilqr_module._knot_jacobians
+
+    def alike(s, z, u, dt):
+        A, B = jacobians(s, z, u, dt)
+        B = B.copy()
+        B[..., 1] = 2.0 * B[..., 0]
+        return A, B
+
+    monkeypatch.setattr(ilqr_module, "_knot_jacobians", alike)
+    x0 = system.x_star + uniform_states(system, 3, "half", 5) * 0.2
+    U0 = np.zeros((3, 10, 2))
+    settings = ILQRSettings(iterations=4, r=0.0, mu0=0.0)
+    S = LQRController(system).S
+    U, Z, gains, cost = ilqr_plans(system, x0, U0, system.effort, 0.5, S, settings)
+    assert np.isfinite(U).all() and np.isfinite(Z).all() and np.isfinite(gains).all()
+    assert np.all(np.abs(U) <= system.effort)
+    Q, Sz, r = plan_weights(system, S, settings, system.effort)
+    q0, v0 = system.split(x0)
+    start = plan_cost(system, rollout(system, np.concatenate([q0, v0], 1), U0, 0.05, 1), U0, Q, Sz, r, 0.05)
+    assert np.all(cost <= start)

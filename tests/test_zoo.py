@@ -18,12 +18,14 @@ from idapbc_pin.model.zoo import ZOO, ZooEntry, zoo_dir, zoo_entry, zoo_names, z
 # others (cart, Furuta arm, wheel) U is flat. Continuous joints count 2 in Pinocchio's nq.
 EXPECTED = {
     "acrobot": (("shoulder", "elbow"), 2, {"shoulder", "elbow"}),
+    "arm_passive_middle": (("j1", "j2", "j3"), 3, {"j1", "j2", "j3"}),
     "cart_double_pendulum": (("slider", "hinge1", "hinge2"), 3, {"hinge1", "hinge2"}),
     "cart_double_pendulum_short_rail": (("slider", "hinge1", "hinge2"), 3, {"hinge1", "hinge2"}),
     "cartpole": (("slider", "hinge"), 2, {"hinge"}),
     "double_pendulum": (("shoulder", "elbow"), 2, {"shoulder", "elbow"}),
     "furuta": (("arm", "pendulum"), 2, {"pendulum"}),
     "pendubot": (("shoulder", "elbow"), 2, {"shoulder", "elbow"}),
+    "quad_pendulum": (("j1", "j2", "j3", "j4"), 4, {"j1", "j2", "j3", "j4"}),
     "reaction_wheel": (("pivot", "wheel"), 3, {"pivot"}),
     "triple_pendulum": (("shoulder", "elbow", "wrist"), 3, {"shoulder", "elbow", "wrist"}),
 }
@@ -133,3 +135,22 @@ def test_system_upright_and_mass_matrix(name):
 def test_unknown_system_name_is_a_value_error():
     with pytest.raises(ValueError):
         ip.load_system("nope")
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_default_momentum_box_lets_every_link_move(name):
+    """The momentum half-width of each joint is M_ii(q*)·1 (its own inertia at 1 rad/s), raised where a
+    light distal link would otherwise hold the whole chain still: a rigid turn of the chain at
+    RIGID_SHARE rad/s stays inside. Only the four-link chain's tip is raised; every other robot's box
+    is M_ii(q*) exactly."""
+    from idapbc_pin.model.loading import RIGID_SHARE
+
+    system = ip.load_system(name)
+    nq = system.nq
+    M = system.mass_matrix(np.asarray(system.x_star)[None, :nq])[0]
+    lo, hi = (np.asarray(b)[nq:] for b in system.domain)
+    rigid = RIGID_SHARE * np.abs(M).sum(axis=1)
+    assert np.all(hi >= rigid) and np.all(-lo >= rigid)
+    raised = np.diagonal(M) < rigid
+    assert list(np.flatnonzero(raised)) == ([3] if name == "quad_pendulum" else [])
+    np.testing.assert_array_equal(hi[~raised], np.diagonal(M)[~raised])

@@ -37,6 +37,9 @@ def _cmd_recover(args: argparse.Namespace) -> int:
     else:
         entry = recover(args.run, config, keep=args.keep)
         seconds = entry["seconds"]
+    if entry.get("refused"):
+        print(f"recovery stage refused: {entry['reason']}; RUN runs its own law ({seconds:.0f} s; summary.json → recovery)")
+        return 0
     kept = ("kept: `simulate`, `view` and `export` of RUN now use it" if entry["used"]
             else "not kept: RUN runs its own law; the fitted one waits in recovery-refused.npz (--regate judges it again, --keep keeps it)")
     print(f"recovery law {kept} ({seconds:.0f} s; summary.json → recovery)")

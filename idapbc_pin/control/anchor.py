@@ -14,6 +14,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..config import TrainConfig
+from ..errors import IdapbcError
 from ..model import System
 from .linear import LinearAnchor, fastest_pole, lqr_anchor
 
@@ -24,10 +25,15 @@ __all__ = [
     "AUTO_MAX_POLE",
     "AUTO_SLOWEST_POLE",
     "AUTO_STIFF_PLANT_Q",
+    "FALLBACK_FORMS",
+    "MAX_P_COND",
+    "anchor_forms",
     "anchor_settings",
     "cart_setting",
+    "formed_anchor",
     "half_widths",
     "local_rate",
+    "p_condition",
     "prismatic_positions",
     "system_anchor",
 ]
@@ -57,6 +63,14 @@ AUTO_STIFF_PLANT_Q = 1.0
 #: of angle, which leaves the cart's return to x* the loop's slowest mode (docs/results-history.md).
 AUTO_CART_WEIGHTS = (1.0, 3.0, 10.0, 30.0, 100.0)
 AUTO_SLOWEST_POLE = 2.0
+#: The forms of P (``TrainConfig.anchor_p``) tried after the configured one, in this order, where it
+#: gives no positive-definite R or a P conditioned worse than ``MAX_P_COND`` (light distal links: M(q)
+#: and the Riccati solution spanning 1e8–1e11).
+FALLBACK_FORMS = ("riccati", "box", "lyapunov")
+#: Largest condition number of P, in the networks' units (`p_condition`), taken without trying the
+#: next form of `FALLBACK_FORMS`: the order at which R = ½P⁻¹Q'P⁻¹ stops coming out positive definite
+#: in float64 (the four-link chain's Riccati P at anchor_q = 0.1: 1e10).
+MAX_P_COND = 1e9
 
 
 def anchor_settings(system: System, config: TrainConfig) -> tuple[str, float]:
@@ -72,7 +86,11 @@ def anchor_settings(system: System, config: TrainConfig) -> tuple[str, float]:
     if config.anchor_q > 0:
         return scaling, float(config.anchor_q)
     for q in AUTO_ANCHOR_Q:
-        if fastest_pole(_lqr_anchor(system, config, scaling, q).A_cl) <= AUTO_MAX_POLE:
+        try:
+            anchor = _lqr_anchor(system, config, scaling, q)
+        except IdapbcError:  # no form of P gives this weight an anchor: not a candidate
+            continue
+        if fastest_pole(anchor.A_cl) <= AUTO_MAX_POLE:
             return scaling, q
     if fastest_pole(system.linearization()[0]) > AUTO_MAX_POLE:
         return scaling, AUTO_STIFF_PLANT_Q
@@ -133,7 +151,59 @@ def cart_setting(system: System, config: TrainConfig) -> float:
 
 
 def _lqr_anchor(system: System, config: TrainConfig, scaling: str, anchor_q: float) -> LinearAnchor:
-    """The anchor for explicit settings: Q = anchor_q·I and λ_max(P) = 1 (``scaling="none"``), or
+    """The anchor for explicit settings, in the first form of P (`anchor_forms`) that gives one."""
+    return formed_anchor(system, config, (scaling, anchor_q))[0]
+
+
+def anchor_forms(config: TrainConfig) -> tuple[str, ...]:
+    """The forms of P tried in turn: ``config.anchor_p``, then the others of `FALLBACK_FORMS`."""
+    return (config.anchor_p,) + tuple(form for form in FALLBACK_FORMS if form != config.anchor_p)
+
+
+def formed_anchor(system: System, config: TrainConfig, settings: tuple[str, float] | None = None) -> tuple[LinearAnchor, str, str]:
+    """``(anchor, form, why)``: the anchor in the first form of P (`anchor_forms`) whose R is positive
+    definite and whose P, in the networks' units, has a condition number ≤ `MAX_P_COND` (else the best
+    conditioned of those with a positive-definite R); `why` says why the forms before it were passed
+    over ("" when the configured form is the one).
+
+    Raises
+    ------
+    IdapbcError
+        When no form gives a positive-definite R (a badly scaled problem, not a robot without anchor:
+        an unstabilisable target is refused when the system is loaded).
+    """
+    scaling, anchor_q = anchor_settings(system, config) if settings is None else settings
+    passed, best = [], None
+    for form in anchor_forms(config):
+        try:
+            anchor = _anchor_of_form(system, config, scaling, anchor_q, form)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            passed.append(f"'{form}' gave no positive-definite R ({str(exc).split(';')[0]})")
+            continue
+        cond = p_condition(system, anchor.P, scaling)
+        if cond <= MAX_P_COND:
+            return anchor, form, "; ".join(passed)
+        passed.append(f"'{form}' gave cond(P) = {cond:.3g}")
+        if best is None or cond < best[2]:
+            best = (anchor, form, cond)
+    if best is not None:
+        return best[0], best[1], "; ".join(passed)
+    raise IdapbcError(
+        f"no form of the LQR anchor of {system.name} has a positive-definite R at anchor_q = {anchor_q:g}: {'; '.join(passed)}. "
+        "Fix: set anchor_q (e.g. 1 or 10) and scaling = 'box' in the --config file."
+    )
+
+
+def p_condition(system: System, P: np.ndarray, scaling: str) -> float:
+    """cond(P) in the networks' units: of SPS, S = diag(`half_widths`), under box scaling; else of P."""
+    if scaling == "box":
+        half = half_widths(system)
+        P = half[:, None] * P * half[None, :]
+    return float(np.linalg.cond(P))
+
+
+def _anchor_of_form(system: System, config: TrainConfig, scaling: str, anchor_q: float, form: str) -> LinearAnchor:
+    """The anchor for explicit settings and form of P: Q = anchor_q·I and λ_max(P) = 1 (``scaling="none"``), or
     λ_max(SPS) = 1 with S = diag(`half_widths`) (``"box"``), where Q = anchor_q·I too unless
     ``config.anchor_weight == "box"`` (then Q = anchor_q·diag(1/s²)); in either case a prismatic
     coordinate's weight multiplied by ``config.anchor_cart`` (0: `AUTO_CART_WEIGHTS`' choice)."""
@@ -142,16 +212,16 @@ def _lqr_anchor(system: System, config: TrainConfig, scaling: str, anchor_q: flo
     box = scaling == "box"
     Q = _state_weight(system, config, scaling, anchor_q)
     Q = _with_cart(Q, prismatic_positions(system), _cart_weight(system, config, A, Bx, Q))
-    if config.anchor_p == "riccati":
+    if form == "riccati":
         kw = dict(P_mode="riccati")
-    elif config.anchor_p == "fit":
+    elif form == "fit":
         riccati = lqr_anchor(A, Bx, Q=Q, P_mode="riccati")
         Q_fit = box_fitted_weight(riccati.A_cl, half)
         P_fit = lqr_anchor(A, Bx, Q=Q, P_mode="lyapunov", Q_lyap=Q_fit).P
         better = inscribed_share(P_fit, half) > inscribed_share(riccati.P, half)
         kw = dict(P_mode="lyapunov", Q_lyap=Q_fit) if better else dict(P_mode="riccati")
     else:
-        kw = dict(P_mode="lyapunov", Q_lyap=np.diag(1.0 / half**2) if config.anchor_p == "box" else None)
+        kw = dict(P_mode="lyapunov", Q_lyap=np.diag(1.0 / half**2) if form == "box" else None)
     if not box:
         return lqr_anchor(A, Bx, Q=Q, scale="unit", **kw)
     P = lqr_anchor(A, Bx, Q=Q, scale=None, **kw).P  # λ_max(SPS) = 1: H_d ≈ ½zᵀ(SPS)z ≤ ½‖z‖² in box units

@@ -19,13 +19,16 @@ from .analytic import ANALYTIC
 from .system import EQUILIBRIUM_TOL, System
 from .zoo import ZOO, zoo_urdf_path
 
-__all__ = ["DEFAULT_ANGLE_HALF_WIDTH", "DEFAULT_LINEAR_HALF_WIDTH", "DEFAULT_SPEED", "erd_robots_dir", "load_system", "resolve_source"]
+__all__ = ["DEFAULT_ANGLE_HALF_WIDTH", "DEFAULT_LINEAR_HALF_WIDTH", "DEFAULT_SPEED", "RIGID_SHARE", "erd_robots_dir", "load_system", "resolve_source"]
 
 #: Default training box around x*: ±π/2 rad on angles, ±1 m on prismatic joints (clipped to the
-#: joint limits), and momenta ±M_ii(q*)·1 (rad/s or m/s), i.e. every joint moving at up to 1 unit/s.
+#: joint limits), and momenta ±max(M_ii, RIGID_SHARE·Σ_j|M_ij|)(q*)·1 (rad/s or m/s): every joint moving
+#: at up to 1 unit/s, and at least the momentum each joint carries when the whole chain turns rigidly
+#: at RIGID_SHARE unit/s (a light distal link's own M_ii alone would hold the chain above it still).
 DEFAULT_ANGLE_HALF_WIDTH = math.pi / 2
 DEFAULT_LINEAR_HALF_WIDTH = 1.0
 DEFAULT_SPEED = 1.0
+RIGID_SHARE = 0.1
 #: M(q) counts as singular when λ_min ≤ this × max(1, λ_max).
 _SINGULAR_RTOL = 1e-10
 
@@ -246,5 +249,5 @@ def _default_domain(joints, q_star: np.ndarray, M_star: np.ndarray) -> tuple[np.
     half_q = np.array([DEFAULT_ANGLE_HALF_WIDTH if j.is_angle else DEFAULT_LINEAR_HALF_WIDTH for j in joints])
     lo_q = np.maximum(q_star - half_q, [j.lower for j in joints])
     hi_q = np.minimum(q_star + half_q, [j.upper for j in joints])
-    half_p = np.abs(np.diagonal(M_star)) * DEFAULT_SPEED
+    half_p = np.maximum(np.abs(np.diagonal(M_star)), RIGID_SHARE * np.abs(M_star).sum(axis=1)) * DEFAULT_SPEED
     return np.concatenate([lo_q, -half_p]), np.concatenate([hi_q, half_p])

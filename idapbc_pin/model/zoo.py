@@ -58,6 +58,13 @@ _ENTRIES = (
         description="Two-link arm actuated at the elbow only (Spong's acrobot), swung up and balanced upright.",
     ),
     ZooEntry(
+        name="arm_passive_middle",
+        urdf="arm_passive_middle.urdf",
+        actuated=("j1", "j3"),
+        tags=("underactuated", "underactuation-1", "planar", "two-inputs"),
+        description="Three-link arm with motors at the base and the wrist and a passive middle joint, balanced upright.",
+    ),
+    ZooEntry(
         name="cart_double_pendulum",
         urdf="cart_double_pendulum.urdf",
         actuated=("slider",),
@@ -105,6 +112,13 @@ _ENTRIES = (
         actuated=("shoulder",),
         tags=("underactuated", "underactuation-2", "planar"),
         description="Three-link arm actuated at the shoulder only (a three-link pendubot), balanced upright.",
+    ),
+    ZooEntry(
+        name="quad_pendulum",
+        urdf="quad_pendulum.urdf",
+        actuated=("j1",),
+        tags=("underactuated", "underactuation-3", "planar", "light-distal-links"),
+        description="Four-link chain actuated at its base joint only, with light distal links, balanced upright.",
     ),
     ZooEntry(
         name="reaction_wheel",

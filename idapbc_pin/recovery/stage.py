@@ -73,6 +73,7 @@ from ..sim.integrate import simulate
 from ..sim.metrics import on_rail, success
 from ..sim.states import scaled_box, uniform_states
 from ..trajectory.chunks import ChunkStore, chunk_key
+from ._failures import record_refusal, stage_errors
 from .config import FORMS, START_BOXES, TEACHERS, RecoveryConfig
 from .fit import base_inputs, fit_job, fit_recovery_law
 from .gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, library_first, read_labels, save_labels, save_recovery
@@ -251,8 +252,17 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     """Fit, gate and save a recovery law for a run (see the module docstring); returns the summary
     entry written to summary.json → "recovery". The run directory gets ``recovery.npz`` when the
     gate keeps the law (or `keep` forces it), else ``recovery-refused.npz`` for `regate`; an earlier
-    recovery law is replaced either way."""
+    recovery law is replaced either way. Where no start reaches x* the stage refuses (the entry says
+    why, ``"refused": True``) and the run keeps its law; any other failure inside the stage is one
+    `IdapbcError` line, the run as it was (`_failures.stage_errors`)."""
     run = resolve_run(run_or_path)
+    with stage_errors("the recovery stage", run.path, f"`idapbc-pin train --resume {run.path}` (or `idapbc-pin recover {run.path}`) runs it "
+                      "again, reading back its finished chunks of plans; --recover never skips it."):
+        return _recover(run, config, progress, keep)
+
+
+def _recover(run, config: RecoveryConfig, progress: bool, keep: bool) -> dict:
+    """`recover`'s steps on a resolved run."""
     system = planning_system(run.system)  # an input without a limit plans within LQR's largest demand
     torch.set_num_threads(1)
     start = time.perf_counter()
@@ -262,7 +272,11 @@ def recover(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bo
     store = ChunkStore(run.path)  # chunks a killed stage finished are read back, not planned again
     X, U, taught, recovered = collect_labels(system, x0, config.plan_seed, config, progress, teacher, store, "labels")
     if not len(X):
-        raise IdapbcError(f"no start state reached x*, with the teacher or with a plan: nothing to fit a recovery law to ({system.name}). Fix: check the limits.")
+        reason = f"no start state reached x*, with {_teacher_name(config)} or with a plan: no plan to fit a recovery law to"
+        if progress:
+            print(f"recovery stage: {reason}; the run keeps its law as it is  [{time.perf_counter() - start:.0f} s]", flush=True)
+        store.clear()
+        return record_refusal(run, "recovery", reason, start, teacher=config.teacher, teacher_starts=int(taught), plan_starts=int(recovered))
     save_labels(run.path, X, U)  # after every labelling step: an interrupted recover keeps its plans for --refit
     if progress:
         print(f"labels: {_teacher_name(config)} brings {taught} of {config.starts} starts to x*, plans {recovered} of the other "

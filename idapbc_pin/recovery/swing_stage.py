@@ -83,6 +83,7 @@ from ..sim.states import box_gate_states, circle_states, resting_states
 from ..trajectory.holds import judge_starts
 from ..trajectory.chunks import ChunkStore
 from .anywhere_stage import run_anywhere_step
+from ._failures import stage_errors
 from .config import RecoveryConfig, SwingUpConfig
 from ..trajectory.fit import fit_mlp
 from .gate import GATE_HORIZON, RECOVERY_GATE_SEED, read_labels, write_law
@@ -178,8 +179,16 @@ def _label(system, x0, seed: int, config: SwingUpConfig, teacher, store, step: s
 
 def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: bool = True) -> dict:
     """Fit, gate and save a swing-up law for a run (see the module docstring); returns the summary
-    entry written to summary.json → "swing_up"."""
+    entry written to summary.json → "swing_up". A failure inside the stage is one `IdapbcError` line,
+    the run as it was (`_failures.stage_errors`)."""
     run = resolve_run(run_or_path)
+    with stage_errors("the swing-up stage", run.path, f"`idapbc-pin train --resume {run.path}` runs it again, reading back its finished "
+                      "chunks of plans; without --swing-up the run keeps its law."):
+        return _swing_up(run, config, progress)
+
+
+def _swing_up(run, config: SwingUpConfig, progress: bool) -> dict:
+    """`swing_up`'s steps on a resolved run."""
     system = planning_system(run.system)
     torch.set_num_threads(1)
     start = time.perf_counter()

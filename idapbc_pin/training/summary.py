@@ -36,6 +36,9 @@ def format_train_summary(run) -> str:
         if cart not in (0.0, 1.0) and system is not None and prismatic_positions(system).any():
             units += f"; a prismatic joint's position weighted × {cart:g}"
         lines.insert(3, f"anchor: LQR with anchor_q = {config.anchor_q:g} ({units})")
+        form = s.get("anchor_form")
+        if form:
+            lines.insert(4, f"anchor: P of form '{form['form']}', chosen over the configured one ({form['passed_over']})")
     if getattr(run, "uses_fallback", False):
         gate = s.get("fallback") or {}
         why = (f" (gate: {100 * gate['with_fallback']:.0f} % of {gate['states']} fresh states reach x* with it, "

@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 from .._device import require_device
 from .._io import write_json
 from ..config import TrainConfig
-from ..control.anchor import anchor_settings, cart_setting
+from ..control.anchor import anchor_settings, cart_setting, formed_anchor
 from ..control.controller import Controller
 from ..control.linear import fastest_pole
 from ..control.nets import build_nets
@@ -82,9 +82,12 @@ def train(
     """
     if not (isinstance(workers, int) and workers >= 0):
         raise IdapbcError(f"workers must be an integer ≥ 0, got {workers!r}. Fix: 0 (one process per core) or a count such as 2.")
+    anchor_form = _anchor_form(system, config, resume)
     config, run_dir, state = _resolve(system, config, out, resume)
     if progress:
         print(f"run directory: {run_dir}", flush=True)
+        if anchor_form and resume is None:
+            print(f"anchor: P of form '{anchor_form['form']}' ({anchor_form['passed_over']})", flush=True)
     trainer = start(system, config, run_dir, state)
     open_metrics(run_dir / "metrics.csv", state is None, trainer.epoch)
     status = "finished"
@@ -111,6 +114,8 @@ def train(
     summary = _summarise(run, status, trainer.epoch, trainer.eps_ema, trainer.elapsed)
     if gate is not None:
         summary["rollout_gate"] = gate
+    if anchor_form:
+        summary["anchor_form"] = anchor_form
     run.summary = {**summary, **run.summary}
     write_json(run_dir / "summary.json", run.summary)
     return run
@@ -184,12 +189,34 @@ def _resolve(system: System, config: TrainConfig | None, out, resume) -> tuple[T
     return config, _new_run_dir(Path(out) if out is not None else Path("runs") / system.name), None
 
 
+def _anchor_form(system: System, config: TrainConfig | None, resume) -> dict | None:
+    """``{"form", "passed_over"}`` where the anchored form's configured P (``anchor_p``) was passed over
+    for another (`control.anchor.formed_anchor`), else None; a resumed run keeps its summary's record."""
+    if resume is not None:
+        path = Path(resume) / "summary.json"
+        if not path.is_file():
+            return None
+        from .._io import read_json
+
+        try:
+            return read_json(path, fix="delete summary.json").get("anchor_form")
+        except IdapbcError:
+            return None
+    config = config or TrainConfig()
+    if config.form != "anchored":
+        return None
+    _, form, why = formed_anchor(system, config)
+    return {"form": form, "passed_over": why} if why else None
+
+
 def resolved_config(system: System, config: TrainConfig) -> TrainConfig:
     """`config` with its automatic values resolved for `system` (the units and the anchor weight,
     `control.anchor.anchor_settings`, a cart's weight, `control.anchor.cart_setting`, and the fallback gain, `recovery.box_law.fallback_gain`): what a
     new run's config.json records, so a batch that runs a job again finds the run it trained."""
     scaling, anchor_q = anchor_settings(system, config)
-    return config.replace(scaling=scaling, anchor_q=anchor_q, anchor_cart=cart_setting(system, config), fallback_gain=fallback_gain(system, config))
+    anchor_p = formed_anchor(system, config, (scaling, anchor_q))[1] if config.form == "anchored" else config.anchor_p
+    return config.replace(scaling=scaling, anchor_q=anchor_q, anchor_p=anchor_p, anchor_cart=cart_setting(system, config),
+                          fallback_gain=fallback_gain(system, config))
 
 
 def _new_run_dir(out: Path) -> Path:

@@ -61,6 +61,10 @@ SPEED_WEIGHT = 1e3
 
 #: Relative step of the central differences of the forward dynamics.
 _FD = 1e-6
+#: A backward pass's Q_uu (regularised) counts as singular where λ_min ≤ this × λ_max: two inputs that
+#: act alike, or one that acts on nothing, with no input cost. Its problem then takes no step and its
+#: μ grows, as for an indefinite Q_uu; a plan that never steps stays its warm start, at its own cost.
+_QUU_RTOL = 1e-14
 
 
 @dataclass(frozen=True)
@@ -326,10 +330,11 @@ def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, limits=None, s
         Quu, Qux = np.where(finite[:, None, None], Quu, np.eye(m)), np.where(finite[:, None, None], Qux, 0.0)
         Quu_r, Qux_r = np.where(finite[:, None, None], Quu_r, np.eye(m)), np.where(finite[:, None, None], Qux_r, 0.0)
         Qu, Qx, Qxx = np.where(finite[:, None], Qu, 0.0), np.where(finite[:, None], Qx, 0.0), np.where(finite[:, None, None], Qxx, 0.0)
-        pd = np.all(np.linalg.eigvalsh(Quu_r) > 0, axis=1)
+        lam = np.linalg.eigvalsh(Quu_r)
+        pd = lam[:, 0] > _QUU_RTOL * np.abs(lam[:, -1])  # singular or indefinite: no step (μ grows)
         ok &= pd & finite  # a problem whose pass broke down takes no step this iteration
         Quu_r = np.where(pd[:, None, None], Quu_r, np.eye(m))  # its step is not taken; any invertible Quu will do
-        inv = np.linalg.inv(Quu_r)
+        inv = _inverse(Quu_r)
         target = U[:, k] - np.einsum("nij,nj->ni", inv, Qu)
         clamped = (target > bound) | (target < -bound)
         kk = np.clip(target, -bound, bound) - U[:, k]
@@ -340,6 +345,16 @@ def _backward(system, Z, U, A, B, Q, Sz, r_scaled, dt, mu, bound, limits=None, s
         Vxx = Qxx + KKt @ Quu @ KK + KKt @ Qux + np.swapaxes(Qux, 1, 2) @ KK
         Vxx = 0.5 * (Vxx + np.swapaxes(Vxx, 1, 2))
     return kff, gains, ok
+
+
+def _inverse(M: np.ndarray) -> np.ndarray:
+    """Inverses (N, m, m) of the symmetric matrices M (N, m, m) whose λ_min > `_QUU_RTOL`·λ_max:
+    numpy's LU, or where it meets a zero pivot all the same, the eigendecomposition (which cannot)."""
+    try:
+        return np.linalg.inv(M)
+    except np.linalg.LinAlgError:
+        lam, V = np.linalg.eigh(M)
+        return (V / lam[:, None, :]) @ np.swapaxes(V, 1, 2)
 
 
 def _forward(system, Z, U, kff, gains, bound, dt, substeps):
