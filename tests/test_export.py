@@ -424,7 +424,7 @@ def test_standalone_governs_speed_and_energy_as_the_library_does(runs, tmp_path)
     x = moving_states(system, 200, seed=4)
     q, v = system.split(x)
     s_e, s_v, _, _ = run.controller.governor.shares(x)
-    assert ((s_e > 0) | (s_v.max(axis=1) > 0)).mean() > 0.5
+    assert ((s_e > 0) | (s_v > 0)).mean() > 0.5
     folder = ip.export(run, tmp_path / "export", onnx=False)
     assert json.loads((folder / "controller.json").read_text())["governor"]["energy_rows"] == [0, 1]
     one_by_one = np.array([system.saturate(run.controller(xk)) @ system.B.T for xk in x])

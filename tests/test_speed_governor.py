@@ -64,22 +64,43 @@ def test_below_both_thresholds_the_law_is_untouched(systems, name):
 
 
 @pytest.mark.parametrize("name", ["acrobot", "pendubot", "cartpole", "furuta", "reaction_wheel"])
-def test_where_a_clause_acts_no_input_adds_energy_or_speeds_its_motor(systems, name):
+def test_where_a_clause_acts_no_input_adds_energy_or_speed(systems, name):
     """From moving states (speeds up to the ratings) with random inputs: wherever the speed clause
-    acts u_i v_j ≤ 0, wherever the energy clause acts and the speed clause does not u_i w_i ≤ 0, both
-    after the limits' clip; at full share the input is the full braking one."""
+    acts, no input speeds up the fastest joint (u_i c_i ≤ 0, c_i = v_k ∂v̇_k/∂u_i up to a positive
+    scale, checked on the plant's own forward dynamics); wherever only the energy clause acts,
+    u_i w_i ≤ 0; both after the limits' clip; at full share the input is the full braking one."""
     system = systems[name]
     gov = SpeedGovernor.of(system)
     x = moving_states(system, 400, seed=2)
-    s_e, s_v, w, v_j = gov.shares(x)
-    assert (s_e > 0).sum() > 20
+    q, v = system.split(x)
+    s_e, s_v, w, c = gov.shares(x)
+    assert (s_e > 0).sum() > 20 and (s_v > 0).sum() > 20
     u = system.saturate(gov.apply(x, np.random.default_rng(3).uniform(-2, 2, (400, system.m)) * system.effort))
-    energy_only = (s_e[:, None] > 0) & (s_v == 0)
-    assert (u * w)[energy_only].max(initial=0.0) <= 1e-12
-    assert (u * v_j)[s_v > 0].max(initial=0.0) <= 1e-12
-    full = (s_e == 1.0) & (s_v.max(axis=1) == 0) & (np.abs(w) >= 0.1).all(axis=1)
+    k = np.argmax(np.abs(v) / gov.rating, axis=1)
+    zero = system.forward_dynamics(q, v, np.zeros_like(v))
+    for i in range(system.m):
+        unit = np.zeros((400, system.m))
+        unit[:, i] = 1.0
+        reach = (system.forward_dynamics(q, v, unit @ system.B.T) - zero)[np.arange(400), k]  # ∂v̇_k/∂u_i
+        assert (np.sign(c[:, i]) == np.sign(v[np.arange(400), k] * reach))[(s_v > 0) & (np.abs(c[:, i]) > 1e-9)].all()
+    assert (u * c)[s_v > 0].max(initial=0.0) <= 1e-12
+    assert (u * w)[(s_e > 0) & (s_v == 0)].max(initial=0.0) <= 1e-12
+    full = (s_e == 1.0) & (s_v == 0) & (np.abs(w) >= 0.1).all(axis=1)
     assert full.any()
     np.testing.assert_allclose(u[full], -system.effort * np.sign(w[full]))
+
+
+def test_a_passive_joint_past_its_rating_is_braked_through_the_coupling(systems):
+    """The pendubot's passive elbow at 1.1 ratings, the posture otherwise at rest near hanging: the
+    shoulder's input is the full braking one for the elbow (−ū sign(v_e (M⁻¹B)_e)), whatever the law asked."""
+    system = systems["pendubot"]
+    gov = SpeedGovernor.of(system)
+    q = np.array([[0.3, -0.4]])
+    v = np.array([[0.0, 1.1 * gov.rating[1]]])
+    reach = np.linalg.solve(system.mass_matrix(q)[0], system.B)[1, 0]
+    for asked in (-system.effort[0], 0.0, system.effort[0]):
+        u = gov.apply(system.state_from(q, v), np.array([[asked]]))
+        assert u[0, 0] == pytest.approx(-system.effort[0] * np.sign(v[0, 1] * reach))
 
 
 def test_a_law_that_pumps_energy_is_stopped_and_the_motor_kept_near_its_rating(systems):
@@ -105,9 +126,9 @@ def test_the_speed_clause_brakes_a_wheel_past_its_rating(systems):
     system = systems["reaction_wheel"]
     gov = SpeedGovernor.of(system)
     q = np.asarray(system.x_star)[None, : system.nq]
-    v = np.array([[0.0, 1.1 * gov.rating[0]]])
+    v = np.array([[0.0, 1.1 * gov.rating[1]]])  # the wheel, joint 1
     x = system.state_from(q, v)
     u = gov.apply(x, np.array([[system.effort[0]]]))
     assert u[0, 0] == pytest.approx(-system.effort[0])
-    v_slow = np.array([[0.0, 0.5 * SPEED_START * gov.rating[0]]])
+    v_slow = np.array([[0.0, 0.5 * SPEED_START * gov.rating[1]]])
     assert gov.apply(system.state_from(q, v_slow), np.array([[1.0]]))[0, 0] == 1.0

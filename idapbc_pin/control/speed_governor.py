@@ -2,29 +2,30 @@
 
 A law read far from where it was fitted (a release at speed, a push) can pump energy into a whirl
 and drive a joint far past its rated speed. The governor sits after every other law and takes
-energy out wherever the robot holds clearly more than the upright needs, or a motor runs past its
-rating; there it never lets the law add energy. In the spirit of the energy pump's E* − E term:
+energy out wherever the robot holds clearly more than the upright needs, or a joint runs near its
+rated speed; there it never lets the law add energy or speed. In the spirit of the energy pump's E* − E term:
 
     E_g(x) = ½ v_rᵀ M_rr(q) v_r + U(q),     E* = U(q*),     ΔE = E* − U(q_rest),
 
 the energy of every coordinate but the cyclic actuated ones (a cart, a Furuta arm, a reaction
 wheel store energy in their own motion; their speed is governed by their rating instead), and its
 rate through the input, exactly, w = ∂Ė_g/∂u = (M⁻¹B)_rᵀ M_rr v_r (m,) (w = v_a when r holds every
-coordinate: Ė = uᵀv_a − vᵀDv). With the excess e = (E_g − E*)/ΔE and, for an input that drives
-joint j alone, its speed ratio ρ_j = |v_j| / v̄_j (v̄ the URDF `<limit velocity>`):
+coordinate: Ė = uᵀv_a − vᵀDv). With the excess e = (E_g − E*)/ΔE, each joint's speed ratio
+ρ_j = |v_j| / v̄_j (v̄ the URDF `<limit velocity>`, passive joints too) and k the joint with the
+largest s_v,j, its speed's rate through the input c = v_k (M⁻¹B)_k / max_i |(M⁻¹B)_ki| (m,):
 
-    s_E = clip((e − ENERGY_MARGIN) / ENERGY_BAND, 0, 1),   s_v,i = clip((ρ_j − SPEED_START) / (1 − SPEED_START), 0, 1),
-    where s_v,i > 0:  u_i ← 0 if u_i v_j > 0;  u_i ← (1 − s_i) u_i − s_i ū_i clip(v_j / W_SCALE, ±1),
-                      s_i = max(s_E, s_v,i) if w_i v_j > 0 (the clauses agree), else s_v,i;
-    elsewhere:        u_i ← 0 if s_E > 0 and u_i w_i > 0;  u_i ← (1 − s_E) u_i − s_E ū_i clip(w_i / W_SCALE, ±1),
+    s_E = clip((e − ENERGY_MARGIN) / ENERGY_BAND, 0, 1),   s_v = max_j clip((ρ_j − SPEED_START) / (1 − SPEED_START), 0, 1),
+    where s_v > 0:  u_i ← 0 if u_i c_i > 0;  u_i ← (1 − s_i) u_i − s_i ū_i clip(c_i / W_SCALE, ±1),
+                    s_i = max(s_E, s_v) if w_i c_i > 0 (the clauses agree), else s_v;
+    elsewhere:      u_i ← 0 if s_E > 0 and u_i w_i > 0;  u_i ← (1 − s_E) u_i − s_E ū_i clip(w_i / W_SCALE, ±1),
 
-ū the effort limit. A motor near its rating comes first: each input's power into its own joint is
-≤ 0 wherever the speed clause acts, and its power into E_g ≤ 0 wherever the energy clause acts and
-the speed clause does not (on a chain without cyclic actuated joints w = v_a and the two agree);
-clipping to ±ū keeps each sign. Away from both clauses the input is the law's, unchanged: the learned law near x* and every
-swing-up from rest below E* + ENERGY_MARGIN·ΔE. It is a state feedback, applied by `Controller`
-after every outer law and before the rail guard, and the exported controller applies the same
-rule (controller.json's "governor").
+ū the effort limit. A joint near its rating comes first: each input's power into ½v_k² is ≤ 0
+wherever the speed clause acts (a motor brakes its own joint, or a passive one through the
+coupling M⁻¹B), and its power into E_g ≤ 0 wherever only the energy clause acts; clipping to ±ū
+keeps each sign. Away from both clauses the input is the law's, unchanged: the learned law near x*
+and every swing-up from rest below E* + ENERGY_MARGIN·ΔE and 0.8 of every rating. It is a state
+feedback, applied by `Controller` after every outer law and before the rail guard, and the exported
+controller applies the same rule (controller.json's "governor").
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ __all__ = ["ENERGY_BAND", "ENERGY_MARGIN", "SPEED_START", "W_SCALE", "SpeedGover
 ENERGY_MARGIN = 0.5
 #: ... and brakes at the full effort this share of ΔE further up.
 ENERGY_BAND = 0.5
-#: The speed clause starts at this share of a motor's rating and brakes at full effort at the rating.
+#: The speed clause starts at this share of a joint's rating and brakes at full effort at the rating.
 SPEED_START = 0.8
 #: Rates |w| (or speeds) below this (rad/s or m/s per unit input) brake proportionally: no chattering at w = 0.
 W_SCALE = 0.1
@@ -58,8 +59,7 @@ class SpeedGovernor:
     system : the plant whose M(q) and U(q) give E_g and w.
     energy_rows : (r,) the coordinates whose energy E_g counts (every one but the cyclic actuated ones).
     e_star : E* = U(q*), J. delta_e : ΔE = E* − U(q_rest), J (≤ 0: no energy clause).
-    joint : (m,) the joint each input drives alone, −1 where it drives several.
-    rating : (m,) that joint's rated speed (rad/s or m/s), inf where none.
+    rating : (nq,) each joint's rated speed (rad/s or m/s; URDF `<limit velocity>`), inf where none.
     effort : (m,) ū of each input (finite).
     """
 
@@ -67,14 +67,13 @@ class SpeedGovernor:
     energy_rows: np.ndarray
     e_star: float
     delta_e: float
-    joint: np.ndarray
     rating: np.ndarray
     effort: np.ndarray
 
     @classmethod
     def of(cls, system: System) -> "SpeedGovernor | None":
         """The governor of `system`, or None where an input has no finite effort limit (no braking
-        torque is defined) or neither clause could act (no energy gap above rest, no rated motor)."""
+        torque is defined) or neither clause could act (no energy gap above rest, no rated joint)."""
         effort = np.asarray(system.effort, dtype=np.float64)
         if not np.isfinite(effort).all():
             return None
@@ -85,12 +84,11 @@ class SpeedGovernor:
         rows = np.array([i for i in range(nq) if not (cyclic[i] and i in driven)], dtype=int)
         q_star = np.asarray(system.x_star, dtype=np.float64)[:nq]
         u_star, u_rest = system.potential(np.stack([q_star, resting_configuration(system)]))
-        joint = np.array([int(np.flatnonzero(B[:, i])[0]) if np.count_nonzero(B[:, i]) == 1 else -1 for i in range(system.m)])
-        rating = np.array([system.joints[j].speed if j >= 0 else np.inf for j in joint], dtype=np.float64)
+        rating = np.array([j.speed for j in system.joints], dtype=np.float64)
         delta_e = float(u_star - u_rest) if len(rows) else 0.0
         if not (delta_e > 0 or np.isfinite(rating).any()):
             return None
-        return cls(system, rows, float(u_star), delta_e, joint, rating, effort)
+        return cls(system, rows, float(u_star), delta_e, rating, effort)
 
     def energy(self, x) -> tuple[np.ndarray, np.ndarray]:
         """(E_g (N,) in J, w (N, m) = ∂Ė_g/∂u) at states x (N, n) = (q, p)."""
@@ -107,38 +105,46 @@ class SpeedGovernor:
         return e_g, w
 
     def shares(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(s_E (N,), s_v (N, m), w (N, m), v_j (N, m)): how hard each clause acts at x (N, n), the
-        energy rate per input and the speed of the joint each input drives (0 where it drives several)."""
+        """(s_E (N,), s_v (N,), w (N, m), c (N, m)) at x (N, n): how hard each clause acts, the energy
+        rate per input, and the speed clause's direction c = v_k (M⁻¹B)_k / max_i |(M⁻¹B)_ki| for the
+        joint k nearest past its start (rad/s or m/s; 0 where the speed clause does not act)."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-        v = self.system.split(x)[1]
+        q, v = self.system.split(x)
         if self.delta_e > 0:
             e_g, w = self.energy(x)
             s_e = np.clip(((e_g - self.e_star) / self.delta_e - ENERGY_MARGIN) / ENERGY_BAND, 0.0, 1.0)
         else:
             s_e, w = np.zeros(len(x)), np.zeros((len(x), self.system.m))
-        v_j = np.where(self.joint >= 0, v[:, np.maximum(self.joint, 0)], 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            s_v = np.where(np.isfinite(self.rating), np.clip((np.abs(v_j) / self.rating - SPEED_START) / (1.0 - SPEED_START), 0.0, 1.0), 0.0)
-        return s_e, s_v, w, v_j
+            each = np.where(np.isfinite(self.rating), np.clip((np.abs(v) / self.rating - SPEED_START) / (1.0 - SPEED_START), 0.0, 1.0), 0.0)
+        k = np.argmax(each, axis=1)
+        rows = np.arange(len(x))
+        s_v, c = each[rows, k], np.zeros((len(x), self.system.m))
+        fast = np.flatnonzero(s_v > 0)
+        if len(fast):
+            M = self.system.mass_matrix(q[fast])
+            reach = np.linalg.solve(M, np.broadcast_to(np.asarray(self.system.B, dtype=np.float64), (len(fast),) + self.system.B.shape))
+            reach = reach[np.arange(len(fast)), k[fast]]  # (F, m): ∂v̇_k/∂u
+            c[fast] = v[fast, k[fast], None] * reach / np.abs(reach).max(axis=1, keepdims=True)
+        return s_e, s_v, w, c
 
     def apply(self, x, u) -> np.ndarray:
         """The law's inputs u (N, m) at x (N, n), governed (a new array)."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         u = np.array(u, dtype=np.float64, copy=True).reshape(len(x), -1)
-        s_e, s_v, w, v_j = self.shares(x)
+        s_e, s_v, w, c = self.shares(x)
         if not ((s_e > 0).any() or (s_v > 0).any()):
             return u
-        adds = ((s_e[:, None] > 0) & (s_v == 0) & (u * w > 0)) | ((s_v > 0) & (u * v_j > 0))
-        u = np.where(adds, 0.0, u)
-        speed = s_v > 0  # a motor near its rating brakes its own joint; as hard as the energy asks where the two agree
-        brake = -self.effort * np.clip(np.where(speed, v_j, w) / W_SCALE, -1.0, 1.0)
-        s = np.where(speed, np.where(w * v_j > 0, np.maximum(s_e[:, None], s_v), s_v), s_e[:, None])
+        speed = (s_v > 0)[:, None]  # a joint near its rating comes first; braked as hard as the energy asks where the two agree
+        u = np.where((speed & (u * c > 0)) | (~speed & (s_e[:, None] > 0) & (u * w > 0)), 0.0, u)
+        brake = -self.effort * np.clip(np.where(speed, c, w) / W_SCALE, -1.0, 1.0)
+        s = np.where(speed, np.where(w * c > 0, np.maximum(s_e, s_v)[:, None], s_v[:, None]), s_e[:, None])
         return (1.0 - s) * u + s * brake
 
     def to_json(self) -> dict:
         """The governor's settings for controller.json (the exported controller's "governor")."""
         nq = self.system.nq
         return {"energy_rows": self.energy_rows.tolist(), "q_star": np.asarray(self.system.x_star, dtype=np.float64)[:nq].tolist(),
-                "q_rest": resting_configuration(self.system).tolist(), "joint": self.joint.tolist(),
+                "q_rest": resting_configuration(self.system).tolist(),
                 "rating": [r if np.isfinite(r) else None for r in self.rating.tolist()], "effort": self.effort.tolist(),
                 "energy_margin": ENERGY_MARGIN, "energy_band": ENERGY_BAND, "speed_start": SPEED_START, "w_scale": W_SCALE}

@@ -35,10 +35,11 @@ its (cos, sin)), v the joint velocities (rad/s or m/s). The law (paper eq. tilde
                   acts only where ‖weight ⊙ e_k‖ ≤ ϱ)
     u ← governed(u)                                         (if controller.json has a "governor": where the
                   energy E_g = ½ v_rᵀM_rr v_r + U(q) exceeds E* = U(q*) by more than "energy_margin"
-                  of ΔE = E* − U(q_rest), or a motor runs past "speed_start" of its "rating", no input
-                  adds energy and each brakes towards −ū clip(w / "w_scale", ±1), w = (M⁻¹B)_rᵀM_rr v_r
-                  (or towards −ū clip(v_j / "w_scale", ±1) where its motor nears its rating), fully
-                  "energy_band" ΔE further up or at the rating: idapbc_pin.control.speed_governor)
+                  of ΔE = E* − U(q_rest), no input adds energy and each brakes towards
+                  −ū clip(w / "w_scale", ±1), w = (M⁻¹B)_rᵀM_rr v_r, fully "energy_band" ΔE further up;
+                  where a joint k runs past "speed_start" of its "rating", no input speeds it up and
+                  each brakes towards −ū clip(c / "w_scale", ±1), c = v_k (M⁻¹B)_k / max|(M⁻¹B)_k|,
+                  fully at the rating: idapbc_pin.control.speed_governor)
     u ← clip(u, −EFFORT, EFFORT);   τ = B u
 
 `swing_up_torque(q, v, t)` (when controller.json has a "manoeuvre"; the swing-up stage's manoeuvre
@@ -165,30 +166,36 @@ class ExportedController:
     def governed(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:
         """u (N, m) with the speed and energy governor's rule (module docstring; controller.json's "governor")."""
         gv = self.governor
-        r, joint = np.array(gv["energy_rows"], dtype=int), np.array(gv["joint"], dtype=int)
+        r = np.array(gv["energy_rows"], dtype=int)
         rating = np.array([np.inf if x is None else x for x in gv["rating"]], dtype=np.float64)
         effort, scale = np.array(gv["effort"], dtype=np.float64), float(gv["w_scale"])
         model, data = self.model, self.data
         rest = self.configuration(np.array([gv["q_star"], gv["q_rest"]], dtype=np.float64))
         e_star, e_rest = (pin.computePotentialEnergy(model, data, qc) for qc in rest)
         delta = e_star - e_rest if len(r) else 0.0
-        s_e, w = np.zeros(len(q)), np.zeros_like(u)
-        if delta > 0:
-            for k, qc in enumerate(self.configuration(q)):
-                M = pin.crba(model, data, qc)
-                Mv_r = M[np.ix_(r, r)] @ v[k, r]
-                e_g = 0.5 * v[k, r] @ Mv_r + pin.computePotentialEnergy(model, data, qc)
-                w[k] = np.linalg.solve(M, self.B)[r].T @ Mv_r
-                s_e[k] = min(max(((e_g - e_star) / delta - gv["energy_margin"]) / gv["energy_band"], 0.0), 1.0)
-        v_j = np.where(joint >= 0, v[:, np.maximum(joint, 0)], 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            s_v = np.where(np.isfinite(rating), np.clip((np.abs(v_j) / rating - gv["speed_start"]) / (1.0 - gv["speed_start"]), 0.0, 1.0), 0.0)
+            each = np.where(np.isfinite(rating), np.clip((np.abs(v) / rating - gv["speed_start"]) / (1.0 - gv["speed_start"]), 0.0, 1.0), 0.0)
+        k = np.argmax(each, axis=1)
+        s_v = each[np.arange(len(q)), k]
+        s_e, w, c = np.zeros(len(q)), np.zeros_like(u), np.zeros_like(u)
+        for n, qc in enumerate(self.configuration(q)):
+            if delta <= 0 and s_v[n] == 0:
+                continue
+            M = pin.crba(model, data, qc)
+            reach = np.linalg.solve(M, self.B)  # (nv, m): ∂v̇/∂u
+            if delta > 0:
+                Mv_r = M[np.ix_(r, r)] @ v[n, r]
+                e_g = 0.5 * v[n, r] @ Mv_r + pin.computePotentialEnergy(model, data, qc)
+                w[n] = reach[r].T @ Mv_r
+                s_e[n] = min(max(((e_g - e_star) / delta - gv["energy_margin"]) / gv["energy_band"], 0.0), 1.0)
+            if s_v[n] > 0:
+                c[n] = v[n, k[n]] * reach[k[n]] / np.abs(reach[k[n]]).max()
         if not ((s_e > 0).any() or (s_v > 0).any()):
             return u
-        u = np.where(((s_e[:, None] > 0) & (s_v == 0) & (u * w > 0)) | ((s_v > 0) & (u * v_j > 0)), 0.0, u)
-        speed = s_v > 0
-        brake = -effort * np.clip(np.where(speed, v_j, w) / scale, -1.0, 1.0)
-        s = np.where(speed, np.where(w * v_j > 0, np.maximum(s_e[:, None], s_v), s_v), s_e[:, None])
+        speed = (s_v > 0)[:, None]
+        u = np.where((speed & (u * c > 0)) | (~speed & (s_e[:, None] > 0) & (u * w > 0)), 0.0, u)
+        brake = -effort * np.clip(np.where(speed, c, w) / scale, -1.0, 1.0)
+        s = np.where(speed, np.where(w * c > 0, np.maximum(s_e, s_v)[:, None], s_v[:, None]), s_e[:, None])
         return (1.0 - s) * u + s * brake
 
     def rail_guard(self, q: np.ndarray, v: np.ndarray, u: np.ndarray) -> np.ndarray:

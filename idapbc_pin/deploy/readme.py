@@ -162,12 +162,12 @@ def deploy_readme(record: dict) -> str:
                  "and fall back to `torque(q, v)` if the robot is far from its nominal.\n")
     governor = record.get("governor")
     if governor is not None:
-        rated = ", ".join(f"{record['actuated'][i]} {r:g}" for i, r in enumerate(governor["rating"]) if r is not None) or "none"
-        line += "    u    ← governed(u)  where E_g > E* + margin·ΔE or a motor nears its rating  (the speed and energy governor)\n"
+        rated = ", ".join(f"{record['joints'][j]} {r:g}" for j, r in enumerate(governor["rating"]) if r is not None) or "none"
+        line += "    u    ← governed(u)  where E_g > E* + margin·ΔE or a joint nears its rating  (the speed and energy governor)\n"
         text += (f"\nThen a speed and energy governor (controller.json's \"governor\") keeps any of these laws from whirling the robot: where "
                  f"the energy E_g of the posture's coordinates exceeds the upright's E* by more than {governor['energy_margin']:g} of the "
-                 "swing from rest to upright, or a motor runs past "
-                 f"{governor['speed_start']:g} of its rated speed (URDF `<limit velocity>`: {rated}), no input adds energy and each brakes, at "
+                 "swing from rest to upright, or a joint runs past "
+                 f"{governor['speed_start']:g} of its rated speed (URDF `<limit velocity>`: {rated}), no input adds energy (or that joint's speed) and each brakes, at "
                  f"the full effort {governor['energy_band']:g} of that swing further up or at the rating. Elsewhere the input is the law's.\n")
     guard = record.get("rail_guard")
     if guard is not None:
