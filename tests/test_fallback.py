@@ -46,9 +46,10 @@ def _wide_states(system, n=400, seed=0):
 
 def test_inside_the_box_the_law_is_the_networks_outside_it_the_anchors_linear_law(pendubot_run):
     run = pendubot_run
-    ctrl = run.controller
+    ctrl = run.controller.with_governor(False)  # the laws alone; the governor comes after them, last
     assert isinstance(ctrl.fallback, BoxFallback)
     x = _wide_states(run.system)
+    np.testing.assert_allclose(run.controller(x), run.controller.governor.apply(x, ctrl(x)), rtol=1e-12, atol=1e-12)  # x wrapped in one
     lo, hi = run.system.domain
     inside = np.all((x >= lo) & (x <= hi), axis=1)
     assert 0 < inside.sum() < len(x) - 100

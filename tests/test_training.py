@@ -204,7 +204,7 @@ def test_run_time_path_equals_the_training_path(form, energy_input, scaling, dty
     system = ip.load_system("cartpole")
     torch.manual_seed(1)
     config = TrainConfig(width=16, depth=3, form=form, rho=0.2, kappa=0.1, scaling=scaling, anchor_q=10.0, dtype=dtype, energy_input=energy_input)
-    ctrl = Controller(system, build_nets(system, config))
+    ctrl = Controller(system, build_nets(system, config), governor=False)  # the networks' law alone (the governor: test_speed_governor.py)
     with torch.no_grad():  # move every weight off its initial value (the anchored last layers start small)
         for p in ctrl.nets.parameters():
             p.add_(0.3 * torch.randn_like(p))
@@ -246,7 +246,7 @@ def test_run_time_path_follows_the_weights():
     """After an optimiser step the controller's run-time path uses the new weights, not a stale copy."""
     system = ip.load_system("cartpole")
     torch.manual_seed(2)
-    ctrl = Controller(system, build_nets(system, TrainConfig(width=16, depth=2)))
+    ctrl = Controller(system, build_nets(system, TrainConfig(width=16, depth=2)), governor=False)  # the networks' law alone
     x = system.x_star + np.random.default_rng(2).normal(scale=0.5, size=(5, system.n))
     before = ctrl(x)
     loss = ctrl.nets.desired(torch.as_tensor(x), create_graph=True)[4].square().sum()
