@@ -178,17 +178,14 @@ def _label(system, x0, seed: int, config: SwingUpConfig, teacher, store, step: s
 
 
 def swing_up(run_or_path, config: SwingUpConfig = SwingUpConfig(), progress: bool = True) -> dict:
-    """Fit, gate and save a swing-up law for a run (see the module docstring); returns the summary
-    entry written to summary.json → "swing_up". A failure inside the stage is one `IdapbcError` line,
-    the run as it was (`_failures.stage_errors`)."""
+    """Fit, gate and save a swing-up law for a run (see the module docstring); returns the summary entry
+    written to summary.json → "swing_up". A failure inside is one `IdapbcError` line, the run as it was."""
     run = resolve_run(run_or_path)
-    with stage_errors("the swing-up stage", run.path, f"`idapbc-pin train --resume {run.path}` runs it again, reading back its finished "
-                      "chunks of plans; without --swing-up the run keeps its law."):
+    with stage_errors("the swing-up stage", run.path, f"`idapbc-pin train --resume {run.path}` runs it again, reading back its finished chunks of plans; without --swing-up the run keeps its law."):
         return _swing_up(run, config, progress)
 
 
 def _swing_up(run, config: SwingUpConfig, progress: bool) -> dict:
-    """`swing_up`'s steps on a resolved run."""
     system = planning_system(run.system)
     torch.set_num_threads(1)
     start = time.perf_counter()
