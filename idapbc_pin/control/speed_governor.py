@@ -90,10 +90,11 @@ class SpeedGovernor:
             return None
         return cls(system, rows, float(u_star), delta_e, rating, effort)
 
-    def energy(self, x) -> tuple[np.ndarray, np.ndarray]:
-        """(E_g (N,) in J, w (N, m) = ∂Ė_g/∂u) at states x (N, n) = (q, p)."""
+    def energy(self, x, qv: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(E_g (N,) in J, w (N, m) = ∂Ė_g/∂u) at states x (N, n) = (q, p); `qv`: x's (q, v) where
+        already split."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-        q, v = self.system.split(x)
+        q, v = self.system.split(x) if qv is None else qv
         if len(self.energy_rows) == self.system.nq:  # every coordinate: E_g = H = ½ vᵀp + U, w = Bᵀv
             return 0.5 * np.einsum("ni,ni->n", v, x[:, self.system.nq:]) + self.system.potential(q), v @ np.asarray(self.system.B, dtype=np.float64)
         M = self.system.mass_matrix(q)
@@ -111,7 +112,7 @@ class SpeedGovernor:
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         q, v = self.system.split(x)
         if self.delta_e > 0:
-            e_g, w = self.energy(x)
+            e_g, w = self.energy(x, (q, v))
             s_e = np.clip(((e_g - self.e_star) / self.delta_e - ENERGY_MARGIN) / ENERGY_BAND, 0.0, 1.0)
         else:
             s_e, w = np.zeros(len(x)), np.zeros((len(x), self.system.m))
