@@ -126,6 +126,7 @@ def moving_states(system, n: int, seed: int = 0) -> np.ndarray:
     its URDF rated speed (`<limit velocity>`, rad/s or m/s; `ANYWHERE_SPEED` for a joint without
     one), p = M(q) v; drawn from numpy's default_rng(seed), the postures first. No row is at rest."""
     from ..model.resting import resting_configuration
+    from .metrics import joint_ratings
 
     if n < 1:
         raise IdapbcError(f"moving starts need n ≥ 1, got {n}. Fix: pass n ≥ 1.")
@@ -134,7 +135,7 @@ def moving_states(system, n: int, seed: int = 0) -> np.ndarray:
     q = np.tile(resting_configuration(system), (int(n), 1))
     angle = np.asarray(system.angle_mask, bool)[:nq]
     q = np.where(angle, np.asarray(system.x_star, float)[:nq] + rng.uniform(-np.pi, np.pi, q.shape), q)
-    rated = np.array([j.speed for j in system.joints], float)
+    rated = joint_ratings(system)
     rated = np.where(np.isfinite(rated) & (rated > 0), rated, ANYWHERE_SPEED)
     v = rng.uniform(-1.0, 1.0, q.shape) * rated
     return system.state_from(q, v)
