@@ -14,7 +14,7 @@ that contains every value the exact operation takes on its arguments' intervals 
   their results are widened by `LIBM_REL` relative plus the smallest normal number.
 
 Products with a point matrix use the midpoint-radius form (Rump 1999), exact for the interval hull
-up to the rounding bound above.
+up to the rounding bound above. An operation with a `jet.Jet` operand is left to the jet.
 """
 
 from __future__ import annotations
@@ -93,6 +93,8 @@ class Interval:
 
     # ----------------------------------------------------------------- arithmetic
     def __add__(self, other) -> "Interval":
+        if getattr(other, "_is_jet", False):
+            return NotImplemented
         o = _as_interval(other)
         return Interval(_down(self.lo + o.lo), _up(self.hi + o.hi))
 
@@ -102,12 +104,18 @@ class Interval:
         return Interval(-self.hi, -self.lo)
 
     def __sub__(self, other) -> "Interval":
+        if getattr(other, "_is_jet", False):
+            return NotImplemented
         return self + (-_as_interval(other))
 
     def __rsub__(self, other) -> "Interval":
+        if getattr(other, "_is_jet", False):
+            return NotImplemented
         return _as_interval(other) + (-self)
 
     def __mul__(self, other) -> "Interval":
+        if getattr(other, "_is_jet", False):
+            return NotImplemented
         o = _as_interval(other)
         p = np.stack(np.broadcast_arrays(self.lo * o.lo, self.lo * o.hi, self.hi * o.lo, self.hi * o.hi))
         return Interval(_down(p.min(axis=0)), _up(p.max(axis=0)))

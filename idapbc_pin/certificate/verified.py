@@ -12,7 +12,9 @@ For a level c (below the sampled set's, `idapbc_pin.certificate.region`) and the
 
 V is bounded on a box B by the mean-value form V(m) + ∇V(B)·(B − m) (m its centre), intersected with
 its direct enclosure, and from below by its tangent plane at m where that plane bounds V (V convex,
-`enclosures.FlowEnclosure.value_and_grad`); V̇ by its direct enclosure. When every box is decided,
+`enclosures.FlowEnclosure.value_and_grad`); V̇ by its direct enclosure, met, for a URDF loop, with
+its mean-value form V̇(m) + ∇V̇(X)·(X − m) from jets (`jet.Jet`; a quadratic V's rate does its own
+split, `enclosures.quadratic_rate`). When every box is decided,
 the set is **verified**:
 along the exact loop (the deployed law in exact arithmetic on its weights, the closed-form plant,
 the effort limits), V decreases on {c₀ ≤ V < c}, so a trajectory starting in the set stays in it and
@@ -34,6 +36,7 @@ from ..errors import IdapbcError
 from .baseline import QuadraticLyapunov
 from .enclosures import FlowEnclosure, enclosable, flow_rate, lqr_rate
 from .interval import Interval
+from .jet import Jet
 from .region import covered_share
 from .result import Verified
 from .vbox import sample_set, set_frame
@@ -46,13 +49,19 @@ LEVELS = (0.999, 0.99, 0.9, 0.5)
 _OVER = "over the box budget"
 
 
-def _bounds(rate, X: Interval, floor):
+def _bounds(rate, X: Interval, floor, first_order: bool = False):
     """(V's lower and upper bounds, V̇'s upper bound, V̇'s lower bound at the centre, V at the centre)
-    per box; ``floor`` = (x*, Q) with V ≥ δᵀQδ adds that quadratic's lower bound."""
+    per box; ``floor`` = (x*, Q) with V ≥ δᵀQδ adds that quadratic's lower bound. ``first_order``:
+    V̇ is also bounded by its mean-value form V̇(m) + ∇V̇(X)·(X − m), from the jets of the loop
+    (`jet.Jet`), and the tighter of both bounds is kept."""
     m = X.mid
     N = X.shape[0]
     both = Interval.concat([X, Interval.point(m)], axis=0)
-    V, grad, Vd, tangent = rate(both)
+    if first_order:
+        V, grad, Vd_jet, tangent = rate(Jet.variables(both))
+        V, grad, Vd = V.val, grad.val, Vd_jet.val
+    else:
+        V, grad, Vd, tangent = rate(both)
     Vb, Gb, Vdb, Vm, Gm = V[:N], grad[:N], Vd[:N], V[N:], grad[N:]
     mv = (Gb * (X - m)).sum(-1) + Vm  # mean-value form
     lo, hi = np.maximum(Vb.lo, mv.lo), np.minimum(Vb.hi, mv.hi)
@@ -63,7 +72,15 @@ def _bounds(rate, X: Interval, floor):
         dm, d = Interval.point(m) - x_star, X - x_star
         quad = ((d @ (2 * Q)) * (X - m)).sum(-1) + (dm @ Q * dm).sum(-1)  # its mean-value form
         lo = np.maximum(lo, np.maximum(quad.lo, (d @ Q * d).sum(-1).lo))
-    return lo, hi, Vdb.hi, Vd[N:].lo, Vm.hi
+    vd_hi = Vdb.hi
+    if first_order:
+        slope = Vd_jet.grad[:N]
+        vd_mv = (slope * (X - m)).sum(-1) + Vd[N:]
+        vd_hi = np.minimum(vd_hi, vd_mv.hi)
+    # NaN (an enclosure past float range) proves nothing
+    nan = np.isnan
+    return (np.where(nan(lo), -np.inf, lo), np.where(nan(hi), np.inf, hi), np.where(nan(vd_hi), np.inf, vd_hi),
+            np.where(nan(Vd[N:].lo), -np.inf, Vd[N:].lo), np.where(nan(Vm.hi), np.inf, Vm.hi))
 
 
 def _split(X: Interval, scale: np.ndarray, axes: np.ndarray | None = None) -> Interval:
@@ -102,7 +119,7 @@ def _run(rate, X: Interval, decide, floor, scale, budget: int, batch: int, axes=
         count += B.shape[0]
         if count > budget:
             return _OVER, count
-        undecided, fail = decide(*_bounds(rate, B, floor))
+        undecided, fail = decide(*_bounds(rate, B, floor, getattr(rate, "first_order", False)))
         if fail:
             return fail, count
         if undecided.any():
@@ -151,7 +168,7 @@ def verify_level(rate, c: float, core: float, vbox, floor=None, *, budget: int =
         bad = undecided & (V_mid < c) & (V_mid >= core) & (Vd_mid_lo >= 0)
         return undecided, ("a state of the set outside the core where V̇ ≥ 0" if bad.any() else None)
 
-    why, k = _run(rate, _grid(lo, hi, grid), inside, floor, scale, budget - total, batch)
+    why, k = _run(rate, _grid(lo, hi, grid), inside, floor, np.maximum(hi - lo, 1e-12 * scale), budget - total, batch)  # split in the cover's units
     return (f"more than {budget} boxes" if why == _OVER else why), total + k
 
 
@@ -205,6 +222,8 @@ def _why_not(system, ctrl, vbox, mode: str) -> str | None:
     if mode == "never":
         return "not asked for"
     why = enclosable(system, getattr(ctrl, "fallback", None)) if ctrl is not None else enclosable(system)
+    if why is None and getattr(ctrl, "guard", None) is not None:
+        why = "no interval form of the rail guard"
     if why is None and ctrl is not None and not hasattr(ctrl, "flow"):
         why = f"no interval form of {type(ctrl).__name__} (a run's Controller has one)"
     if why is None:
@@ -212,7 +231,7 @@ def _why_not(system, ctrl, vbox, mode: str) -> str | None:
         if np.any((vbox[0][angles] < x_star[angles] - np.pi) | (vbox[1][angles] > x_star[angles] + np.pi)):
             why = "the verification box holds angles more than a turn apart (the law wraps them)"
     if why is None and mode == "auto" and system.n > 2:
-        why = f"not tried for {system.n} states: first-order interval bounds need too many boxes beyond 2 (verify='always' tries)"
+        why = f"not tried for {system.n} states by default: the boxes needed grow fast beyond 2 (verify='always' tries, within the box budget)"
     return why
 
 
@@ -237,12 +256,14 @@ def verify_sets(ctrl, system, region, base_region, vbox, tbox, bound, rng, mode:
         if name == "NIDA-PBC":
             flow = ctrl.flow()
             enc, g_pinv, fallback = FlowEnclosure(flow), ctrl._g_pinv, getattr(ctrl, "fallback", None)
-            rate = lambda X: flow_rate(system, enc, g_pinv, bound, fallback, X)  # noqa: E731
+            governor = getattr(ctrl, "governor", None)
+            rate = lambda X: flow_rate(system, enc, g_pinv, bound, fallback, X, governor)  # noqa: E731
             floor = None if flow.P is None else (x_star, 0.5 * np.asarray(flow.P, np.float64))
             fn = ctrl
         else:
             lqr = LQRController(system)
             rate = lambda X: lqr_rate(system, lqr, lqr.S, bound, X)  # noqa: E731
             floor, fn = (x_star, np.asarray(lqr.S, np.float64)), QuadraticLyapunov(lqr.S, x_star, system.angle_mask)
+        rate.first_order = name == "NIDA-PBC" and hasattr(system.plant, "chain")  # a URDF plant: mean-value forms of Ḣ_d (jets)
         out.append(verified_set(rate, reg.c, reg.core, vbox, _share(fn, x_star, vbox, tbox, rng), floor, budget=budget))
     return tuple(out)

@@ -16,6 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from ._mechanics import mechanical_f, mechanical_jacobian
+from .chain import Chain
 from .joint import JointInfo
 from ..errors import IdapbcError
 
@@ -204,6 +205,23 @@ class PinocchioPlant:
         self._free.gravity = pin.Motion.Zero()
         self._pools: dict[int, tuple] = {}
         self._pool, self._free_pool = self._pools_for(1)
+
+    def chain(self) -> Chain:
+        """The kinematic tree as plain arrays, in the order of the minimal coordinates (`model.chain`)."""
+        m = self.model
+        order = sorted(range(1, m.njoints), key=lambda j: m.joints[j].idx_v)
+        index = {jid: k for k, jid in enumerate(order)}
+        placements = [m.jointPlacements[j] for j in order]
+        inertias = [m.inertias[j] for j in order]
+        infos = [self.joints[j - 1] for j in order]
+        return Chain(parent=tuple(index.get(int(m.parents[j]), -1) for j in order),
+                     prismatic=tuple(info.kind == "prismatic" for info in infos),
+                     rotation=np.array([np.array(pl.rotation) for pl in placements]),
+                     translation=np.array([np.array(pl.translation) for pl in placements]),
+                     axis=np.array([info.axis for info in infos], float),
+                     mass=np.array([float(i.mass) for i in inertias]), lever=np.array([np.array(i.lever) for i in inertias]),
+                     inertia=np.array([np.array(i.inertia) for i in inertias]),
+                     armature=np.array([float(m.armature[m.joints[j].idx_v]) for j in order]), gravity=np.array(m.gravity.linear, float))
 
     @property
     def nq_config(self) -> int:
