@@ -149,3 +149,27 @@ def test_saturated_lqr_on_a_urdf_pendubot_is_verified_near_x_star_and_the_open_l
     open_rate = lambda X: quadratic_rate(S, x_star, lambda Y: lqr_field(system, lqr, system.effort, Y), A, X)  # noqa: E731
     why, _ = verify_level(open_rate, 2e-5, 1e-6, (lo, hi), (x_star, S), budget=20000)
     assert why == "a state of the set outside the core where V̇ ≥ 0"
+
+
+def test_a_core_proved_from_the_linearisation_holds_along_the_true_loop_and_the_open_loop_has_none():
+    from idapbc_pin.certificate.core import proved_core
+    from idapbc_pin.certificate.region import TrueLoop
+
+    system = ip.load_system("pendubot")
+    lqr = LQRController(system)
+    x_star, S = np.asarray(system.x_star, float), lqr.S
+    field = lambda X: lqr_field(system, lqr, system.effort, X)  # noqa: E731
+    loop = TrueLoop(system, lqr, system.effort)
+    A = loop.jacobian_at(x_star)
+    c, rho = proved_core(S, A, x_star, field, 1.0)
+    assert c > 0 and rho < np.sqrt(c / np.linalg.eigvalsh(S).max())
+    # sampled states of the shell {ρ < ‖δ‖, V < c}: V̇ < 0 along the true loop (Pinocchio's f)
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(4000, system.n))
+    d *= (np.sqrt(c / np.einsum("ni,ij,nj->n", d, S, d)) * rng.uniform(0.05, 1.0, len(d)))[:, None]
+    rate = 2 * np.einsum("ni,ij,nj->n", d, S, loop(x_star + d))
+    assert np.all(rate < 0)
+    # the open loop (K = 0, A its own linearisation): its upright is unstable, no core
+    lqr.K = np.zeros_like(lqr.K)
+    open_loop = TrueLoop(system, lqr, system.effort)
+    assert proved_core(S, open_loop.jacobian_at(x_star), x_star, field, 1.0, halvings=12) == (0.0, float("inf"))

@@ -22,7 +22,7 @@ from .region import TrueLoop, certified_region
 from .result import BaselineCertificate
 from .terms import _f64
 
-__all__ = ["QuadraticLyapunov", "certify_baseline"]
+__all__ = ["QuadraticLyapunov", "certify_baseline", "ellipsoid_share", "loop_quadratic"]
 
 
 class QuadraticLyapunov:
@@ -52,6 +52,33 @@ class QuadraticLyapunov:
     def hess_H_d(self, x) -> np.ndarray:
         """∇²V = 2S: (N, n) -> (N, n, n)."""
         return np.broadcast_to(2.0 * self.S, (np.atleast_2d(x).shape[0],) + self.S.shape).copy()
+
+
+def loop_quadratic(A: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """P (n, n) of V = δᵀPδ for a loop with linearisation A (Hurwitz) at x*: AᵀP + PA = −D⁻², D the
+    box's half-widths `half` (n,), so every coordinate's share of the decrease is weighed in the
+    box's own units. A quadratic fitted to the loop itself, for the loop as deployed."""
+    from scipy.linalg import solve_continuous_lyapunov
+
+    A = _f64(A)
+    if np.max(np.linalg.eigvals(A).real) >= 0:
+        raise ValueError("the loop's linearisation is not Hurwitz: no quadratic Lyapunov function")
+    P = solve_continuous_lyapunov(A.T, -np.diag(1.0 / _f64(half) ** 2))
+    return 0.5 * (P + P.T)
+
+
+def ellipsoid_share(P: np.ndarray, c: float, half: np.ndarray) -> float:
+    """The share of the box x* ± half (n,) inside {δᵀPδ < c}, for an ellipsoid inside that box:
+    vol = ω_n c^{n/2} / √det P, ω_n the unit ball's volume; NaN where it reaches beyond the box."""
+    from math import gamma, pi
+
+    P, half = _f64(P), _f64(half)
+    n = half.size
+    reach = np.sqrt(c * np.diag(np.linalg.inv(P)))
+    if np.any(reach > half):
+        return float("nan")
+    ball = pi ** (n / 2) / gamma(n / 2 + 1)
+    return float(ball * c ** (n / 2) / np.sqrt(np.linalg.det(P)) / np.prod(2 * half))
 
 
 def certify_baseline(system, vbox, tbox, rng, bound=None, share_bound: float = 1e-3, beta: float = 1e-6) -> BaselineCertificate:
