@@ -458,6 +458,31 @@ def test_the_anywhere_gate_judges_the_deployed_law_from_moving_states_at_up_to_t
     assert np.abs(v).max() > ANYWHERE_SPEED and (np.abs(v) <= joint_ratings(pendubot) * (1 + 1e-9)).all()
 
 
+@pytest.mark.parametrize("lost, kept", [(0, True), (1, True), (2, False)])
+def test_a_library_up_longer_is_kept_though_it_holds_one_moving_state_fewer_never_two(pendubot, monkeypatch, lost, kept):
+    """`anywhere_gate`'s rule: a library with its tip up for a share `ANYWHERE_MARGIN` larger may hold
+    `LIBRARY_LOSS` fewer states from anywhere than the law it replaces, not more."""
+    from types import SimpleNamespace
+
+    from idapbc_pin.recovery import anywhere_stage
+    from idapbc_pin.recovery.config import SwingUpConfig
+
+    assert anywhere_stage.LIBRARY_LOSS == 1
+    near, moving = 3, 6
+    shares = {"current": 0.3, "library": 0.3 + 2 * anywhere_stage.ANYWHERE_MARGIN}
+    held = {"current": np.ones(near + moving, bool), "library": np.r_[np.ones(near + moving - lost, bool), np.zeros(lost, bool)]}
+
+    def judged(worker, job_list, workers, ray):
+        return [(held[law], np.full(near + moving, 2.0), np.full(near + moving, shares[law])) for _, law, _, _ in job_list]
+
+    monkeypatch.setattr(anywhere_stage, "process_map", judged)
+    teacher = SimpleNamespace(fallback=None, with_fallback=lambda law: law)
+    run = SimpleNamespace(system=pendubot, config=SimpleNamespace(seed=0), box_controller=teacher)
+    gate = anywhere_stage.anywhere_gate(run, "current", SimpleNamespace(with_inner=lambda inner: "library"),
+                                        SwingUpConfig(gate_states=near, gate_moving=moving, box_states=0, workers=1))
+    assert gate["anywhere"] == [moving, moving - lost] and gate["near"] == [near, near] and gate["used"] == kept
+
+
 def test_judging_starts_stops_settled_rows_without_changing_holds_or_times(pendubot):
     """`judge_starts`: without a score the rows settled in the success box stop early; the holds, the
     first start's settling time and the median time to x* equal those of the full horizon (a score

@@ -55,7 +55,7 @@ holds every number.
 6. **Anywhere** (`library` > 0; `anywhere_stage`): a library of short plans from postures all
    round the circle, joined by the kept manoeuvre's nominal (else the kept tracking law's), read at
    the nearest point, replaces the law the gate left where it brings the robot up sooner from
-   anywhere, holds as many from anywhere, and loses nothing near hanging or in the box
+   anywhere, holds nearly as many from anywhere, and loses nothing near hanging or in the box
    (summary.json → "swing_up" → "anywhere").
 
 The law goes to ``swingup.npz`` when kept (every command on the run then applies it), else to
