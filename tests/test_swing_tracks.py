@@ -412,6 +412,77 @@ def test_of_two_libraries_the_anywhere_gate_takes_the_longer_one_only_by_a_margi
     assert _preferred([False, False], [0.30, 0.40]) == 1 and _preferred([False, False], [0.40, 0.40]) == 0
 
 
+def test_the_library_starts_at_rest_round_the_circle_then_moving_at_up_to_the_joints_ratings(pendubot):
+    """`library_starts` with `moving`: the starts at rest as without it, then that many states whose
+    speeds reach beyond the ±1 rad/s of the anywhere states and stay within the URDF ratings."""
+    from idapbc_pin.sim.metrics import joint_ratings
+    from idapbc_pin.sim.states import ANYWHERE_SPEED
+    from idapbc_pin.trajectory.library import library_starts
+
+    rest = library_starts(pendubot, 4, seed=3)
+    starts = library_starts(pendubot, 4, seed=3, moving=6)
+    assert starts.shape == (11, 4)
+    np.testing.assert_array_equal(starts[:5], rest)
+    v = pendubot.split(starts)[1]  # (q, v): the speeds
+    assert np.abs(v[:5]).max() < 1e-12 and (np.abs(v[5:]) > 0).all()
+    assert np.abs(v[5:]).max() > ANYWHERE_SPEED and (np.abs(v[5:]) <= joint_ratings(pendubot) * (1 + 1e-9)).all()
+
+
+def test_the_anywhere_gate_judges_the_deployed_law_from_moving_states_at_up_to_the_ratings(pendubot, monkeypatch):
+    """`anywhere_gate`: its states from anywhere are `gate_moving` moving states (`moving_states`,
+    speeds up to the ratings) after `gate_states` near-resting ones, the same for every law judged."""
+    from types import SimpleNamespace
+
+    from idapbc_pin.recovery import anywhere_stage
+    from idapbc_pin.recovery.config import SwingUpConfig
+    from idapbc_pin.sim.metrics import joint_ratings
+    from idapbc_pin.sim.states import ANYWHERE_SPEED, moving_states, resting_states
+
+    jobs = []
+
+    def judged(worker, job_list, workers, ray):
+        jobs.extend(job_list)
+        return [(np.zeros(len(x0), bool), np.full(len(x0), np.nan), np.zeros(len(x0))) for _, _, x0, _ in job_list]
+
+    monkeypatch.setattr(anywhere_stage, "process_map", judged)
+    teacher = SimpleNamespace(fallback=None, with_fallback=lambda law: ("deployed", law))
+    run = SimpleNamespace(system=pendubot, config=SimpleNamespace(seed=2), box_controller=teacher)
+    library = SimpleNamespace(with_inner=lambda inner: "library")
+    config = SwingUpConfig(gate_states=3, gate_moving=5, box_states=0, workers=1)
+    gate = anywhere_stage.anywhere_gate(run, "current", library, config)
+    assert gate["states"]["near"] == 3 and gate["states"]["anywhere"] == 5 and [law for _, law, _, _ in jobs] == ["current", ("deployed", "library")]
+    seed = anywhere_stage.ANYWHERE_GATE_SEED + 2
+    for _, _, x0, _ in jobs:
+        np.testing.assert_array_equal(x0, np.concatenate([resting_states(pendubot, 3, seed), moving_states(pendubot, 5, seed + 1)]))
+    v = pendubot.split(jobs[0][2][3:])[1]
+    assert np.abs(v).max() > ANYWHERE_SPEED and (np.abs(v) <= joint_ratings(pendubot) * (1 + 1e-9)).all()
+
+
+@pytest.mark.parametrize("lost, kept", [(0, True), (1, True), (2, False)])
+def test_a_library_up_longer_is_kept_though_it_holds_one_moving_state_fewer_never_two(pendubot, monkeypatch, lost, kept):
+    """`anywhere_gate`'s rule: a library with its tip up for a share `ANYWHERE_MARGIN` larger may hold
+    `LIBRARY_LOSS` fewer states from anywhere than the law it replaces, not more."""
+    from types import SimpleNamespace
+
+    from idapbc_pin.recovery import anywhere_stage
+    from idapbc_pin.recovery.config import SwingUpConfig
+
+    assert anywhere_stage.LIBRARY_LOSS == 1
+    near, moving = 3, 6
+    shares = {"current": 0.3, "library": 0.3 + 2 * anywhere_stage.ANYWHERE_MARGIN}
+    held = {"current": np.ones(near + moving, bool), "library": np.r_[np.ones(near + moving - lost, bool), np.zeros(lost, bool)]}
+
+    def judged(worker, job_list, workers, ray):
+        return [(held[law], np.full(near + moving, 2.0), np.full(near + moving, shares[law])) for _, law, _, _ in job_list]
+
+    monkeypatch.setattr(anywhere_stage, "process_map", judged)
+    teacher = SimpleNamespace(fallback=None, with_fallback=lambda law: law)
+    run = SimpleNamespace(system=pendubot, config=SimpleNamespace(seed=0), box_controller=teacher)
+    gate = anywhere_stage.anywhere_gate(run, "current", SimpleNamespace(with_inner=lambda inner: "library"),
+                                        SwingUpConfig(gate_states=near, gate_moving=moving, box_states=0, workers=1))
+    assert gate["anywhere"] == [moving, moving - lost] and gate["near"] == [near, near] and gate["used"] == kept
+
+
 def test_judging_starts_stops_settled_rows_without_changing_holds_or_times(pendubot):
     """`judge_starts`: without a score the rows settled in the success box stop early; the holds, the
     first start's settling time and the median time to x* equal those of the full horizon (a score

@@ -196,6 +196,12 @@ class SwingUpConfig(Settings):
         plans from (`recovery.anywhere_stage`, `trajectory.library`): a library of short plans read
         at the nearest point, kept as the swing-up law where it brings the robot up from anywhere
         up faster and loses nothing near hanging or in the box; 0: no anywhere step.
+    library_moving : states anywhere and moving, every joint's speed up to its URDF rating
+        (`sim.states.moving_states`), that the library plans from beside its postures at rest: the
+        uptime test releases the robot at speed, and a law read at the nearest knot of plans from
+        rest brakes to rest before it swings up; 0: postures at rest only.
+    gate_moving : states anywhere and moving (`sim.states.moving_states`: every speed up to its
+        joint's rating) of the anywhere gate, judged with the law as deployed (speed governor on).
     library_share : share of the effort limits the library's plans use: less than the nominals'
         `track_share`, so that the gains keep room to recover from a push or a poor knot.
     library_horizon : length of each of the library's plans, s.
@@ -246,6 +252,8 @@ class SwingUpConfig(Settings):
     manoeuvre: bool = True
     manoeuvre_horizons: tuple = (1.5, 2.0)
     library: int = 128
+    library_moving: int = 64
+    gate_moving: int = 40
     library_share: float = 0.6
     library_horizon: float = 1.0
     library_longer: tuple = (2.0,)
@@ -258,13 +266,13 @@ class SwingUpConfig(Settings):
 
     def __post_init__(self):
         ok = (all(0 < r <= 1 for r in self.inner_scales) and all(0 < r < float("inf") for r in self.funnels) and 0 < self.track_share <= 1 and 0 < self.library_share <= 1
-              and min(self.starts, self.dagger_starts, self.gate_states, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations, self.library_iterations) >= 1
-              and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library, self.library_refine) >= 0
+              and min(self.starts, self.dagger_starts, self.gate_states, self.gate_moving, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations, self.library_iterations) >= 1
+              and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library, self.library_moving, self.library_refine) >= 0
               and 0 <= self.library_tip <= 1
               and 0 < self.library_horizon <= self.judge_T - 2.0 and all(0 < h <= self.judge_T - 2.0 for h in self.library_longer) and self.time_margin >= 0
               and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10 and self.kept_momenta >= 0
               and all(0 < h <= self.judge_T - 2.0 for h in self.manoeuvre_horizons))
         if not ok:
-            raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, width, steps, batch, ilqr_iterations, track_iterations and library_iterations "
+            raise IdapbcError("bad swing-up setting: starts, dagger_starts, gate_states, gate_moving, width, steps, batch, ilqr_iterations, track_iterations and library_iterations "
                               "must be ≥ 1, the other counts and seeds ≥ 0, inner_scales, track_share and library_share in (0, 1], library_tip in [0, 1], funnels finite and > 0, circle in [0, 10], kept_momenta ≥ 0, horizon, "
                               "manoeuvre_horizons, library_horizon and library_longer > 0 and judge_T ≥ each of them + 2 s. Fix: pass valid values.")

@@ -53,10 +53,10 @@ holds every number.
    of the gate's near-resting states than the run's law, or as many and scores higher from the exact
    resting state (``swingup-manoeuvre.npz``, summary.json → "swing_manoeuvre").
 6. **Anywhere** (`library` > 0; `anywhere_stage`): a library of short plans from postures all
-   round the circle, joined by the kept manoeuvre's nominal (else the kept tracking law's), read at
-   the nearest point, replaces the law the gate left where it brings the robot up sooner from
-   anywhere, holds as many from anywhere, and loses nothing near hanging or in the box
-   (summary.json → "swing_up" → "anywhere").
+   round the circle and moving states, joined by the kept manoeuvre's nominal (else the kept
+   tracking law's), read at the nearest point, replaces the law the gate left where it brings the
+   robot up sooner from moving states anywhere, holds nearly as many of them, and loses nothing
+   near hanging or in the box (summary.json → "swing_up" → "anywhere").
 
 The law goes to ``swingup.npz`` when kept (every command on the run then applies it), else to
 ``swingup-refused.npz``, and the entry to summary.json → "swing_up"; each write atomic.

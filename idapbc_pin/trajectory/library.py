@@ -5,7 +5,9 @@ plan's path it steers back to the path first, then follows it, which is slow. A 
 many starts instead, each with a short horizon:
 
 1. **Starts**: the resting posture and `size` postures at rest with every angle from the full circle
-   (`sim.states.circle_states`, a seed of their own).
+   (`sim.states.circle_states`, a seed of their own), and `moving` states anywhere with every speed
+   up to its joint's rating (`sim.states.moving_states`, seed + 1): a robot released at speed
+   reads knots of a plan that starts moving, not one that brakes to rest first.
 2. **Plans**: from each start, iLQR plans of the first of `horizons` s within `share` of the effort
    limits (`ilqr.ilqr_plans`, all starts and warm starts in one batch), warm-started from
    ±sinusoids of `WARM_PERIOD` at four phases and two amplitudes and `WARM_RANDOM` random steps.
@@ -49,7 +51,7 @@ from ..control.baseline import LQRController
 from ..sim.integrate import simulate
 from ..sim.leaderboard import tip_share
 from ..sim.metrics import holds
-from ..sim.states import circle_states
+from ..sim.states import circle_states, moving_states
 from .ilqr import ILQRSettings, ilqr_plans
 from .plans import PLAN_STEP, TrackThenLaw, plan_bound
 from .tracking_law import TrackingLaw
@@ -70,10 +72,14 @@ RETRY_SEED = 1000
 REFINE_KEEP = 2
 
 
-def library_starts(system, size: int, seed: int) -> np.ndarray:
-    """(size + 1, n) states at rest: the resting posture, then `size` postures with every angle from the
-    full circle (`circle_states` with `seed`)."""
-    return circle_states(system, int(size) + 1, seed)
+def library_starts(system, size: int, seed: int, moving: int = 0) -> np.ndarray:
+    """(size + 1 + moving, n) states (q, p): the resting posture, then `size` postures at rest with every
+    angle from the full circle (`circle_states` with `seed`), then `moving` states anywhere with every
+    speed up to its joint's URDF rating (`moving_states` with seed + 1)."""
+    starts = circle_states(system, int(size) + 1, seed)
+    if int(moving) > 0:
+        starts = np.concatenate([starts, moving_states(system, int(moving), seed + 1)])
+    return starts
 
 
 def _chunk_nominals(job) -> list:
