@@ -4,7 +4,8 @@ For each run and each law (the run's deployed law; saturated LQR, Q = I, R = I),
 effort limits, in the verification box 2× the training box: a quadratic V from the loop's own
 linearisation (`loop_quadratic`, the same recipe for both laws), and for LQR also its δᵀSδ. For
 each V: the core proved from the linearisation (`proved_core`), the sampled certified level c
-(`certified_region`), then the interval verifier at
+(`certified_region`), then the interval verifier, on {c_core ≤ V < level} so that the set is
+proved whole, at
 0.999, 0.5, 0.1, 0.01 and 0.001 of c (`verify_level`, a box budget each) until one is proved. Prints the
 training-box share of the sampled set and of the verified one (the ellipsoid's volume), the boxes
 and the seconds. The invariant share (`bench_invariant_share.py`) is the ceiling of any of them.
@@ -42,11 +43,14 @@ def _one(system, law, field, P, A, vbox, budget: int) -> str:
                               (lo, hi), np.random.default_rng(1))
     sampled = ellipsoid_share(P, region.c, half)
     rate = lambda X: quadratic_rate(P, x_star, field, A, X)  # noqa: E731
+    if c_core <= 0:
+        return f"{core} · sampled {sampled:.3g} · verified 0 (no core proved: no proof; {time.perf_counter() - t0:.0f} s)"
     tried = []
     for frac in FRACTIONS:
-        if not frac * region.c > region.core:
+        if not frac * region.c > max(region.core, c_core):
             break
-        why, boxes = verify_level(rate, frac * region.c, region.core, vbox, (x_star, P), budget=budget)
+        # down to the proved core: the whole set is then a proof
+        why, boxes = verify_level(rate, frac * region.c, c_core, vbox, (x_star, P), budget=budget)
         tried.append(f"{frac:g}·c: {why or 'proved'} ({boxes} boxes)")
         if why is None:
             return (f"{core} · sampled {sampled:.3g} · verified {ellipsoid_share(P, frac * region.c, half):.3g} of the training box "
