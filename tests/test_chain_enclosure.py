@@ -173,3 +173,22 @@ def test_a_core_proved_from_the_linearisation_holds_along_the_true_loop_and_the_
     lqr.K = np.zeros_like(lqr.K)
     open_loop = TrueLoop(system, lqr, system.effort)
     assert proved_core(S, open_loop.jacobian_at(x_star), x_star, field, 1.0, halvings=12) == (0.0, float("inf"))
+
+
+def test_the_outer_laws_leave_the_learned_law_its_box_and_a_scaled_one_is_refused_inside_another():
+    from idapbc_pin.certificate.enclosures import enclosable, networks_box
+    from idapbc_pin.recovery.box_law import BoxFallback
+
+    system = ip.load_system("pendubot")
+    lqr = LQRController(system)
+    half = 0.5 * (system.domain[1] - system.domain[0])
+    plain = BoxFallback(lqr.K, lqr.u_star, system.x_star, half, system.angle_mask)
+    scaled = dataclasses.replace(plain, inside_gain=3.0)
+    assert np.array_equal(networks_box(plain), half) and enclosable(system, scaled) is None  # `_outer` scales it
+
+    class KeptBox:  # a kept-box law (box and law) around the run's own outer law
+        def __init__(self, inner):
+            self.box, self.law, self.inner = 0.5 * half, None, inner
+
+    assert np.array_equal(networks_box(KeptBox(plain)), 0.5 * half)
+    assert "scaled inside gain" in enclosable(system, KeptBox(scaled))

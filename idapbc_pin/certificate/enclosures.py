@@ -65,17 +65,20 @@ def _cos_coupled(plant: CosCoupledPlant, X: Interval) -> Interval:
     return stack([v1, v2, *pdot], axis=1)
 
 
-def networks_box(fallback) -> np.ndarray | str:
+def networks_box(fallback, outermost: bool = True) -> np.ndarray | str:
     """Half-widths (n,) of the box |wrap(x − x*)| ≤ r in which the deployed input is the learned
-    law's, through every outer law nested in `fallback` (∞: no outer law), or why none is known."""
+    law's, through every outer law nested in `fallback` (∞: no outer law), or why none is known.
+    An outermost `BoxFallback` may scale the learned law inside (`_outer` encloses that)."""
     if fallback is None:
         return np.array(np.inf)
     if isinstance(fallback, BoxFallback):
-        if fallback.inside_gain != 1.0 or fallback.inside_ramp[1] > 0:
-            return "no interval form of the outer law's scaled inside gain"
+        if fallback.inside_ramp[1] > 0:
+            return "no interval form of the outer law's ramped inside gain"
+        if fallback.inside_gain != 1.0 and not outermost:
+            return "no interval form of a scaled inside gain within another outer law"
         return np.asarray(fallback.half, np.float64)
     if hasattr(fallback, "box") and hasattr(fallback, "law"):  # a kept-box law around the run's own outer law
-        inner = networks_box(getattr(fallback, "inner", None))
+        inner = networks_box(getattr(fallback, "inner", None), outermost=False)
         return inner if isinstance(inner, str) else np.minimum(np.asarray(fallback.box, np.float64), inner)
     if isinstance(getattr(fallback, "inner", None), np.ndarray) and not getattr(fallback, "residual", False):
         return np.asarray(fallback.inner, np.float64)  # a recovery law: the networks' inside its inner box
@@ -109,6 +112,8 @@ def quiet_rows(system, governor, X: Interval, f: Interval) -> np.ndarray:
     N = X.shape[0]
     if governor is None:
         return np.ones(N, bool)
+    if not hasattr(system.plant, "chain"):
+        return np.zeros(N, bool)  # no interval form of E_g here: the governor may act anywhere
     nq = system.nq
     rating = np.asarray(governor.rating, np.float64)
     v = f[:, :nq]
