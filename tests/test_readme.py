@@ -45,7 +45,9 @@ PRELUDE = (f"from idapbc_pin.recovery import box_gate\n"
               f"box_gate.GATE_STATES, box_gate.GATE_HORIZON = {SHORT_GATE_STATES}, {SHORT_GATE_HORIZON}\n"
               f"from idapbc_pin.config import TrainConfig\n"
               f"_fast = TrainConfig.fast.__func__\n"
-              f"TrainConfig.fast = classmethod(lambda cls, **kw: _fast(cls, **{{'epochs': {SMOKE_EPOCHS}, **kw}}))\n")
+              f"TrainConfig.fast = classmethod(lambda cls, **kw: _fast(cls, **{{'epochs': {SMOKE_EPOCHS}, **kw}}))\n"
+              f"import functools, idapbc_pin\n"
+              f"idapbc_pin.certify = functools.partial(idapbc_pin.certify, n=4000, invariant=50)\n")
 
 
 def _servers_with(token: str) -> list[int]:

@@ -83,13 +83,10 @@ def _tvec(A, b):
 
 
 def _cross(a, b):
-    return [_add(_mul(a[1], b[2]), _neg(_mul(a[2], b[1]))) if not (_zero(a[1], b[2]) and _zero(a[2], b[1])) else 0.0,
-            _add(_mul(a[2], b[0]), _neg(_mul(a[0], b[2]))) if not (_zero(a[2], b[0]) and _zero(a[0], b[2])) else 0.0,
-            _add(_mul(a[0], b[1]), _neg(_mul(a[1], b[0]))) if not (_zero(a[0], b[1]) and _zero(a[1], b[0])) else 0.0]
-
-
-def _zero(a, b) -> bool:
-    return (_const(a) and a == 0.0) or (_const(b) and b == 0.0)
+    """a × b (3-lists); a zero factor skips its product (`_mul`)."""
+    return [_add(_mul(a[1], b[2]), _neg(_mul(a[2], b[1]))),
+            _add(_mul(a[2], b[0]), _neg(_mul(a[0], b[2]))),
+            _add(_mul(a[0], b[1]), _neg(_mul(a[1], b[0])))]
 
 
 def _floats(a) -> list:
