@@ -725,6 +725,7 @@ def test_the_run_s_own_law_is_its_law_without_the_recovery_law_and_keeps_the_ins
 @pytest.mark.slow
 def test_recover_keeps_the_law_exactly_when_its_gate_does(tiny_run, tmp_path, monkeypatch):
     _short_gate(monkeypatch)
+    plan_once(monkeypatch)
     path = tmp_path / "run"
     shutil.copytree(tiny_run.path, path)
     kept = recover(path, RecoveryConfig(**TINY, margin=-4, half_loss=2), progress=False)  # kept whatever the gate sees
@@ -827,6 +828,21 @@ def _as_compare(fake):
                 yield fake((system, law, x0)), None
 
     return compare
+
+
+def plan_once(monkeypatch) -> None:
+    """`collect_labels` plans each set of starts once per test: the tests that call `recover` on the
+    same run several times claim what the gate keeps, and the starts, seeds and plans are the same
+    each time (a call's plans are real; the later calls get copies of its labels)."""
+    planned, collect = {}, recovery_module.collect_labels
+
+    def once(system, x0, plan_seed, config, *args, **kwargs):
+        key = (x0.tobytes(), plan_seed)
+        if key not in planned:
+            planned[key] = collect(system, x0, plan_seed, config, *args, **kwargs)
+        return tuple(a.copy() if isinstance(a, np.ndarray) else a for a in planned[key])
+
+    monkeypatch.setattr(recovery_module, "collect_labels", once)
 
 
 def _short_gate(monkeypatch):

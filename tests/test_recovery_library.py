@@ -21,6 +21,7 @@ import pytest
 
 import idapbc_pin as ip
 from idapbc_pin.recovery import gate as recovery_gate
+from idapbc_pin.recovery import stage as recovery_stage
 from idapbc_pin.recovery.library_law import LibraryLaw, recovery_law_from_arrays
 from idapbc_pin.recovery.stage import LABEL_PATH, RecoveryConfig, label_library, recover
 from idapbc_pin.run import RECOVERY_FILE
@@ -29,7 +30,7 @@ from idapbc_pin.trajectory.ilqr import rollout
 from idapbc_pin.trajectory.library import paths_law
 from idapbc_pin.trajectory.tracks import KNOT
 
-from .test_recovery import TINY, _as_compare, random_law
+from .test_recovery import TINY, _as_compare, plan_once, random_law
 
 
 @pytest.fixture(scope="module")
@@ -114,6 +115,8 @@ def test_recover_judges_the_library_beside_the_fits_and_a_run_that_keeps_it_appl
         return np.full(len(x0), isinstance(ctrl.fallback, LibraryLaw))
 
     monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
+    plan_once(monkeypatch)  # the five `recover`s below plan the same starts
+    once = recovery_stage.collect_labels
     entry = recover(path, RecoveryConfig(**TINY | {"library": True}), progress=False)  # judged first, kept: no fit
     assert "LibraryLaw" in judged and "RecoveryLaw" not in judged and entry["fits_skipped"] and entry["first_fit_mse"] is None
     assert entry["used"] and entry["library"] and entry["fit_seed"] is None and entry["gate"]["library_points"] > 0
@@ -142,6 +145,7 @@ def test_recover_judges_the_library_beside_the_fits_and_a_run_that_keeps_it_appl
     assert kept == "kept" and gate["library"] and gate["library_points"] == library.points
     monkeypatch.undo()
     monkeypatch.setattr(recovery_gate, "compare_laws", _as_compare(fake))
+    monkeypatch.setattr(recovery_stage, "collect_labels", once)
     judged.clear()
     without = recover(path, RecoveryConfig(**TINY | {"library": False}), progress=False)  # the fits alone: none adds a state
     assert "LibraryLaw" not in judged and not without["used"] and not without["library"] and "library_points" not in without["gate"]

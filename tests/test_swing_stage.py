@@ -660,12 +660,15 @@ def test_a_second_gate_reads_the_run_s_law_from_the_first_and_simulates_only_the
     assert second["law"] == 3 and second["law_box"] == 40  # the candidate now answers first
 
 
-def test_the_anywhere_gate_keeps_a_library_by_its_own_rule_and_never_a_copy_of_the_law_it_replaces(tiny_swing_run):
+def test_the_anywhere_gate_keeps_a_library_by_its_own_rule_and_never_a_copy_of_the_law_it_replaces(tiny_swing_run, monkeypatch):
     """`anywhere_gate`: the run's law and the library judged on the same states; the verdict is the
     documented rule on the figures it returns. A "library" that is the run's own law again is not
     kept: its tip is up for the same share of the time, not `ANYWHERE_MARGIN` more."""
+    from idapbc_pin.recovery import anywhere_stage
     from idapbc_pin.recovery.anywhere_stage import ANYWHERE_MARGIN, LIBRARY_LOSS, anywhere_gate
     from tests.test_swing_tracks import _plan
+
+    monkeypatch.setattr(anywhere_stage, "GATE_HORIZON", 2.0)  # the box part: its counts enter the rule, not their values
 
     run = tiny_swing_run
     config = SwingUpConfig(gate_states=3, gate_moving=2, box_states=4, judge_T=3.0, horizon=0.5, manoeuvre_horizons=(0.25,), library_longer=(), workers=1)

@@ -95,47 +95,68 @@ class SpeedGovernor:
         already split."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         q, v = self.system.split(x) if qv is None else qv
-        if len(self.energy_rows) == self.system.nq:  # every coordinate: E_g = H = ½ vᵀp + U, w = Bᵀv
-            return 0.5 * np.einsum("ni,ni->n", v, x[:, self.system.nq:]) + self.system.potential(q), v @ np.asarray(self.system.B, dtype=np.float64)
-        M = self.system.mass_matrix(q)
-        r = self.energy_rows
+        e_g, M = self._energy(x, q, v)
+        return e_g, self._rate(q, v, M)
+
+    def _energy(self, x, q, v) -> tuple[np.ndarray, np.ndarray | None]:
+        """(E_g (N,), M(q) (N, nq, nq), or None where E_g is H and w needs no M)."""
+        nq = self.system.nq
+        if len(self.energy_rows) == nq:  # every coordinate: E_g = H = ½ vᵀp + U
+            return 0.5 * np.einsum("ni,ni->n", v, x[:, nq:]) + self.system.potential(q), None
+        M, r = self.system.mass_matrix(q), self.energy_rows
         Mv_r = np.einsum("nij,nj->ni", M[:, r][:, :, r], v[:, r])  # M_rr v_r
-        e_g = 0.5 * np.einsum("ni,ni->n", v[:, r], Mv_r) + self.system.potential(q)
-        MinvB = np.linalg.solve(M, np.broadcast_to(np.asarray(self.system.B, dtype=np.float64), M.shape[:1] + self.system.B.shape))
-        w = np.einsum("nim,ni->nm", MinvB[:, r], Mv_r)
-        return e_g, w
+        return 0.5 * np.einsum("ni,ni->n", v[:, r], Mv_r) + self.system.potential(q), M
+
+    def _rate(self, q, v, M) -> np.ndarray:
+        """w (N, m) = (M⁻¹B)_rᵀ M_rr v_r (w = Bᵀv where r holds every coordinate, M None)."""
+        B = np.asarray(self.system.B, dtype=np.float64)
+        if M is None:
+            return v @ B
+        r = self.energy_rows
+        MinvB = np.linalg.solve(M, np.broadcast_to(B, M.shape[:1] + B.shape))
+        return np.einsum("nim,ni->nm", MinvB[:, r], np.einsum("nij,nj->ni", M[:, r][:, :, r], v[:, r]))
+
+    def _levels(self, x):
+        """What `shares` needs before the rates: (q, v, M or None, s_E (N,), s_v (N,), k (N,) the
+        joint nearest past its start)."""
+        q, v = self.system.split(x)
+        if self.delta_e > 0:
+            e_g, M = self._energy(x, q, v)
+            s_e = np.clip(((e_g - self.e_star) / self.delta_e - ENERGY_MARGIN) / ENERGY_BAND, 0.0, 1.0)
+        else:
+            s_e, M = np.zeros(len(x)), None
+        with np.errstate(invalid="ignore", divide="ignore"):
+            each = np.where(np.isfinite(self.rating), np.clip((np.abs(v) / self.rating - SPEED_START) / (1.0 - SPEED_START), 0.0, 1.0), 0.0)
+        k = np.argmax(each, axis=1)
+        return q, v, M, s_e, each[np.arange(len(x)), k], k
 
     def shares(self, x) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(s_E (N,), s_v (N,), w (N, m), c (N, m)) at x (N, n): how hard each clause acts, the energy
         rate per input, and the speed clause's direction c = v_k (M⁻¹B)_k / max_i |(M⁻¹B)_ki| for the
         joint k nearest past its start (rad/s or m/s; 0 where the speed clause does not act)."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-        q, v = self.system.split(x)
-        if self.delta_e > 0:
-            e_g, w = self.energy(x, (q, v))
-            s_e = np.clip(((e_g - self.e_star) / self.delta_e - ENERGY_MARGIN) / ENERGY_BAND, 0.0, 1.0)
-        else:
-            s_e, w = np.zeros(len(x)), np.zeros((len(x), self.system.m))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            each = np.where(np.isfinite(self.rating), np.clip((np.abs(v) / self.rating - SPEED_START) / (1.0 - SPEED_START), 0.0, 1.0), 0.0)
-        k = np.argmax(each, axis=1)
-        rows = np.arange(len(x))
-        s_v, c = each[rows, k], np.zeros((len(x), self.system.m))
+        return self._shares(*self._levels(x))
+
+    def _shares(self, q, v, M, s_e, s_v, k):
+        w = self._rate(q, v, M) if self.delta_e > 0 else np.zeros((len(q), self.system.m))
+        c = np.zeros((len(q), self.system.m))
         fast = np.flatnonzero(s_v > 0)
         if len(fast):
-            M = self.system.mass_matrix(q[fast])
-            reach = np.linalg.solve(M, np.broadcast_to(np.asarray(self.system.B, dtype=np.float64), (len(fast),) + self.system.B.shape))
+            Mf = self.system.mass_matrix(q[fast]) if M is None else M[fast]
+            reach = np.linalg.solve(Mf, np.broadcast_to(np.asarray(self.system.B, dtype=np.float64), (len(fast),) + self.system.B.shape))
             reach = reach[np.arange(len(fast)), k[fast]]  # (F, m): ∂v̇_k/∂u
             c[fast] = v[fast, k[fast], None] * reach / np.abs(reach).max(axis=1, keepdims=True)
         return s_e, s_v, w, c
 
     def apply(self, x, u) -> np.ndarray:
-        """The law's inputs u (N, m) at x (N, n), governed (a new array)."""
+        """The law's inputs u (N, m) at x (N, n), governed (a new array). Where neither clause acts
+        anywhere in the batch, the rates are not computed: u comes back as it was."""
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         u = np.array(u, dtype=np.float64, copy=True).reshape(len(x), -1)
-        s_e, s_v, w, c = self.shares(x)
-        if not ((s_e > 0).any() or (s_v > 0).any()):
+        levels = self._levels(x)
+        if not ((levels[3] > 0).any() or (levels[4] > 0).any()):
             return u
+        s_e, s_v, w, c = self._shares(*levels)
         speed = (s_v > 0)[:, None]  # a joint near its rating comes first; braked as hard as the energy asks where the two agree
         u = np.where((speed & (u * c > 0)) | (~speed & (s_e[:, None] > 0) & (u * w > 0)), 0.0, u)
         brake = -self.effort * np.clip(np.where(speed, c, w) / W_SCALE, -1.0, 1.0)
