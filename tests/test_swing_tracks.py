@@ -428,6 +428,20 @@ def test_the_library_starts_at_rest_round_the_circle_then_moving_at_up_to_the_jo
     assert np.abs(v[5:]).max() > ANYWHERE_SPEED and (np.abs(v[5:]) <= joint_ratings(pendubot) * (1 + 1e-9)).all()
 
 
+def test_the_library_starts_end_with_the_states_the_reset_drive_releases(pendubot):
+    """`library_starts` with `released`: the starts at rest and moving as without it, then that many
+    states as the uptime test's reset drive leaves them (`drive_release_states` with seed + 2), moving."""
+    from idapbc_pin.sim.drive import drive_release_states
+    from idapbc_pin.trajectory.library import library_starts
+
+    before = library_starts(pendubot, 4, seed=3, moving=2)
+    starts = library_starts(pendubot, 4, seed=3, moving=2, released=3)
+    assert starts.shape == (10, 4)
+    np.testing.assert_array_equal(starts[:7], before)
+    np.testing.assert_array_equal(starts[7:], drive_release_states(pendubot, 3, 5))
+    assert (np.abs(pendubot.split(starts[7:])[1]).max(axis=1) > 1.0).all()
+
+
 def test_the_anywhere_gate_judges_the_deployed_law_from_moving_states_at_up_to_the_ratings(pendubot, monkeypatch):
     """`anywhere_gate`: its states from anywhere are `gate_moving` moving states (`moving_states`,
     speeds up to the ratings) after `gate_states` near-resting ones, the same for every law judged."""
@@ -435,6 +449,7 @@ def test_the_anywhere_gate_judges_the_deployed_law_from_moving_states_at_up_to_t
 
     from idapbc_pin.recovery import anywhere_stage
     from idapbc_pin.recovery.config import SwingUpConfig
+    from idapbc_pin.sim.drive import drive_release_states
     from idapbc_pin.sim.metrics import joint_ratings
     from idapbc_pin.sim.states import ANYWHERE_SPEED, moving_states, resting_states
 
@@ -456,6 +471,12 @@ def test_the_anywhere_gate_judges_the_deployed_law_from_moving_states_at_up_to_t
         np.testing.assert_array_equal(x0, np.concatenate([resting_states(pendubot, 3, seed), moving_states(pendubot, 5, seed + 1)]))
     v = pendubot.split(jobs[0][2][3:])[1]
     assert np.abs(v).max() > ANYWHERE_SPEED and (np.abs(v) <= joint_ratings(pendubot) * (1 + 1e-9)).all()
+    jobs.clear()
+    gate = anywhere_stage.anywhere_gate(run, "current", library, config.replace(gate_released=2))  # with the drive's release states after them
+    assert gate["states"]["anywhere"] == 7
+    released = drive_release_states(pendubot, 2, seed + 3)
+    for _, _, x0, _ in jobs:
+        np.testing.assert_array_equal(x0, np.concatenate([resting_states(pendubot, 3, seed), moving_states(pendubot, 5, seed + 1), released]))
 
 
 @pytest.mark.parametrize("lost, kept", [(0, True), (1, True), (2, False)])
