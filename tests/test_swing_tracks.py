@@ -463,7 +463,7 @@ def test_the_anywhere_gate_judges_the_deployed_law_from_moving_states_at_up_to_t
     teacher = SimpleNamespace(fallback=None, with_fallback=lambda law: ("deployed", law))
     run = SimpleNamespace(system=pendubot, config=SimpleNamespace(seed=2), box_controller=teacher)
     library = SimpleNamespace(with_inner=lambda inner: "library")
-    config = SwingUpConfig(gate_states=3, gate_moving=5, box_states=0, workers=1)
+    config = SwingUpConfig(gate_states=3, gate_moving=5, gate_released=0, box_states=0, workers=1)
     gate = anywhere_stage.anywhere_gate(run, "current", library, config)
     assert gate["states"]["near"] == 3 and gate["states"]["anywhere"] == 5 and [law for _, law, _, _ in jobs] == ["current", ("deployed", "library")]
     seed = anywhere_stage.ANYWHERE_GATE_SEED + 2
@@ -500,7 +500,7 @@ def test_a_library_up_longer_is_kept_though_it_holds_one_moving_state_fewer_neve
     teacher = SimpleNamespace(fallback=None, with_fallback=lambda law: law)
     run = SimpleNamespace(system=pendubot, config=SimpleNamespace(seed=0), box_controller=teacher)
     gate = anywhere_stage.anywhere_gate(run, "current", SimpleNamespace(with_inner=lambda inner: "library"),
-                                        SwingUpConfig(gate_states=near, gate_moving=moving, box_states=0, workers=1))
+                                        SwingUpConfig(gate_states=near, gate_moving=moving, gate_released=0, box_states=0, workers=1))
     assert gate["anywhere"] == [moving, moving - lost] and gate["near"] == [near, near] and gate["used"] == kept
 
 
@@ -638,7 +638,7 @@ def test_only_plans_that_end_up_are_rolled_out_and_the_nominals_are_those_of_jud
             np.testing.assert_array_equal(nominal[0], U[best])
 
 
-@pytest.mark.parametrize("field, value", [("library_tip", 1.5), ("library_tip", -0.1), ("library_refine", -1)])
+@pytest.mark.parametrize("field, value", [("library_tip", 1.5), ("library_tip", -0.1), ("library_refine", -1), ("library_released", -1), ("gate_released", -1)])
 def test_a_library_tip_outside_0_1_or_a_negative_refine_is_a_bad_setting(field, value):
     from idapbc_pin.recovery.config import SwingUpConfig
 

@@ -258,9 +258,9 @@ class SwingUpConfig(Settings):
     manoeuvre_horizons: tuple = (1.5, 2.0)
     library: int = 128
     library_moving: int = 64
-    library_released: int = 0
+    library_released: int = 64
     gate_moving: int = 40
-    gate_released: int = 0
+    gate_released: int = 40
     library_share: float = 0.6
     library_horizon: float = 1.0
     library_longer: tuple = (2.0,)
