@@ -26,7 +26,7 @@ from .conftest import sample_domain
 #: The smallest stage that exercises every step: two starts, half-second plans (two iterations each,
 #: the nominals' too), one DAgger round, the library's starts planned again at 1 s where 0.5 s brings none up.
 TINY = dict(starts=2, horizon=0.5, ilqr_iterations=2, track_iterations=2, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=2, box_states=4,
-            judge_T=3.0, workers=1, circle=0.5, manoeuvre_horizons=(0.25,), library=2, library_moving=1, gate_moving=2, library_horizon=0.5, library_longer=(1.0,))
+            judge_T=3.0, workers=1, circle=0.5, manoeuvre_horizons=(0.25,), library=2, library_moving=1, library_released=1, gate_moving=2, gate_released=1, library_horizon=0.5, library_longer=(1.0,))
 
 
 def random_swing_law(system, seed: int = 0, width: int = 16, inner=None, box=None) -> SwingUpLaw:
@@ -449,9 +449,9 @@ def test_simulate_from_anywhere_judges_the_state_feedback_on_the_torus_and_in_th
     monkeypatch.setattr(anywhere, "UPTIME_T", 8.0)
     monkeypatch.setattr(anywhere, "UPTIME_RESETS", 2)
     run, entry = swung_run
-    library = entry["anywhere"]  # the stage's anywhere step: a library from the resting posture, 2 postures of the circle and 1 moving state
-    assert library["starts"] == 4 and library["used"] == (run.summary["swing_up"].get("law") == "library")
-    assert library["horizon"] == [0.5, 1.0] and len(library["by_horizon"]) == 2 and sum(library["by_horizon"]) == library["nominals"] <= 4
+    library = entry["anywhere"]  # the stage's anywhere step: a library from the resting posture, 2 postures of the circle, 1 moving state and 1 release state
+    assert library["starts"] == 5 and library["used"] == (run.summary["swing_up"].get("law") == "library")
+    assert library["horizon"] == [0.5, 1.0] and len(library["by_horizon"]) == 2 and sum(library["by_horizon"]) == library["nominals"] <= 5
     assert not library["used"] or run.summary["swing_up"]["funnel"] is None  # a kept library acts wherever it is read
     assert main(["simulate", str(run.path), "--from", "anywhere", "--n", "3", "--T", "2", "--episodes", "2"]) == 0
     text = capsys.readouterr().out
@@ -671,11 +671,11 @@ def test_the_anywhere_gate_keeps_a_library_by_its_own_rule_and_never_a_copy_of_t
     monkeypatch.setattr(anywhere_stage, "GATE_HORIZON", 2.0)  # the box part: its counts enter the rule, not their values
 
     run = tiny_swing_run
-    config = SwingUpConfig(gate_states=3, gate_moving=2, box_states=4, judge_T=3.0, horizon=0.5, manoeuvre_horizons=(0.25,), library_longer=(), workers=1)
+    config = SwingUpConfig(gate_states=3, gate_moving=2, gate_released=1, box_states=4, judge_T=3.0, horizon=0.5, manoeuvre_horizons=(0.25,), library_longer=(), workers=1)
     U, Z, _ = _plan(run.system)
     library = tracking_law(run.system, U, Z, tvlqr_gains(run.system, U, Z), 0.1, kept_boxes(run.system, config)["posture"])
     gate = anywhere_gate(run, run.controller, library, config)
-    assert gate["states"] == {"near": 3, "anywhere": 2, "box": 4} and len(gate["near"]) == len(gate["anywhere"]) == len(gate["box"]) == 2
+    assert gate["states"] == {"near": 3, "anywhere": 3, "box": 4} and len(gate["near"]) == len(gate["anywhere"]) == len(gate["box"]) == 2
     assert all(0.0 <= u <= 1.0 for u in gate["up"])
     rule = (gate["anywhere"][1] >= gate["anywhere"][0] - LIBRARY_LOSS and gate["up"][1] >= gate["up"][0] + ANYWHERE_MARGIN and gate["near"][1] >= gate["near"][0] - LIBRARY_LOSS
             and gate["box"][1] >= gate["box"][0] - config.box_loss)

@@ -428,6 +428,20 @@ def test_the_library_starts_at_rest_round_the_circle_then_moving_at_up_to_the_jo
     assert np.abs(v[5:]).max() > ANYWHERE_SPEED and (np.abs(v[5:]) <= joint_ratings(pendubot) * (1 + 1e-9)).all()
 
 
+def test_the_library_starts_end_with_the_states_the_reset_drive_releases(pendubot):
+    """`library_starts` with `released`: the starts at rest and moving as without it, then that many
+    states as the uptime test's reset drive leaves them (`drive_release_states` with seed + 2), moving."""
+    from idapbc_pin.sim.drive import drive_release_states
+    from idapbc_pin.trajectory.library import library_starts
+
+    before = library_starts(pendubot, 4, seed=3, moving=2)
+    starts = library_starts(pendubot, 4, seed=3, moving=2, released=3)
+    assert starts.shape == (10, 4)
+    np.testing.assert_array_equal(starts[:7], before)
+    np.testing.assert_array_equal(starts[7:], drive_release_states(pendubot, 3, 5))
+    assert (np.abs(pendubot.split(starts[7:])[1]).max(axis=1) > 1.0).all()
+
+
 def test_the_anywhere_gate_judges_the_deployed_law_from_moving_states_at_up_to_the_ratings(pendubot, monkeypatch):
     """`anywhere_gate`: its states from anywhere are `gate_moving` moving states (`moving_states`,
     speeds up to the ratings) after `gate_states` near-resting ones, the same for every law judged."""
@@ -435,6 +449,7 @@ def test_the_anywhere_gate_judges_the_deployed_law_from_moving_states_at_up_to_t
 
     from idapbc_pin.recovery import anywhere_stage
     from idapbc_pin.recovery.config import SwingUpConfig
+    from idapbc_pin.sim.drive import drive_release_states
     from idapbc_pin.sim.metrics import joint_ratings
     from idapbc_pin.sim.states import ANYWHERE_SPEED, moving_states, resting_states
 
@@ -448,7 +463,7 @@ def test_the_anywhere_gate_judges_the_deployed_law_from_moving_states_at_up_to_t
     teacher = SimpleNamespace(fallback=None, with_fallback=lambda law: ("deployed", law))
     run = SimpleNamespace(system=pendubot, config=SimpleNamespace(seed=2), box_controller=teacher)
     library = SimpleNamespace(with_inner=lambda inner: "library")
-    config = SwingUpConfig(gate_states=3, gate_moving=5, box_states=0, workers=1)
+    config = SwingUpConfig(gate_states=3, gate_moving=5, gate_released=0, box_states=0, workers=1)
     gate = anywhere_stage.anywhere_gate(run, "current", library, config)
     assert gate["states"]["near"] == 3 and gate["states"]["anywhere"] == 5 and [law for _, law, _, _ in jobs] == ["current", ("deployed", "library")]
     seed = anywhere_stage.ANYWHERE_GATE_SEED + 2
@@ -456,6 +471,12 @@ def test_the_anywhere_gate_judges_the_deployed_law_from_moving_states_at_up_to_t
         np.testing.assert_array_equal(x0, np.concatenate([resting_states(pendubot, 3, seed), moving_states(pendubot, 5, seed + 1)]))
     v = pendubot.split(jobs[0][2][3:])[1]
     assert np.abs(v).max() > ANYWHERE_SPEED and (np.abs(v) <= joint_ratings(pendubot) * (1 + 1e-9)).all()
+    jobs.clear()
+    gate = anywhere_stage.anywhere_gate(run, "current", library, config.replace(gate_released=2))  # with the drive's release states after them
+    assert gate["states"]["anywhere"] == 7
+    released = drive_release_states(pendubot, 2, seed + 3)
+    for _, _, x0, _ in jobs:
+        np.testing.assert_array_equal(x0, np.concatenate([resting_states(pendubot, 3, seed), moving_states(pendubot, 5, seed + 1), released]))
 
 
 @pytest.mark.parametrize("lost, kept", [(0, True), (1, True), (2, False)])
@@ -479,7 +500,7 @@ def test_a_library_up_longer_is_kept_though_it_holds_one_moving_state_fewer_neve
     teacher = SimpleNamespace(fallback=None, with_fallback=lambda law: law)
     run = SimpleNamespace(system=pendubot, config=SimpleNamespace(seed=0), box_controller=teacher)
     gate = anywhere_stage.anywhere_gate(run, "current", SimpleNamespace(with_inner=lambda inner: "library"),
-                                        SwingUpConfig(gate_states=near, gate_moving=moving, box_states=0, workers=1))
+                                        SwingUpConfig(gate_states=near, gate_moving=moving, gate_released=0, box_states=0, workers=1))
     assert gate["anywhere"] == [moving, moving - lost] and gate["near"] == [near, near] and gate["used"] == kept
 
 
@@ -617,7 +638,7 @@ def test_only_plans_that_end_up_are_rolled_out_and_the_nominals_are_those_of_jud
             np.testing.assert_array_equal(nominal[0], U[best])
 
 
-@pytest.mark.parametrize("field, value", [("library_tip", 1.5), ("library_tip", -0.1), ("library_refine", -1)])
+@pytest.mark.parametrize("field, value", [("library_tip", 1.5), ("library_tip", -0.1), ("library_refine", -1), ("library_released", -1), ("gate_released", -1)])
 def test_a_library_tip_outside_0_1_or_a_negative_refine_is_a_bad_setting(field, value):
     from idapbc_pin.recovery.config import SwingUpConfig
 

@@ -134,7 +134,7 @@ def test_a_drive_reset_holds_a_posture_against_gravity_and_pushes_towards_the_dr
     """The leaderboard's reset: PID + gravity compensation on every joint within its URDF limit. Aimed
     at the posture it starts in, at rest, it holds it (∇U from Pinocchio's generalised gravity);
     aimed at hanging from upright, it swings the shoulder down and leaves the robot moving."""
-    from idapbc_pin.evaluation.uptime import DRIVE_T, _drive, drive_bound
+    from idapbc_pin.sim.drive import DRIVE_T, drive_bound, pid_drive as _drive
 
     np.testing.assert_array_equal(drive_bound(pendubot), [6.0, 6.0])  # both joints' URDF effort, the passive one too
     q0 = np.array([[1.0, 0.5], [-2.0, 1.2]])
@@ -174,7 +174,7 @@ def _pid_drive_by_hand(system, x, targets, ticks, dt):
 def test_the_drive_is_the_leaderboards_pid_with_its_memory_kept_across_resets(pendubot):
     """Two drives in a row through one `_PID` memory equal the plain loop above; a fresh memory for
     the second drive (the integral and the derivative's first step forgotten) does not."""
-    from idapbc_pin.evaluation.uptime import _PID, _drive
+    from idapbc_pin.sim.drive import DrivePID as _PID, pid_drive as _drive
 
     x0 = pendubot.state_from(np.array([[0.3, -0.2]]), np.array([[2.0, -1.0]]))
     targets = [np.array([[2.5, -1.0]]), np.array([[-2.0, 0.5]])]

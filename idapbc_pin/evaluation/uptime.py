@@ -16,18 +16,11 @@ between two resets is simulated once for every episode together (`simulate`, RK4
 held at 500 Hz, effort limits on), up to the longest, and each episode reads its own length of it.
 
 How a reset moves the robot (`RESETS`). ``"drive"`` (the default) resets as the leaderboard's own
-test does: for `DRIVE_T` = 0.2 s the law is not called, and a PID law with gravity compensation on
-every joint drives the robot from wherever it is towards the drawn posture (its angles within π of
-the resting posture's), then the law resumes from the state the drive left, **moving**; the drive's
-0.2 s count in the episode like any other. The PID is upstream's `PointPIDController` as the test
-builds it: kp = 10, ki = 0.1, kd = 1 with its step taken as `PID_DT` = 1 ms while the loop runs at
-2 ms, the error q_d − q not wrapped (q is the plant's own, unwrapped), its history kept across the
-episode's resets (the integral, and the derivative's first step of a reset, read the previous
-reset's errors), no derivative on the episode's first two calls:
-
-    e_k = q_d − q_k,  u = clip(clip(kp e_k + ki PID_DT Σ_{i≤k} e_i + kd (e_k − e_{k−1}) / PID_DT, ±ū) + ∇U(q_k), ±ū),
-
-ū each joint's limit (`drive_bound`). ``"put"`` puts the state at the drawn posture, at rest, so
+test does (`sim.drive`): for `DRIVE_T` = 0.2 s the law is not called, and upstream's PID with gravity
+compensation on every joint drives the robot from wherever it is towards the drawn posture (its
+angles within π of the resting posture's, `drive_targets`), its memory kept across the episode's
+resets (`DrivePID`); then the law resumes from the state the drive left, **moving**; the drive's
+0.2 s count in the episode like any other. ``"put"`` puts the state at the drawn posture, at rest, so
 each reset asks for a whole swing-up from rest.
 
 Besides the uptime, the test reads how fast the law drives the robot (`UptimeResult.speed`): the
@@ -36,7 +29,7 @@ largest |v_j| / v̄_j over the rated joints (`sim.metrics.speed_over_rating`, v�
 the `RELEASE_GRACE` s after each (the robot is released moving: its speed then is the drive's).
 
 Reference: github.com/dfki-ric-underactuated-lab/double_pendulum, the global policy testing
-controller (v2), its point PID controller, its leaderboard script (simulation v3: 15 resets,
+controller (v2), its leaderboard script (simulation v3: 15 resets,
 0.2 s each) and ``get_uptime`` of the leaderboard analysis; written independently.
 """
 
@@ -49,6 +42,7 @@ import numpy as np
 
 from .._parallel import process_map
 from ..model.resting import resting_configuration
+from ..sim.drive import DRIVE_KD, DRIVE_KI, DRIVE_KP, DRIVE_T, PID_DT, DrivePID, drive_bound, drive_targets, pid_drive
 from ..sim.integrate import simulate
 from ..sim.leaderboard import tip_up
 from ..sim.metrics import speed_over_rating
@@ -63,9 +57,6 @@ UPTIME_T, UPTIME_RESETS, UPTIME_JITTER, UPTIME_EPISODES = 60.0, 15, 1.0, 5
 UPTIME_SEED = 60_000
 #: How a reset moves the robot (module docstring); the first is the default.
 RESETS = ("drive", "put")
-#: The drive of a "drive" reset: its length (s) and the PID's gains kp (N·m/rad), ki (N·m/(rad·s)),
-#: kd (N·m·s/rad) with the step PID_DT (s) it was built with (the leaderboard's).
-DRIVE_T, DRIVE_KP, DRIVE_KI, DRIVE_KD, PID_DT = 0.2, 10.0, 0.1, 1.0, 0.001
 #: Seconds after each drive window left out of the speed figures: the robot is released moving.
 RELEASE_GRACE = 0.5
 
@@ -111,70 +102,6 @@ def _schedules(system, episodes: int, seed: int, T: float, resets: int, jitter: 
     return _Schedule(steps=steps, states=states, start=start, K=int(round(T / dt)))
 
 
-def drive_bound(system) -> np.ndarray:
-    """(nq,) the drive's torque limit on each joint, N·m or N: its URDF effort limit where finite,
-    else the largest finite limit of the robot's inputs."""
-    effort = np.asarray(system.effort, float)
-    fallback = float(effort[np.isfinite(effort)].max()) if np.isfinite(effort).any() else np.inf
-    own = np.array([float(j.effort) for j in system.joints])
-    return np.where(np.isfinite(own) & (own > 0), own, fallback)
-
-
-@dataclass
-class _PID:
-    """The drive's PID memory over one batch of episodes (E,): the sum of its errors (E, nq), the last
-    error (E, nq) and how many times it was called (the same for every episode)."""
-
-    total: np.ndarray
-    last: np.ndarray
-    calls: int = 0
-
-    def __call__(self, target: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """kp e + ki PID_DT Σe + kd Δe / PID_DT (E, nq) at positions q (E, nq), e = target − q unwrapped."""
-        e = target - q
-        self.total = self.total + e
-        self.calls += 1
-        d = (e - self.last) / PID_DT if self.calls > 2 else np.zeros_like(e)
-        self.last = e
-        return DRIVE_KP * e + DRIVE_KI * PID_DT * self.total + DRIVE_KD * d
-
-
-def _drive(system, x: np.ndarray, target: np.ndarray, ticks: int, dt: float, pid: _PID | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """A "drive" reset (module docstring) from the states x (E, n) towards the postures target
-    (E, nq) over `ticks` steps of dt (RK4, the torque held per step), with the episodes' PID memory
-    `pid` (updated; None: a fresh one): (the states at the start of each step (E, ticks, n), the state
-    at the end (E, n))."""
-    bound = drive_bound(system)
-    q, v = (np.array(a, float) for a in system.split(x))
-    pid = _PID(np.zeros_like(q), np.zeros_like(q)) if pid is None else pid
-
-    def accel(q, v):
-        rest = np.zeros_like(q)
-        gravity = -np.einsum("nij,nj->ni", system.mass_matrix(q), system.forward_dynamics(q, rest, rest))  # ∇U(q)
-        tau = np.clip(np.clip(pid(target, q), -bound, bound) + gravity, -bound, bound)
-        return lambda q2, v2: system.forward_dynamics(q2, v2, tau)
-
-    xs = []
-    for _ in range(ticks):
-        xs.append(np.concatenate([q, v], axis=1))
-        f = accel(q, v)
-        k1q, k1v = v, f(q, v)
-        k2q, k2v = v + 0.5 * dt * k1v, f(q + 0.5 * dt * k1q, v + 0.5 * dt * k1v)
-        k3q, k3v = v + 0.5 * dt * k2v, f(q + 0.5 * dt * k2q, v + 0.5 * dt * k2v)
-        k4q, k4v = v + dt * k3v, f(q + dt * k3q, v + dt * k3v)
-        q, v = q + dt / 6.0 * (k1q + 2 * k2q + 2 * k3q + k4q), v + dt / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
-    return np.stack(xs, axis=1), system.state_from(q, v)
-
-
-def _drive_targets(system, states: np.ndarray) -> np.ndarray:
-    """(..., nq) the drive's postures: the drawn states' angles within π of the resting posture's."""
-    q = system.split(states.reshape(-1, system.n))[0]
-    rest = resting_configuration(system)[None]
-    angle = np.asarray(system.angle_mask, bool)[: system.nq]
-    q = np.where(angle, rest + (q - rest + np.pi) % (2 * np.pi) - np.pi, q)
-    return q.reshape(states.shape[:-1] + (system.nq,))
-
-
 def _episode_uptime(job) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Worker: (system, law, schedule, dt, reset) -> (up, ratio, counted), each (E, K): the tip up at
     each control step of each episode, the largest speed / rating there (`speed_over_rating`; inf in a
@@ -186,14 +113,14 @@ def _episode_uptime(job) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     up, ratio, counted = np.zeros((E, sched.K), bool), np.zeros((E, sched.K)), np.ones((E, sched.K), bool)
     grace = int(round(RELEASE_GRACE / dt))
     rows, x_end = np.arange(E), np.tile(sched.start, (E, 1))
-    targets = _drive_targets(system, sched.states) if reset == "drive" else None
-    pid = _PID(np.zeros((E, system.nq)), np.zeros((E, system.nq)))
+    targets = drive_targets(system, sched.states) if reset == "drive" else None
+    pid = DrivePID.fresh(E, system.nq)
     for j in range(R + 1):
         x0, first = (np.tile(sched.start, (E, 1)) if j == 0 else sched.states[:, j - 1]), bounds[:, j].copy()
         if j and reset == "drive":
             D = int(min(round(DRIVE_T / dt), (bounds[:, j + 1] - bounds[:, j]).min()))
             x_end = np.where(np.isfinite(x_end).all(axis=1, keepdims=True), x_end, sched.states[:, j - 1])
-            xd, x0 = _drive(system, x_end, targets[:, j - 1], D, dt, pid)
+            xd, x0 = pid_drive(system, x_end, targets[:, j - 1], D, dt, pid)
             driven = tip_up(system, xd[..., : system.nq])  # (E, D)
             for e in range(E):
                 up[e, first[e]: first[e] + D] = driven[e]

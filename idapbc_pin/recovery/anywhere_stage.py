@@ -3,8 +3,9 @@ circle (`trajectory.library`), kept as the run's swing-up law where it brings th
 from anywhere and loses nothing near hanging or in the box.
 
 1. **Library.** `SwingUpConfig.library` postures at rest from the full circle (seed `plan_seed` +
-   700), the resting posture and `library_moving` states anywhere, moving at up to the joints'
-   ratings (seed `plan_seed` + 701), each planned in `library_horizon` s, or where no such plan brings
+   700), the resting posture, `library_moving` states anywhere, moving at up to the joints'
+   ratings (seed `plan_seed` + 701), and `library_released` states as the uptime test's reset
+   drive releases them (`sim.drive.drive_release_states`, seed `plan_seed` + 702), each planned in `library_horizon` s, or where no such plan brings
    it up in the first of `library_longer` that does (`library_iterations` iLQR iterations; for the
    `library_horizon` plans `library_refine` more for the cheapest of a start none of whose plans
    ends with its tip at `library_tip`, and each plan ending so), within `library_share` of the
@@ -19,10 +20,11 @@ from anywhere and loses nothing near hanging or in the box.
 2. **Gate.** The run's law as the swing-up gate left it (with its swing-up law, if kept) and with
    each library instead, from states of their own (`ANYWHERE_GATE_SEED`): `gate_states` near-resting
    states ("holds" over `judge_T`), `gate_moving` states anywhere on the torus, moving at up to
-   the joints' ratings as a reset of the uptime test leaves them (`sim.states.moving_states`:
-   "holds", the share of their first `UP_WINDOW` s with the tip up (`sim.leaderboard.tip_up`: what
-   the uptime test counts between two resets), and the median time to the success box, recorded
-   only), and `box_states` box states (success over 20 s). The library is kept when it keeps the
+   the joints' ratings as a reset of the uptime test leaves them (`sim.states.moving_states`), and
+   `gate_released` states as its reset drive releases them (`sim.drive.drive_release_states`),
+   together the states "from anywhere" ("holds", the share of their first `UP_WINDOW` s with the
+   tip up (`sim.leaderboard.tip_up`: what the uptime test counts between two resets), and the
+   median time to the success box, recorded only), and `box_states` box states (success over 20 s). The library is kept when it keeps the
    tip up for a share at least `ANYWHERE_MARGIN` larger, holds at most `LIBRARY_LOSS` fewer states
    from anywhere (some moving starts no law catches in `judge_T`; one of them is noise, not a
    loss) and at most `LIBRARY_LOSS` fewer near-resting states, and brings at most `box_loss` fewer box states to x*. Of two libraries the rule keeps, the second
@@ -44,6 +46,7 @@ import torch
 from .._parallel import process_map
 from ..run import resolve_run
 from ..sim.compare import compare_laws
+from ..sim.drive import drive_release_states
 from ..sim.integrate import simulate
 from ..sim.leaderboard import tip_up
 from ..sim.metrics import holds, settling_time
@@ -76,7 +79,7 @@ def library_law(system, catch, box: np.ndarray, config: SwingUpConfig, progress:
     the kept `box` of the nominals of `library_horizon`, then one of all of them where a longer
     horizon gave more (either may be missing); how many of its starts each horizon gave a nominal;
     how many starts); with `progress`, a bar over its chunks."""
-    starts = library_starts(system, config.library, config.plan_seed + 700, config.library_moving)
+    starts = library_starts(system, config.library, config.plan_seed + 700, config.library_moving, config.library_released)
     horizons = (config.library_horizon, *config.library_longer)
     found, passes = horizon_nominals(system, catch, starts, horizons, share=config.library_share, iterations=config.library_iterations,
                                      judge_T=config.judge_T, seed=config.plan_seed + 800, workers=config.workers,
@@ -113,6 +116,8 @@ def anywhere_gate(run, current, library, config: SwingUpConfig) -> dict:
     laws = [current] + [teacher.with_fallback(law.with_inner(teacher.fallback)) for law in libraries]
     x_near = resting_states(system, config.gate_states, seed)
     x_any = moving_states(system, config.gate_moving, seed + 1)
+    if config.gate_released:
+        x_any = np.concatenate([x_any, drive_release_states(system, config.gate_released, seed + 3)])
     x = np.concatenate([x_near, x_any])
     near, anywhere, times, ups = [], [], [], []
     for held, arrive, up in process_map(_verdicts, [(system, law, x, config.judge_T) for law in laws], config.workers, config.ray):

@@ -200,8 +200,13 @@ class SwingUpConfig(Settings):
         (`sim.states.moving_states`), that the library plans from beside its postures at rest: the
         uptime test releases the robot at speed, and a law read at the nearest knot of plans from
         rest brakes to rest before it swings up; 0: postures at rest only.
+    library_released : states as the uptime test's reset drive releases them
+        (`sim.drive.drive_release_states`: a 0.2-s PID drive from x* at rest or from moving states
+        towards a posture from the full circle) that the library plans from beside the others; 0: none.
     gate_moving : states anywhere and moving (`sim.states.moving_states`: every speed up to its
         joint's rating) of the anywhere gate, judged with the law as deployed (speed governor on).
+    gate_released : states as the reset drive releases them (`sim.drive.drive_release_states`) that
+        the anywhere gate judges beside its `gate_moving` states, counted with them; 0: none.
     library_share : share of the effort limits the library's plans use: less than the nominals'
         `track_share`, so that the gains keep room to recover from a push or a poor knot.
     library_horizon : length of each of the library's plans, s.
@@ -253,7 +258,9 @@ class SwingUpConfig(Settings):
     manoeuvre_horizons: tuple = (1.5, 2.0)
     library: int = 128
     library_moving: int = 64
+    library_released: int = 64
     gate_moving: int = 40
+    gate_released: int = 40
     library_share: float = 0.6
     library_horizon: float = 1.0
     library_longer: tuple = (2.0,)
@@ -267,7 +274,7 @@ class SwingUpConfig(Settings):
     def __post_init__(self):
         ok = (all(0 < r <= 1 for r in self.inner_scales) and all(0 < r < float("inf") for r in self.funnels) and 0 < self.track_share <= 1 and 0 < self.library_share <= 1
               and min(self.starts, self.dagger_starts, self.gate_states, self.gate_moving, self.width, self.steps, self.batch, self.ilqr_iterations, self.track_iterations, self.library_iterations) >= 1
-              and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library, self.library_moving, self.library_refine) >= 0
+              and min(self.dagger, self.box_states, self.margin, self.box_loss, self.workers, self.fit_seed, self.plan_seed, self.tracks, self.library, self.library_moving, self.library_released, self.gate_released, self.library_refine) >= 0
               and 0 <= self.library_tip <= 1
               and 0 < self.library_horizon <= self.judge_T - 2.0 and all(0 < h <= self.judge_T - 2.0 for h in self.library_longer) and self.time_margin >= 0
               and self.horizon > 0 and self.judge_T >= self.horizon + 2.0 and 0 <= self.circle <= 10 and self.kept_momenta >= 0

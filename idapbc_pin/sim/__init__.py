@@ -15,6 +15,8 @@ One concept per module, in the order a rollout uses them:
   peak input.
 * `compare`: `compare_laws`, candidate laws judged from the same states (every gate uses it).
 * `leaderboard`: the RealAIGym tip test and v2 score of a swing-up (`tip_swingup_times`, `row_score`).
+* `drive`: the RealAIGym global test's reset drive (upstream's PID with gravity compensation,
+  `pid_drive`) and the states it releases the robot in (`drive_release_states`).
 
 Scores built on these verdicts (ROA, radius, paired comparison, invariant share) live in
 `idapbc_pin.evaluation`.

@@ -6,8 +6,9 @@ many starts instead, each with a short horizon:
 
 1. **Starts**: the resting posture and `size` postures at rest with every angle from the full circle
    (`sim.states.circle_states`, a seed of their own), and `moving` states anywhere with every speed
-   up to its joint's rating (`sim.states.moving_states`, seed + 1): a robot released at speed
-   reads knots of a plan that starts moving, not one that brakes to rest first.
+   up to its joint's rating (`sim.states.moving_states`, seed + 1), and `released` states as the
+   uptime test's reset drive leaves them (`sim.drive.drive_release_states`, seed + 2): a robot
+   released at speed reads knots of a plan that starts moving, not one that brakes to rest first.
 2. **Plans**: from each start, iLQR plans of the first of `horizons` s within `share` of the effort
    limits (`ilqr.ilqr_plans`, all starts and warm starts in one batch), warm-started from
    ±sinusoids of `WARM_PERIOD` at four phases and two amplitudes and `WARM_RANDOM` random steps.
@@ -48,6 +49,7 @@ from tqdm.auto import tqdm
 
 from .._parallel import process_map
 from ..control.baseline import LQRController
+from ..sim.drive import drive_release_states
 from ..sim.integrate import simulate
 from ..sim.leaderboard import tip_share
 from ..sim.metrics import holds
@@ -72,14 +74,18 @@ RETRY_SEED = 1000
 REFINE_KEEP = 2
 
 
-def library_starts(system, size: int, seed: int, moving: int = 0) -> np.ndarray:
-    """(size + 1 + moving, n) states (q, p): the resting posture, then `size` postures at rest with every
-    angle from the full circle (`circle_states` with `seed`), then `moving` states anywhere with every
-    speed up to its joint's URDF rating (`moving_states` with seed + 1)."""
-    starts = circle_states(system, int(size) + 1, seed)
+def library_starts(system, size: int, seed: int, moving: int = 0, released: int = 0) -> np.ndarray:
+    """(size + 1 + moving + released, n) states (q, p): the resting posture, then `size` postures at
+    rest with every angle from the full circle (`circle_states` with `seed`), then `moving` states
+    anywhere with every speed up to its joint's URDF rating (`moving_states` with seed + 1), then
+    `released` states as the uptime test's reset drive leaves them (`drive_release_states` with
+    seed + 2)."""
+    starts = [circle_states(system, int(size) + 1, seed)]
     if int(moving) > 0:
-        starts = np.concatenate([starts, moving_states(system, int(moving), seed + 1)])
-    return starts
+        starts.append(moving_states(system, int(moving), seed + 1))
+    if int(released) > 0:
+        starts.append(drive_release_states(system, int(released), seed + 2))
+    return np.concatenate(starts)
 
 
 def _chunk_nominals(job) -> list:
