@@ -13,6 +13,8 @@ import idapbc_pin as ip
 from idapbc_pin.sim.drive import DRIVE_T, drive_release_states, pid_drive
 from idapbc_pin.sim.states import moving_states
 
+from .test_uptime import _pid_drive_by_hand
+
 URDF = Path(__file__).resolve().parents[1] / "urdf" / "realaigym_double_pendulum.urdf"
 
 
@@ -22,27 +24,10 @@ def acrobot():
 
 
 def _by_hand(system, q0, v0, drives, dt=0.002):
-    """Drives in a row as a plain loop over steps, one state: for each (start or None, target), the
-    state set to `start` (q, v) where given, then upstream's point PID (kp 10, ki 0.1, kd 1 with a
-    1-ms step, errors not wrapped and kept across the drives, no derivative on its first two calls),
-    clipped to ±6 N·m, plus ∇U(q), clipped again; RK4 with the torque held, DRIVE_T s each."""
-    errors, q, v = [], q0.copy(), v0.copy()
-    for start, target in drives:
-        if start is not None:
-            q, v = start[0].copy(), start[1].copy()
-        for _ in range(int(round(DRIVE_T / dt))):
-            e = target - q
-            errors.append(e)
-            d = (errors[-1] - errors[-2]) / 0.001 if len(errors) > 2 else np.zeros_like(e)
-            pid = 10.0 * e + 0.1 * np.sum(errors, axis=0) * 0.001 + 1.0 * d
-            tau = np.clip(np.clip(pid, -6.0, 6.0) + system.plant.gravity(q[None])[0], -6.0, 6.0)
-            acc = lambda q_, v_: system.forward_dynamics(q_[None], v_[None], tau[None])[0]
-            k1q, k1v = v, acc(q, v)
-            k2q, k2v = v + 0.5 * dt * k1v, acc(q + 0.5 * dt * k1q, v + 0.5 * dt * k1v)
-            k3q, k3v = v + 0.5 * dt * k2v, acc(q + 0.5 * dt * k2q, v + 0.5 * dt * k2v)
-            k4q, k4v = v + dt * k3v, acc(q + dt * k3q, v + dt * k3v)
-            q, v = q + dt / 6 * (k1q + 2 * k2q + 2 * k3q + k4q), v + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
-    return q, v
+    """Drives in a row as a plain loop over steps, one state (`tests.test_uptime._pid_drive_by_hand`):
+    for each (start or None, target), the state set to `start` (q, v) where given, DRIVE_T s each."""
+    x0 = system.state_from(q0[None], v0[None])[0]
+    return _pid_drive_by_hand(system, x0, [t for _, t in drives], int(round(DRIVE_T / dt)), dt, [s for s, _ in drives])
 
 
 def _postures(rng, n):

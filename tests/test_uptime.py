@@ -149,13 +149,16 @@ def test_a_drive_reset_holds_a_posture_against_gravity_and_pushes_towards_the_dr
     assert ((q - up) * (0.0 - up) >= 0).all() and np.abs(q - up).max() > 0.1 and np.abs(v).max() > 1.0
 
 
-def _pid_drive_by_hand(system, x, targets, ticks, dt):
+def _pid_drive_by_hand(system, x, targets, ticks, dt, starts=None):
     """One episode's drives in a row, a plain loop over steps: the leaderboard's point PID (kp 10,
     ki 0.1, kd 1 with a 1-ms step, errors not wrapped and kept across the drives, no derivative on
-    its first two calls), clipped to ±6 N·m, plus ∇U(q), clipped again; RK4 with the torque held."""
+    its first two calls), clipped to ±6 N·m, plus ∇U(q), clipped again; RK4 with the torque held.
+    `starts`: per drive, the state (q, v) it starts from, or None to go on from where the last ended."""
     errors = []
     q, v = (a[0].copy() for a in system.split(x[None]))
-    for target in targets:
+    for target, start in zip(targets, starts or [None] * len(targets)):
+        if start is not None:
+            q, v = start[0].copy(), start[1].copy()
         for _ in range(ticks):
             e = target - q
             errors.append(e)
