@@ -55,7 +55,8 @@ from idapbc_pin.sim.states import evaluation_box, uniform_states
 from idapbc_pin.recovery import stage as recovery_module
 from idapbc_pin.recovery import gate as recovery_gate
 from idapbc_pin.trajectory.plans import PLAN_STEP, PlanSettings, PlanThenLaw, plan_bound, planning_system, search_plan, search_plans
-from idapbc_pin.recovery.stage import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, ends_near, fit_recovery_law, gate_choice, recover, refit, regate
+from idapbc_pin.recovery.again import refit, regate
+from idapbc_pin.recovery.stage import LABEL_EVERY, LABEL_SPAN, RecoveryConfig, collect_labels, ends_near, fit_recovery_law, gate_choice, recover
 from idapbc_pin.recovery.fit import base_inputs
 from idapbc_pin.recovery.gate import NEAR_SCALE, read_labels, save_labels
 from idapbc_pin.run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE
@@ -686,7 +687,7 @@ def test_recover_hands_the_teacher_the_config_names_to_the_labels(tiny_run, monk
     class Stop(Exception):
         pass
 
-    def labels(system, x0, plan_seed, config, progress, law, *store):
+    def labels(system, x0, plan_seed, config, progress, law, *store, **pilot):
         given.append(law)
         raise Stop
 

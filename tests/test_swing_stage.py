@@ -480,6 +480,25 @@ def test_simulate_from_moving_states_reports_the_catch_and_the_late_speed(swung_
     assert all(r is not None for r in record["scores"]["NIDA-PBC"]["late_speed_ratio"])
 
 
+def test_simulate_counts_an_explicit_n_and_T_even_where_they_equal_the_box_s_defaults(swung_run, monkeypatch):
+    """`simulate --from moving --n 100` judges 100 states (the box's default count, given): only an
+    unset --n / --T falls back to the swing-up's 20 states over 10 s."""
+    from idapbc_pin.cli.main import main
+    from idapbc_pin.evaluation import swingup as swingup_module
+
+    asked = []
+
+    def judged(run, n, T, **kwargs):
+        asked.append((n, T))
+        raise ip.IdapbcError("judged")
+
+    monkeypatch.setattr(swingup_module, "evaluate_run_swingup", judged)
+    run, _ = swung_run
+    for flags in (["--from", "moving", "--n", "100"], ["--from", "moving"], ["--from", "hanging", "--T", "20"]):
+        assert main(["simulate", str(run.path), *flags]) == 2
+    assert asked == [(100, 10.0), (20, 10.0), (20, 20.0)]
+
+
 def test_the_figure_of_a_swing_up_run_ends_with_its_swing_up_from_hanging(swung_run):
     """figure.png's last row: q(t), u(t) and H(t) of the run's law, saturated LQR and the energy pump
     from the exact hanging start, the input within the effort limits drawn dashed."""

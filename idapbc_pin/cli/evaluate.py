@@ -28,6 +28,11 @@ def _run(args: argparse.Namespace):
     return load_run(args.run, checkpoint=args.checkpoint)
 
 
+def _or(given, default):
+    """A flag's value where given on the command line (not None), else the mode's default."""
+    return default if given is None else given
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     x0, seed = x0_of(args), seed_of(args)
     run = _run(args)
@@ -36,7 +41,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.start != "box":
         return _simulate_swingup(args, run, seed)
     result = simulate_run(
-        run, n=args.n, T=args.T, dt=args.dt, x0=x0, rho=args.rho, mismatch=args.mismatch,
+        run, n=_or(args.n, library_default(simulate_run, "n")), T=_or(args.T, library_default(simulate_run, "T")), dt=args.dt, x0=x0, rho=args.rho, mismatch=args.mismatch,
         saturation=args.saturation, noise=args.noise, seed=seed, box=args.box, limits=not args.no_limits, radius=not args.no_radius,
         judge=args.judge, workers=workers_of(args),
     )
@@ -57,8 +62,7 @@ def _simulate_swingup(args: argparse.Namespace, run, seed: int) -> int:
     if args.no_limits or args.x0 is not None:
         raise IdapbcError(f"simulate --from {args.start} judges a swing-up under the effort limits from its own start states. "
                           "Fix: drop --no-limits and --x0.")
-    n = 20 if args.n == library_default(simulate_run, "n") else args.n
-    T = 10.0 if args.T == library_default(simulate_run, "T") else args.T
+    n, T = _or(args.n, 20), _or(args.T, 10.0)
     result = evaluate_run_swingup(run, n=n, T=T, seed=seed, workers=workers_of(args), starts=args.start, judge=args.judge)
     where = {"hanging": "near-resting states (the first exactly at rest, hanging)",
              "circle": "states at rest, every angle from the full circle (the first exactly at rest, hanging)",
@@ -82,8 +86,7 @@ def _simulate_anywhere(args: argparse.Namespace, run, seed: int) -> int:
     if args.no_limits or args.x0 is not None:
         raise IdapbcError("simulate --from anywhere judges the run's state feedback under the effort limits from its own start states. "
                           "Fix: drop --no-limits and --x0.")
-    n = 20 if args.n == library_default(simulate_run, "n") else args.n
-    T = 10.0 if args.T == library_default(simulate_run, "T") else args.T
+    n, T = _or(args.n, 20), _or(args.T, 10.0)
     if args.episodes < 1:
         raise IdapbcError(f"--episodes must be at least 1, got {args.episodes}. Fix: e.g. --episodes 5.")
     result = evaluate_run_anywhere(run, n=n, T=T, seed=seed, episodes=args.episodes, workers=workers_of(args), judge=args.judge,
@@ -150,7 +153,7 @@ def _add_run_options(p, function, states: str, n: str = "n", T: bool = True) -> 
 def add_eval_commands(subparsers) -> None:
     """Register ``simulate``, ``certify``, ``report`` and ``robustness`` on argparse sub-parsers."""
     p = subparsers.add_parser("simulate", help="closed loop from random states, Neural IDA-PBC next to LQR; metrics + figure into RUN")
-    _add_run_options(p, simulate_run, "initial states uniform in the box")
+    _add_run_options(p, simulate_run, "initial states uniform in the box; with --from hanging, circle, moving or anywhere, its starts (20 unless given)")
     add_x0_argument(p)
     add_box_argument(p, simulate_run)
     add_rho_argument(p)
@@ -179,7 +182,7 @@ def add_eval_commands(subparsers) -> None:
                         "moving, and the uptime test (60-s episodes with 15 resets, each a 0.2-s drive towards a random posture; "
                         "anywhere.json); moving: the swing-up evaluation from 20 states anywhere, every joint's speed up to its URDF "
                         "rating (swingup-moving.json)")
-    p.set_defaults(func=_cmd_simulate)
+    p.set_defaults(func=_cmd_simulate, n=None, T=None)  # unset: the box's defaults, or the swing-up's 20 states over 10 s
 
     p = subparsers.add_parser("certify", help="the paper's conditions checked on dense samples (a sampled certificate); certificate.json")
     _add_run_options(p, certify, "uniform samples of the domain", T=False)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..recovery.stage import RecoveryConfig, recover, refit, regate
+from ..recovery.again import refit, regate
+from ..recovery.stage import RecoveryConfig, recover
 from ._args import add_command, add_ray_argument, add_run_argument, add_workers_argument, config_keys, ray_of, workers_of
 
 __all__ = ["add_recover_command"]

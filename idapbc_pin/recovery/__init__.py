@@ -9,7 +9,7 @@ floor below) acts where the IDA-PBC law does not reach, kept only where a gate s
   `idapbc_pin.control.controller.OuterLaw` (``apply(x, u, energy) -> u``).
 * `config`: `RecoveryConfig` and `SwingUpConfig`, every number of the stages (TOML files for the CLI).
 * The reach stage: `fit` (the recovery law from labels), `gate` (keep it or not), `stage`
-  (`recover`, `refit`, `regate`), `trigger` (`limits_bind`, `auto_recover`: `train`'s default).
+  (`recover`), `again` (`refit`, `regate`: without plans), `trigger` (`limits_bind`, `auto_recover`: `train`'s default).
 * The swing-up stage: `swing_law` (`SwingUpLaw`, acting where the posture leaves the training box,
   around the run's own outer law), `swing_boxes` (the kept boxes where the run's law keeps control)
   and `swing_stage` (`swing_up`: its labels, fit, DAgger rounds, gate and manoeuvre).
@@ -22,7 +22,8 @@ from .box_law import BoxFallback
 from .config import RecoveryConfig, SwingUpConfig
 from .law import RecoveryLaw
 from .library_law import LibraryLaw
-from .stage import recover, refit, regate
+from .again import refit, regate
+from .stage import recover
 from .swing_law import SwingUpLaw
 from .swing_stage import swing_up
 from .trigger import auto_recover, limits_bind

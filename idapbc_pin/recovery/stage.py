@@ -16,6 +16,11 @@ The steps (`RecoveryConfig` holds every number):
    box meets a law that continues what the IDA-PBC law was doing; with LQR it meets LQR's habits,
    and can lose states near x* that the run's law holds (docs/stages.md). Each finished chunk of starts is kept in ``recovery-chunks/``
    (`chunks.ChunkStore`) until the stage ends, so a stage started again after a kill reads it back.
+   From `PILOT_MIN_STARTS` starts on, the first `LABEL_PILOT` chunks (a quarter of the starts) are
+   a pilot: where none of their starts reaches x*, the others are not planned and the stage
+   refuses; so it does where the plans reach fewer than `margin` of the starts the run's law loses
+   (with the run's law as the teacher): the gate asks that many more than the run's law brings.
+   The labels stay for `refit`.
 2. **Fit.** A `recovery.law.RecoveryLaw` MLP (two tanh layers of `width`) by least squares on
    u/ū (Adam, minibatches of 4096; `fit`). With `form` "residual" the MLP is a correction
    added to the IDA-PBC law's own input (`RecoveryLaw.residual`). After the DAgger rounds, `fits`
@@ -49,8 +54,8 @@ fits and gate, and change the time only.
 The result is written into the run directory: ``recovery.npz`` (the law, when the gate keeps it;
 `Run.controller` then applies it) or ``recovery-refused.npz`` (when it does not; never applied),
 ``recovery-labels.npz`` (the labels of the last fit) and the ``"recovery"`` entry of summary.json,
-each atomically (`gate.save_recovery`). `regate` judges the saved law again with another
-gate, or keeps it, and `refit` fits a law again to the saved labels (another `fit_seed`, `width` or
+each atomically (`gate.save_recovery`). `again.regate` judges the saved law again with another
+gate, or keeps it, and `again.refit` fits a law again to the saved labels (another `fit_seed`, `width` or
 `steps`) and gates it, without searching plans again.
 """
 
@@ -58,6 +63,7 @@ from __future__ import annotations
 
 import sys
 import time
+from contextlib import closing
 from dataclasses import asdict
 
 import numpy as np
@@ -66,9 +72,8 @@ from tqdm.auto import tqdm
 
 from .._parallel import process_map, resolve_workers
 from ..control.baseline import LQRController
-from ..errors import IdapbcError
 from ..model.angles import wrap_angles
-from ..run import RECOVERY_FILE, RECOVERY_LABELS_FILE, RECOVERY_REFUSED_FILE, read_recovery, resolve_run
+from ..run import RECOVERY_LABELS_FILE, resolve_run
 from ..sim.integrate import simulate
 from ..sim.metrics import on_rail, success
 from ..sim.states import scaled_box, uniform_states
@@ -76,13 +81,13 @@ from ..trajectory.chunks import ChunkStore, chunk_key
 from ._failures import record_refusal, stage_errors
 from .config import FORMS, START_BOXES, TEACHERS, RecoveryConfig
 from .fit import base_inputs, fit_job, fit_recovery_law
-from .gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, library_first, read_labels, save_labels, save_recovery
+from .gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, library_first, save_labels, save_recovery
 from .law import RecoveryLaw
 from .library_law import LibraryLaw
 from ..trajectory.tracks import KNOT
 from ..trajectory.plans import PLAN_STEP, PlanThenLaw, TrackThenLaw, plan_candidates, planning_system, search_plans
 
-__all__ = ["FORMS", "LABEL_EVERY", "LABEL_PATH", "LABEL_SPAN", "RecoveryConfig", "START_BOXES", "TEACHERS", "choose_inner", "collect_labels", "dagger_round", "ends_near", "fit_recovery_law", "gate_choice", "label_library", "recover", "refit", "regate"]
+__all__ = ["FORMS", "LABEL_EVERY", "LABEL_PATH", "LABEL_PILOT", "PILOT_MIN_STARTS", "LABEL_SPAN", "RecoveryConfig", "START_BOXES", "TEACHERS", "choose_inner", "collect_labels", "dagger_round", "ends_near", "fit_recovery_law", "gate_choice", "label_library", "pilot_starts", "recover"]
 
 #: A label every LABEL_EVERY ticks (10 ms) over the first LABEL_SPAN ticks (6 s) of a successful start.
 LABEL_EVERY, LABEL_SPAN = 5, 3000
@@ -97,6 +102,12 @@ PLAN_BATCH = 16
 #: rounding depends on its rows, so a fixed count gives the same labels (and law) for any --workers;
 #: 8 keeps the labels of runs recovered with two workers before the count was fixed.
 LABEL_CHUNKS = 8
+#: The labels step's first LABEL_PILOT chunks (a quarter of its starts) are a pilot: where none of
+#: their starts reaches x*, with the teacher or with a plan, the other chunks are not planned.
+LABEL_PILOT = 2
+#: The pilot, and the refusal of plans fewer than the gate's margin, act from this many starts on
+#: (a pilot of 32): fewer say too little about what the plans can reach.
+PILOT_MIN_STARTS = 128
 
 
 # ------------------------------------------------------------------------------------ labels
@@ -165,7 +176,7 @@ def _cem_labels(system, law, x0, failed_u, ids, plan_seed, bound, settings, T):
 
 
 def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfig, progress: bool = True, teacher=None,
-                   store: ChunkStore | None = None, step: str = "labels"):
+                   store: ChunkStore | None = None, step: str = "labels", pilot: int = 0):
     """Labels (X (K, n), U (K, m)) of `system` from the start states x0 (N, n), with the counts of
     starts the teacher and the plans brought to x*: (X, U, teacher_ok, recovered). The teacher is
     `teacher` (a law (N, n) -> (N, m), picklable), or saturated LQR when None; it also catches every
@@ -174,22 +185,42 @@ def collect_labels(system, x0: np.ndarray, plan_seed: int, config: RecoveryConfi
     processes (the system and the teacher are pickled to them; Ray tasks with `config.ray`), so the
     labels depend on neither the count nor the back-end. With a `store`, each finished chunk is
     saved under `step` as it arrives, and chunks already saved there are read instead of planned
-    (`chunks.ChunkStore`). `progress` shows a bar over the chunks with its ETA."""
+    (`chunks.ChunkStore`). `progress` shows a bar over the chunks with its ETA. With `pilot` > 0 the
+    first `pilot` chunks are a pilot: where none of their starts reaches x*, the other chunks are not
+    planned (those in flight finish first) and no labels come back (the counts 0); the verdict reads
+    the pilot's chunks only, whatever the workers."""
     workers = config.workers if config.ray else resolve_workers(config.workers)  # Ray: 0 leaves the count to the cluster
     store = store or ChunkStore(None)
     chunks = [c for c in np.array_split(np.arange(len(x0)), LABEL_CHUNKS) if c.size]
     keys = [chunk_key(x0[c], int(c[0]), plan_seed, config.plan, config.judge_T, config.teacher) for c in chunks]
     parts = [store.read(step, k, key) for k, key in enumerate(keys)]
-    todo = [k for k, p in enumerate(parts) if p is None]
+    todo = [] if _pilot_lost(parts, pilot) else [k for k, p in enumerate(parts) if p is None]
     jobs = [(system, x0[chunks[k]], int(chunks[k][0]), plan_seed, config.plan, teacher, config.judge_T) for k in todo]
     with tqdm(total=len(chunks), initial=len(chunks) - len(todo), desc=f"recovery: {step}", unit="chunk", disable=not progress,
-              dynamic_ncols=True, file=sys.stderr) as bar:
-        for k, part in zip(todo, process_map(_label_chunk, jobs, workers, config.ray)):
+              dynamic_ncols=True, file=sys.stderr) as bar, closing(process_map(_label_chunk, jobs, workers, config.ray)) as results:
+        for k, part in zip(todo, results):
             store.write(step, k, keys[k], part)
             parts[k] = part
             bar.update(1)
+            if _pilot_lost(parts, pilot):
+                break
+    if _pilot_lost(parts, pilot):
+        return np.empty((0, system.n)), np.empty((0, system.m)), 0, 0
     X, U = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
     return X, U, sum(p[2] for p in parts), sum(p[3] for p in parts)
+
+
+def _pilot_lost(parts: list, pilot: int) -> bool:
+    """The first `pilot` chunks (of more) are in, and none of their starts reached x*."""
+    head = parts[:pilot]
+    return 0 < pilot < len(parts) and all(p is not None for p in head) and sum(p[2] + p[3] for p in head) == 0
+
+
+def pilot_starts(n: int, pilot: int = LABEL_PILOT) -> int:
+    """How many of n starts `collect_labels` plans before its pilot's verdict (all n where the
+    chunks are no more than the pilot's)."""
+    chunks = [c for c in np.array_split(np.arange(n), LABEL_CHUNKS) if c.size]
+    return n if len(chunks) <= pilot else sum(c.size for c in chunks[:pilot])
 
 
 # ------------------------------------------------------------------------------------ recover
@@ -270,17 +301,30 @@ def _recover(run, config: RecoveryConfig, progress: bool, keep: bool) -> dict:
     teacher = run.own_controller if config.teacher == "run" else None
     networks = run.own_controller.with_fallback(None)  # the input a recovery law's apply gets
     store = ChunkStore(run.path)  # chunks a killed stage finished are read back, not planned again
-    X, U, taught, recovered = collect_labels(system, x0, config.plan_seed, config, progress, teacher, store, "labels")
-    if not len(X):
-        reason = f"no start state reached x*, with {_teacher_name(config)} or with a plan: no plan to fit a recovery law to"
+    counts = config.starts >= PILOT_MIN_STARTS
+    X, U, taught, recovered = collect_labels(system, x0, config.plan_seed, config, progress, teacher, store, "labels", pilot=LABEL_PILOT if counts else 0)
+    if not len(X):  # the pilot's starts reached nothing: the others were not planned
+        tried = pilot_starts(config.starts) if counts else config.starts
+        which = "" if tried == config.starts else f" (the first {tried} of {config.starts} were tried)"
+        reason = f"no start state reached x*{which}, with {_teacher_name(config)} or with a plan: no plan to fit a recovery law to"
         if progress:
             print(f"recovery stage: {reason}; the run keeps its law as it is  [{time.perf_counter() - start:.0f} s]", flush=True)
         store.clear()
-        return record_refusal(run, "recovery", reason, start, teacher=config.teacher, teacher_starts=int(taught), plan_starts=int(recovered))
+        return record_refusal(run, "recovery", reason, start, teacher=config.teacher, teacher_starts=int(taught), plan_starts=int(recovered),
+                              planned_starts=tried)
     save_labels(run.path, X, U)  # after every labelling step: an interrupted recover keeps its plans for --refit
     if progress:
         print(f"labels: {_teacher_name(config)} brings {taught} of {config.starts} starts to x*, plans {recovered} of the other "
               f"{config.starts - taught}; {len(X)} labels  [{time.perf_counter() - start:.0f} s]", flush=True)
+    if counts and config.teacher == "run" and recovered < config.margin:  # the gate asks `margin` more than the run's law brings
+        reason = (f"plans reached only {recovered} of the {config.starts - taught} starts the run's law loses, fewer than the {config.margin} more "
+                  f"states the gate asks of a recovery law (its margin): no law was fitted (`idapbc-pin recover {run.path} --refit` fits and gates one on "
+                  "the saved labels)")
+        if progress:
+            print(f"recovery stage: {reason}; the run keeps its law as it is  [{time.perf_counter() - start:.0f} s]", flush=True)
+        store.clear()
+        return record_refusal(run, "recovery", reason, start, teacher=config.teacher, teacher_starts=int(taught), plan_starts=int(recovered),
+                              labels=int(len(X)), labels_file=RECOVERY_LABELS_FILE)
     library = label_library(system, X, U, config.library_speed, config.library_every, min(config.inner_scales)) if config.library and not config.always_fit else None
     known = {}  # the run's law's gate verdicts, simulated once for both gates (`choose_fit`)
     verdict, first = library_first(run, library, len(X) // LABEL_PATH, config, progress, known) if library is not None else ("fit", None)
@@ -319,55 +363,6 @@ def _fits_and_dagger(run, system, X, U, config: RecoveryConfig, progress: bool, 
                   f"`idapbc-pin recover {run.path} --refit` fits and gates a law on them without the plans", flush=True)
         raise
     return _gate_fits(run, system, law, X, U, config, progress, start, networks, known), mse, rounds, X, U
-
-
-def regate(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
-    """Judge the law the run's last `recover` fitted again, with `config`'s gate (`inner_scales`,
-    `gate_states`, `near_states`, `margin`, `half_loss`), without searching plans or fitting: the
-    gate's simulations only (a minute or two for a 2-DoF robot, against 20-60 for `recover`).
-    `keep` keeps it at the gate's best inner box whatever the verdict (the entry says "forced").
-    Returns the new summary entry; the labels, fit and DAgger figures of the last `recover` stay."""
-    run = resolve_run(run_or_path)
-    last = run.summary.get("recovery")
-    if not isinstance(last, dict) or "gate" not in last:
-        raise IdapbcError(f"run '{run.path}' has no recovery law to judge again. Fix: run `idapbc-pin recover {run.path}` first.")
-    name = last.get("law_file", RECOVERY_FILE if last.get("used") else None)
-    if name is None:
-        raise IdapbcError(
-            f"run '{run.path}': its last recover refused its law before idapbc-pin kept refused laws ({RECOVERY_REFUSED_FILE}). "
-            f"Fix: run `idapbc-pin recover {run.path}` again."
-        )
-    law = read_recovery(run.path, name)
-    start = time.perf_counter()
-    gate = choose_inner(run, law, config, progress)
-    regated = {"from": {"used": last.get("used"), "inner_scale": last.get("inner_scale")}, "seconds": round(time.perf_counter() - start, 1)}
-    entry = last | _verdict(gate, config, keep) | {"fit_seed": last.get("fit_seed", 0), "library": isinstance(law, LibraryLaw), "regated": regated}  # the saved law's seed and kind
-    return _save_and_tell(run, law, entry, config, progress, start)
-
-
-def refit(run_or_path, config: RecoveryConfig = RecoveryConfig(), progress: bool = True, *, keep: bool = False) -> dict:
-    """Fit a recovery law again to the labels the run's last `recover` saved (``recovery-labels.npz``),
-    with `config`'s `width`, `steps` and `fit_seed`, and gate it as `recover` does (`keep` as there):
-    the fit's minute and the gate's, without plans or DAgger rounds. `recover` writes the labels after
-    every labelling step, so this also finishes a `recover` that was interrupted. The new law replaces
-    the saved one, kept or refused. Returns the new summary entry (its "refit" part: the fit's
-    settings, error and time)."""
-    run = resolve_run(run_or_path)
-    last = run.summary.get("recovery") if isinstance(run.summary.get("recovery"), dict) else {}  # none after an interrupted recover
-    system = planning_system(run.system)  # an input without a limit plans within LQR's largest demand
-    X, U = read_labels(run.path, system.n, system.m)
-    torch.set_num_threads(1)
-    start = time.perf_counter()
-    networks = run.own_controller.with_fallback(None)  # the input a recovery law's apply gets
-    law, mse = _fit(system, X, U, config, networks)
-    if progress:
-        print(f"fitted again on the {len(X)} saved labels (fit seed {config.fit_seed}, width {config.width}, {config.steps} steps): "
-              f"mean squared error {mse:.4f} (u/ū)  [{time.perf_counter() - start:.0f} s]", flush=True)
-    law, gate = _gate_fits(run, system, law, X, U, config, progress, start, networks)
-    refitted = {"fit_seed": None if gate.get("library") else config.fit_seed + gate.get("fit", 0), "fits": config.fits, "width": config.width, "steps": config.steps, "labels": int(len(X)), "mse": mse,
-                "seconds": round(time.perf_counter() - start, 1)}
-    earlier = {k: v for k, v in last.items() if k not in ("regated", "refit")}
-    return _save_and_tell(run, law, earlier | _verdict(gate, config, keep) | {"refit": refitted}, config, progress, start)
 
 
 def _gate_fits(run, system, law: RecoveryLaw | None, X: np.ndarray, U: np.ndarray, config: RecoveryConfig, progress: bool, start: float, networks,
