@@ -168,8 +168,12 @@ def test_the_cli_stays_small_and_every_evaluation_default_is_the_library_s():
     from idapbc_pin.batch.pipeline import CERTIFY_DEFAULTS, EVALUATE_DEFAULTS, VIEW_DEFAULTS
 
     parser = build_parser()
+    from idapbc_pin.cli.evaluate import simulate_sizes
+
     simulate = parser.parse_args(["simulate", "RUN"])
-    assert (simulate.n, simulate.T, simulate.seed, simulate.box, simulate.noise) == (100, 20.0, 0, "domain", 0.0)
+    assert (*simulate_sizes(simulate), simulate.seed, simulate.box, simulate.noise) == (100, 20.0, 0, "domain", 0.0)
+    assert simulate_sizes(parser.parse_args(["simulate", "RUN", "--from", "moving"])) == (20, 10.0)  # the swing-up's starts
+    assert simulate_sizes(parser.parse_args(["simulate", "RUN", "--from", "moving", "--n", "100"])) == (100, 10.0)
     report = parser.parse_args(["report", "RUN"])
     assert (report.n, report.T, report.seed) == (EVALUATE_DEFAULTS["n"], EVALUATE_DEFAULTS["T"], EVALUATE_DEFAULTS["seed"])
     certify = parser.parse_args(["certify", "RUN"])

@@ -28,9 +28,13 @@ def _run(args: argparse.Namespace):
     return load_run(args.run, checkpoint=args.checkpoint)
 
 
-def _or(given, default):
-    """A flag's value where given on the command line (not None), else the mode's default."""
-    return default if given is None else given
+def simulate_sizes(args: argparse.Namespace) -> tuple[int, float]:
+    """(n, T) of `simulate`: --n and --T where given, else the library's defaults for the box
+    (`simulate_run`'s), or 20 states over 10 s for the swing-up and anywhere starts."""
+    box = args.start == "box"
+    n = library_default(simulate_run, "n") if box else 20
+    T = library_default(simulate_run, "T") if box else 10.0
+    return (n if args.n is None else args.n), (T if args.T is None else args.T)
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -41,7 +45,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.start != "box":
         return _simulate_swingup(args, run, seed)
     result = simulate_run(
-        run, n=_or(args.n, library_default(simulate_run, "n")), T=_or(args.T, library_default(simulate_run, "T")), dt=args.dt, x0=x0, rho=args.rho, mismatch=args.mismatch,
+        run, *simulate_sizes(args), dt=args.dt, x0=x0, rho=args.rho, mismatch=args.mismatch,
         saturation=args.saturation, noise=args.noise, seed=seed, box=args.box, limits=not args.no_limits, radius=not args.no_radius,
         judge=args.judge, workers=workers_of(args),
     )
@@ -62,7 +66,7 @@ def _simulate_swingup(args: argparse.Namespace, run, seed: int) -> int:
     if args.no_limits or args.x0 is not None:
         raise IdapbcError(f"simulate --from {args.start} judges a swing-up under the effort limits from its own start states. "
                           "Fix: drop --no-limits and --x0.")
-    n, T = _or(args.n, 20), _or(args.T, 10.0)
+    n, T = simulate_sizes(args)
     result = evaluate_run_swingup(run, n=n, T=T, seed=seed, workers=workers_of(args), starts=args.start, judge=args.judge)
     where = {"hanging": "near-resting states (the first exactly at rest, hanging)",
              "circle": "states at rest, every angle from the full circle (the first exactly at rest, hanging)",
@@ -86,7 +90,7 @@ def _simulate_anywhere(args: argparse.Namespace, run, seed: int) -> int:
     if args.no_limits or args.x0 is not None:
         raise IdapbcError("simulate --from anywhere judges the run's state feedback under the effort limits from its own start states. "
                           "Fix: drop --no-limits and --x0.")
-    n, T = _or(args.n, 20), _or(args.T, 10.0)
+    n, T = simulate_sizes(args)
     if args.episodes < 1:
         raise IdapbcError(f"--episodes must be at least 1, got {args.episodes}. Fix: e.g. --episodes 5.")
     result = evaluate_run_anywhere(run, n=n, T=T, seed=seed, episodes=args.episodes, workers=workers_of(args), judge=args.judge,
