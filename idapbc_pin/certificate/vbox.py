@@ -14,9 +14,11 @@ smaller than V_box still gets its `zero_failure_samples` at a reasonable cost.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from ..errors import IdapbcError
 from ..model.boxes import DEFAULT_SCALE, verification_box
@@ -131,18 +133,27 @@ def set_frame(fn, c: float, x_star, lo, hi, rng, per_face: int = 64, n_rays: int
     return SetFrame(x_star, T, z_corners.min(axis=0), z_corners.max(axis=0))
 
 
+#: Seconds before `sample_set` shows its bar: quick searches print nothing.
+BAR_DELAY = 2.0
+
+
 def sample_set(fn, c: float, frame: SetFrame, n: int, rng, chunk: int = 20000, max_draws: int = 20_000_000) -> tuple[np.ndarray, int]:
     """At least `n` i.i.d. uniform samples of {V < c} by rejection from the `frame` that holds it.
 
     Frame samples are drawn `chunk` at a time and every hit is kept. Returns (x (k, dim), draws):
     k ≥ n unless `max_draws` frame samples ran out first (a set that small leaves k < n); draws
-    counts every frame sample, so vol(set) ≈ frame.volume·k/draws.
+    counts every frame sample, so vol(set) ≈ frame.volume·k/draws. A search that lasts more than
+    `BAR_DELAY` s shows a bar of the samples kept, with its ETA (a thin set in a wide frame, as on
+    long chains, takes minutes).
     """
     kept, k, draws = [], 0, 0
-    while k < n and draws < max_draws:
-        x = frame.sample(rng, chunk)
-        draws += chunk
-        x = x[_f64(fn.H_d(x)).ravel() < c]
-        kept.append(x)
-        k += x.shape[0]
+    with tqdm(total=n, desc="certify: samples of {V < c}", unit="sample", delay=BAR_DELAY, dynamic_ncols=True, file=sys.stderr) as bar:
+        while k < n and draws < max_draws:
+            x = frame.sample(rng, chunk)
+            draws += chunk
+            x = x[_f64(fn.H_d(x)).ravel() < c]
+            kept.append(x)
+            bar.update(min(x.shape[0], n - k))
+            bar.set_postfix(draws=f"{draws:.3g}", refresh=False)
+            k += x.shape[0]
     return (np.concatenate(kept) if kept else np.empty((0, frame.zlo.size))), draws
