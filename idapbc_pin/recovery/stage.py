@@ -303,15 +303,12 @@ def _recover(run, config: RecoveryConfig, progress: bool, keep: bool) -> dict:
     store = ChunkStore(run.path)  # chunks a killed stage finished are read back, not planned again
     counts = config.starts >= PILOT_MIN_STARTS
     X, U, taught, recovered = collect_labels(system, x0, config.plan_seed, config, progress, teacher, store, "labels", pilot=LABEL_PILOT if counts else 0)
-    if not len(X):  # the pilot's starts reached nothing: the others were not planned
+    counted = {"teacher": config.teacher, "teacher_starts": int(taught), "plan_starts": int(recovered)}
+    if not len(X):  # nothing reached x*: with a pilot, of its starts only (the others were not planned)
         tried = pilot_starts(config.starts) if counts else config.starts
         which = "" if tried == config.starts else f" (the first {tried} of {config.starts} were tried)"
         reason = f"no start state reached x*{which}, with {_teacher_name(config)} or with a plan: no plan to fit a recovery law to"
-        if progress:
-            print(f"recovery stage: {reason}; the run keeps its law as it is  [{time.perf_counter() - start:.0f} s]", flush=True)
-        store.clear()
-        return record_refusal(run, "recovery", reason, start, teacher=config.teacher, teacher_starts=int(taught), plan_starts=int(recovered),
-                              planned_starts=tried)
+        return _refuse(run, reason, start, store, progress, **counted, planned_starts=tried)
     save_labels(run.path, X, U)  # after every labelling step: an interrupted recover keeps its plans for --refit
     if progress:
         print(f"labels: {_teacher_name(config)} brings {taught} of {config.starts} starts to x*, plans {recovered} of the other "
@@ -320,11 +317,7 @@ def _recover(run, config: RecoveryConfig, progress: bool, keep: bool) -> dict:
         reason = (f"plans reached only {recovered} of the {config.starts - taught} starts the run's law loses, fewer than the {config.margin} more "
                   f"states the gate asks of a recovery law (its margin): no law was fitted (`idapbc-pin recover {run.path} --refit` fits and gates one on "
                   "the saved labels)")
-        if progress:
-            print(f"recovery stage: {reason}; the run keeps its law as it is  [{time.perf_counter() - start:.0f} s]", flush=True)
-        store.clear()
-        return record_refusal(run, "recovery", reason, start, teacher=config.teacher, teacher_starts=int(taught), plan_starts=int(recovered),
-                              labels=int(len(X)), labels_file=RECOVERY_LABELS_FILE)
+        return _refuse(run, reason, start, store, progress, **counted, labels=int(len(X)), labels_file=RECOVERY_LABELS_FILE)
     library = label_library(system, X, U, config.library_speed, config.library_every, min(config.inner_scales)) if config.library and not config.always_fit else None
     known = {}  # the run's law's gate verdicts, simulated once for both gates (`choose_fit`)
     verdict, first = library_first(run, library, len(X) // LABEL_PATH, config, progress, known) if library is not None else ("fit", None)
@@ -340,6 +333,14 @@ def _recover(run, config: RecoveryConfig, progress: bool, keep: bool) -> dict:
     entry = _save_and_tell(run, law, entry, config, progress, start)
     store.clear()
     return entry
+
+
+def _refuse(run, reason: str, start: float, store: ChunkStore, progress: bool, **extra) -> dict:
+    """The stage refuses: says why, drops its chunks of plans and records the refusal (`record_refusal`)."""
+    if progress:
+        print(f"recovery stage: {reason}; the run keeps its law as it is  [{time.perf_counter() - start:.0f} s]", flush=True)
+    store.clear()
+    return record_refusal(run, "recovery", reason, start, **extra)
 
 
 def _fits_and_dagger(run, system, X, U, config: RecoveryConfig, progress: bool, start: float, teacher, networks, store, known: dict | None = None):
