@@ -27,8 +27,15 @@ __all__ = ["boundary_min", "check_dissipation", "check_structural", "face_sample
 
 
 def check_structural(ctrl, system, terms: ClosedLoopTerms, n_hessian: int) -> Structural:
-    """Conditions (i)–(iii) on the samples ``terms.x`` (N, n); ∇²H_d on the first `n_hessian`."""
-    x, J, R = terms.x, terms.J, terms.R
+    """Conditions (i)–(iii) on the samples ``terms.x`` (N, n); ∇²H_d on the first `n_hessian`.
+
+    They are properties of the weights, so they are checked in float64 (``ctrl.in_float64()``
+    where the controller has it): a float32 network rounds an R_d whose eigenvalues span more
+    than ~10⁷ into an indefinite matrix."""
+    exact = ctrl.in_float64() if hasattr(ctrl, "in_float64") else ctrl
+    x, J = terms.x, terms.J
+    R = terms.R if exact is ctrl else _f64(exact.R_d(x))
+    ctrl = exact
     x_star = _f64(system.x_star)
     H_star = float(_f64(ctrl.H_d(x_star[None])).ravel()[0])
     g_star = float(np.linalg.norm(_f64(ctrl.grad_H_d(x_star[None])).ravel()))

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..control.desired_flow import DesiredFlow
-from ..control.speed_governor import ENERGY_MARGIN, SPEED_START
+from ..control.speed_governor import SPEED_START
 from ..model.analytic import CosCoupledPlant, MassSpringDamperPlant
 from ..recovery.box_law import BoxFallback
 from .chain_enclosure import ChainEnclosure
@@ -124,7 +124,7 @@ def quiet_rows(system, governor, X: Interval, f: Interval) -> np.ndarray:
     vr = v[:, rows]
     kinetic = ((vr[:, :, None] * M[:, rows][:, :, rows]) * vr[:, None, :]).sum(-1).sum(-1) * 0.5
     E = kinetic + U
-    return quiet & (E.hi < governor.e_star + ENERGY_MARGIN * governor.delta_e)
+    return quiet & (E.hi < governor.e_star + governor.energy_margin * governor.delta_e)
 
 
 def _mlp(net, U: Interval) -> Interval:

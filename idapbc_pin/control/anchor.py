@@ -27,6 +27,7 @@ __all__ = [
     "AUTO_STIFF_PLANT_Q",
     "FALLBACK_FORMS",
     "MAX_P_COND",
+    "MAX_R_COND",
     "anchor_forms",
     "anchor_settings",
     "cart_setting",
@@ -64,13 +65,17 @@ AUTO_STIFF_PLANT_Q = 1.0
 AUTO_CART_WEIGHTS = (1.0, 3.0, 10.0, 30.0, 100.0)
 AUTO_SLOWEST_POLE = 2.0
 #: The forms of P (``TrainConfig.anchor_p``) tried after the configured one, in this order, where it
-#: gives no positive-definite R or a P conditioned worse than ``MAX_P_COND`` (light distal links: M(q)
+#: gives no positive-definite R or a P or R conditioned worse than ``MAX_P_COND`` or ``MAX_R_COND`` (light distal links: M(q)
 #: and the Riccati solution spanning 1e8–1e11).
 FALLBACK_FORMS = ("riccati", "box", "lyapunov")
 #: Largest condition number of P, in the networks' units (`p_condition`), taken without trying the
 #: next form of `FALLBACK_FORMS`: the order at which R = ½P⁻¹Q'P⁻¹ stops coming out positive definite
 #: in float64 (the four-link chain's Riccati P at anchor_q = 0.1: 1e10).
 MAX_P_COND = 1e9
+#: Largest condition number of the anchor's R = ½P⁻¹Q'P⁻¹ in the networks' units (`p_condition`), taken
+#: without trying the next form: float64 then keeps R_d's smallest eigenvalue some 100 times above the
+#: rounding of its largest (the four-link chain's Riccati R: 2.4e15).
+MAX_R_COND = 1e13
 
 
 def anchor_settings(system: System, config: TrainConfig) -> tuple[str, float]:
@@ -162,9 +167,9 @@ def anchor_forms(config: TrainConfig) -> tuple[str, ...]:
 
 def formed_anchor(system: System, config: TrainConfig, settings: tuple[str, float] | None = None) -> tuple[LinearAnchor, str, str]:
     """``(anchor, form, why)``: the anchor in the first form of P (`anchor_forms`) whose R is positive
-    definite and whose P, in the networks' units, has a condition number ≤ `MAX_P_COND` (else the best
-    conditioned of those with a positive-definite R); `why` says why the forms before it were passed
-    over ("" when the configured form is the one).
+    definite and whose P and R, in the networks' units, have condition numbers ≤ `MAX_P_COND` and
+    ≤ `MAX_R_COND` (else, of those with a positive-definite R, the one least past its bounds); `why`
+    says why the forms before it were passed over ("" when the configured form is the one).
 
     Raises
     ------
@@ -180,12 +185,13 @@ def formed_anchor(system: System, config: TrainConfig, settings: tuple[str, floa
         except (ValueError, np.linalg.LinAlgError) as exc:
             passed.append(f"'{form}' gave no positive-definite R ({str(exc).split(';')[0]})")
             continue
-        cond = p_condition(system, anchor.P, scaling)
-        if cond <= MAX_P_COND:
+        cond_P, cond_R = p_condition(system, anchor.P, scaling), p_condition(system, anchor.R, scaling, inverse=True)
+        if cond_P <= MAX_P_COND and cond_R <= MAX_R_COND:
             return anchor, form, "; ".join(passed)
-        passed.append(f"'{form}' gave cond(P) = {cond:.3g}")
-        if best is None or cond < best[2]:
-            best = (anchor, form, cond)
+        passed.append(f"'{form}' gave cond(P) = {cond_P:.3g}" if cond_P > MAX_P_COND else f"'{form}' gave cond(R) = {cond_R:.3g}")
+        excess = max(cond_P / MAX_P_COND, cond_R / MAX_R_COND)
+        if best is None or excess < best[2]:
+            best = (anchor, form, excess)
     if best is not None:
         return best[0], best[1], "; ".join(passed)
     raise IdapbcError(
@@ -194,10 +200,12 @@ def formed_anchor(system: System, config: TrainConfig, settings: tuple[str, floa
     )
 
 
-def p_condition(system: System, P: np.ndarray, scaling: str) -> float:
-    """cond(P) in the networks' units: of SPS, S = diag(`half_widths`), under box scaling; else of P."""
+def p_condition(system: System, P: np.ndarray, scaling: str, inverse: bool = False) -> float:
+    """cond(P) in the networks' units: of SPS, S = diag(`half_widths`), under box scaling; else of P.
+    ``inverse``: of a matrix that scales as P⁻¹ does (the damping R): of S⁻¹PS⁻¹ under box scaling."""
     if scaling == "box":
         half = half_widths(system)
+        half = 1.0 / half if inverse else half
         P = half[:, None] * P * half[None, :]
     return float(np.linalg.cond(P))
 

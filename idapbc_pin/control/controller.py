@@ -15,6 +15,7 @@ target before the law is evaluated (`IdaPbcNets.wrap`), as the LQR baseline does
 
 from __future__ import annotations
 
+import copy
 from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
@@ -26,7 +27,7 @@ from ._runtime import snapshot
 from .desired_flow import DesiredFlow
 from .nets import IdaPbcNets
 from .rail_guard import RailGuard
-from .speed_governor import SpeedGovernor
+from .speed_governor import ENERGY_MARGIN, SpeedGovernor
 
 __all__ = ["Controller", "OuterLaw"]
 
@@ -68,14 +69,18 @@ class Controller:
     governor : take energy out wherever the robot holds clearly more than the upright needs or a motor
         runs near its rating (`SpeedGovernor`, after the outer laws, before the rail guard; only where
         every input has a finite effort limit). False: the laws alone.
+    governor_margin : where the governor's energy clause starts, in ΔE above E* (a run's own:
+        `Run.governor_margin`).
     """
 
-    def __init__(self, system: System, nets: IdaPbcNets, fallback: OuterLaw | None = None, guard: bool = True, governor: bool = True):
+    def __init__(self, system: System, nets: IdaPbcNets, fallback: OuterLaw | None = None, guard: bool = True, governor: bool = True,
+                 governor_margin: float = ENERGY_MARGIN):
         self.system = system
         self.nets = nets.eval()
         self.fallback = fallback
         self.guard = RailGuard.of(system) if guard else None
-        self.governor = SpeedGovernor.of(system) if governor else None
+        self.governor = SpeedGovernor.of(system, governor_margin) if governor else None
+        self.governor_margin = float(governor_margin)
         self._dtype = nets.x_star.dtype
         self._device = nets.x_star.device
         self._g_pinv = self._np(nets.g_pinv)  # (gᵀg)⁻¹gᵀ, (m, n)
@@ -194,19 +199,28 @@ class Controller:
         nets.H, nets.J, nets.R = self.nets.H, self.nets.J, self.nets.R.with_rho(rho)
         for name, buf in self.nets._buffers.items():  # None buffers too (angle_mask)
             nets.register_buffer(name, buf, persistent=name not in self.nets._non_persistent_buffers_set)
-        return Controller(self.system, nets, self.fallback, self.guard is not None, self.governor is not None)
+        return Controller(self.system, nets, self.fallback, self.guard is not None, self.governor is not None, self.governor_margin)
 
     def with_fallback(self, fallback: OuterLaw | None) -> "Controller":
         """Same networks, another law where they do not act (None: the learned law everywhere)."""
-        return Controller(self.system, self.nets, fallback, self.guard is not None, self.governor is not None)
+        return Controller(self.system, self.nets, fallback, self.guard is not None, self.governor is not None, self.governor_margin)
 
     def with_guard(self, guard: bool) -> "Controller":
         """Same laws, with or without the rail guard (`RailGuard`)."""
-        return Controller(self.system, self.nets, self.fallback, guard, self.governor is not None)
+        return Controller(self.system, self.nets, self.fallback, guard, self.governor is not None, self.governor_margin)
 
     def with_governor(self, governor: bool) -> "Controller":
         """Same laws, with or without the speed and energy governor (`SpeedGovernor`)."""
-        return Controller(self.system, self.nets, self.fallback, self.guard is not None, governor)
+        return Controller(self.system, self.nets, self.fallback, self.guard is not None, governor, self.governor_margin)
+
+    def in_float64(self) -> "Controller":
+        """Same laws on the same weights, evaluated in float64 (every float32 weight is exactly a
+        float64 one): the arithmetic in which conditions (i)–(iii) are checked, since float32 rounds
+        a damping R_d of wide condition number into an indefinite one. Itself where already float64."""
+        if self._dtype == torch.float64:
+            return self
+        nets = copy.deepcopy(self.nets).to(torch.float64)
+        return Controller(self.system, nets, self.fallback, self.guard is not None, self.governor is not None, self.governor_margin)
 
     @property
     def rho(self) -> float:

@@ -14,7 +14,7 @@ coordinate: Ė = uᵀv_a − vᵀDv). With the excess e = (E_g − E*)/ΔE, each
 ρ_j = |v_j| / v̄_j (v̄ the URDF `<limit velocity>`, passive joints too) and k the joint with the
 largest s_v,j, its speed's rate through the input c = v_k (M⁻¹B)_k / max_i |(M⁻¹B)_ki| (m,):
 
-    s_E = clip((e − ENERGY_MARGIN) / ENERGY_BAND, 0, 1),   s_v = max_j clip((ρ_j − SPEED_START) / (1 − SPEED_START), 0, 1),
+    s_E = clip((e − margin) / ENERGY_BAND, 0, 1),   s_v = max_j clip((ρ_j − SPEED_START) / (1 − SPEED_START), 0, 1),
     where s_v > 0:  u_i ← 0 if u_i c_i > 0;  u_i ← (1 − s_i) u_i − s_i ū_i clip(c_i / W_SCALE, ±1),
                     s_i = max(s_E, s_v) if w_i c_i > 0 (the clauses agree), else s_v;
     elsewhere:      u_i ← 0 if s_E > 0 and u_i w_i > 0;  u_i ← (1 − s_E) u_i − s_E ū_i clip(w_i / W_SCALE, ±1),
@@ -23,7 +23,9 @@ largest s_v,j, its speed's rate through the input c = v_k (M⁻¹B)_k / max_i |(
 wherever the speed clause acts (a motor brakes its own joint, or a passive one through the
 coupling M⁻¹B), and its power into E_g ≤ 0 wherever only the energy clause acts; clipping to ±ū
 keeps each sign. Away from both clauses the input is the law's, unchanged: the learned law near x*
-and every swing-up from rest below E* + ENERGY_MARGIN·ΔE and 0.8 of every rating. It is a state
+and every swing-up from rest below E* + margin·ΔE and 0.8 of every rating. The margin is
+`ENERGY_MARGIN` unless a run's recovery stage raised it to what its kept law's own catches from the
+training box reach (`evaluation.catch_margin`): a cart that swings its poles up from the box's edge. It is a state
 feedback, applied by `Controller` after every outer law and before the rail guard, and the exported
 controller applies the same rule (controller.json's "governor").
 """
@@ -61,6 +63,7 @@ class SpeedGovernor:
     e_star : E* = U(q*), J. delta_e : ΔE = E* − U(q_rest), J (≤ 0: no energy clause).
     rating : (nq,) each joint's rated speed (rad/s or m/s; URDF `<limit velocity>`), inf where none.
     effort : (m,) ū of each input (finite).
+    energy_margin : where the energy clause starts, in ΔE above E* (`ENERGY_MARGIN` by default).
     """
 
     system: System
@@ -69,9 +72,10 @@ class SpeedGovernor:
     delta_e: float
     rating: np.ndarray
     effort: np.ndarray
+    energy_margin: float = ENERGY_MARGIN
 
     @classmethod
-    def of(cls, system: System) -> "SpeedGovernor | None":
+    def of(cls, system: System, energy_margin: float = ENERGY_MARGIN) -> "SpeedGovernor | None":
         """The governor of `system`, or None where an input has no finite effort limit (no braking
         torque is defined) or neither clause could act (no energy gap above rest, no rated joint)."""
         effort = np.asarray(system.effort, dtype=np.float64)
@@ -88,7 +92,7 @@ class SpeedGovernor:
         delta_e = float(u_star - u_rest) if len(rows) else 0.0
         if not (delta_e > 0 or np.isfinite(rating).any()):
             return None
-        return cls(system, rows, float(u_star), delta_e, rating, effort)
+        return cls(system, rows, float(u_star), delta_e, rating, effort, float(energy_margin))
 
     def energy(self, x, qv: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(E_g (N,) in J, w (N, m) = ∂Ė_g/∂u) at states x (N, n) = (q, p); `qv`: x's (q, v) where
@@ -122,7 +126,7 @@ class SpeedGovernor:
         q, v = self.system.split(x)
         if self.delta_e > 0:
             e_g, M = self._energy(x, q, v)
-            s_e = np.clip(((e_g - self.e_star) / self.delta_e - ENERGY_MARGIN) / ENERGY_BAND, 0.0, 1.0)
+            s_e = np.clip(((e_g - self.e_star) / self.delta_e - self.energy_margin) / ENERGY_BAND, 0.0, 1.0)
         else:
             s_e, M = np.zeros(len(x)), None
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -169,4 +173,4 @@ class SpeedGovernor:
         return {"energy_rows": self.energy_rows.tolist(), "q_star": np.asarray(self.system.x_star, dtype=np.float64)[:nq].tolist(),
                 "q_rest": resting_configuration(self.system).tolist(),
                 "rating": [r if np.isfinite(r) else None for r in self.rating.tolist()], "effort": self.effort.tolist(),
-                "energy_margin": ENERGY_MARGIN, "energy_band": ENERGY_BAND, "speed_start": SPEED_START, "w_scale": W_SCALE}
+                "energy_margin": self.energy_margin, "energy_band": ENERGY_BAND, "speed_start": SPEED_START, "w_scale": W_SCALE}
