@@ -70,8 +70,10 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from .._io import write_json
 from .._parallel import process_map, resolve_workers
 from ..control.baseline import LQRController
+from ..control.speed_governor import ENERGY_MARGIN
 from ..model.angles import wrap_angles
 from ..run import RECOVERY_LABELS_FILE, resolve_run
 from ..sim.integrate import simulate
@@ -82,6 +84,7 @@ from ._failures import record_refusal, stage_errors
 from .config import FORMS, START_BOXES, TEACHERS, RecoveryConfig
 from .fit import base_inputs, fit_job, fit_recovery_law
 from .gate import NEAR_SCALE, choose_fit, choose_inner, format_gate, gate_choice, library_first, save_labels, save_recovery
+from .governor_margin import catch_margin
 from .law import RecoveryLaw
 from .library_law import LibraryLaw
 from ..trajectory.tracks import KNOT
@@ -420,9 +423,16 @@ def _verdict(gate: dict, config: RecoveryConfig, keep: bool) -> dict:
 
 
 def _save_and_tell(run, law: RecoveryLaw, entry: dict, config: RecoveryConfig, progress: bool, start: float) -> dict:
-    """Save `law` and `entry` (`save_recovery`) and print the gate's line; returns `entry`."""
+    """Save `law` and `entry` (`save_recovery`), with the governor's margin for a kept law
+    (`catch_margin`), and print the gate's line; returns `entry`."""
     save_recovery(run, law, entry)
+    if entry["used"]:
+        entry = entry | {"governor_margin": catch_margin(run.system, run.controller, config.gate_states, run.config.seed, config.judge_T)}
+        run.summary = dict(run.summary) | {"recovery": dict(run.summary["recovery"]) | {"governor_margin": entry["governor_margin"]}}
+        write_json(run.path / "summary.json", run.summary)
     if progress:
         forced = f"; kept anyway (--keep), inner box r = {entry['inner_scale']:g}" if entry["forced"] else ""
         print(f"{format_gate(entry['gate'], config.margin, config.half_loss)}{forced}  [{time.perf_counter() - start:.0f} s]", flush=True)
+        if entry.get("governor_margin", ENERGY_MARGIN) > ENERGY_MARGIN:
+            print(f"governor: its energy clause starts {entry['governor_margin']:g} ΔE above the upright, where this law's own catches from the box reach", flush=True)
     return entry

@@ -27,6 +27,7 @@ from .._device import require_device
 from .._io import DamagedFileError, read_json, read_npz
 from ..config import TrainConfig
 from ..control.controller import Controller, OuterLaw
+from ..control.speed_governor import ENERGY_MARGIN
 from ..control.nets import IdaPbcNets, build_nets
 from ..errors import IdapbcError
 from ..model import System
@@ -67,13 +68,13 @@ class Run:
     def controller(self) -> Controller:
         """The control law u = (gᵀg)⁻¹gᵀ(f̃_d − f) with the trained networks, and the run's law
         where they do not act (`fallback`)."""
-        return Controller(self.system, self.nets, self.fallback)
+        return Controller(self.system, self.nets, self.fallback, governor_margin=self.governor_margin)
 
     @property
     def box_controller(self) -> Controller:
         """The run's law without a swing-up law: the networks, and its recovery or linear law outside
         their box (what the swing-up stage improves on and hands over to)."""
-        return Controller(self.system, self.nets, self._box_fallback())
+        return Controller(self.system, self.nets, self._box_fallback(), governor_margin=self.governor_margin)
 
     @property
     def own_controller(self) -> Controller:
@@ -81,6 +82,14 @@ class Run:
         law outside the training box with the gate's inside gain (what `recover` improves on, and
         what its gate and its `teacher` = "run" simulate)."""
         return Controller(self.system, self.nets, self._linear_fallback())
+
+    @property
+    def governor_margin(self) -> float:
+        """Where the governor's energy clause starts (ΔE above E*): the kept recovery law's own
+        (summary.json → "recovery" → "governor_margin", `evaluation.catch_margin`), else `ENERGY_MARGIN`."""
+        entry = self.summary.get("recovery") or {}
+        margin = entry.get("governor_margin") if self.uses_recovery else None
+        return ENERGY_MARGIN if margin is None else float(margin)
 
     def _linear_fallback(self) -> OuterLaw | None:
         """The linear law outside the box with the gate's inside gain, where the run uses it; else None."""
