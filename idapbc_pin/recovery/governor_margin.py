@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from .._parallel import process_map
 from ..control.speed_governor import ENERGY_MARGIN, SpeedGovernor
 from ..sim.integrate import simulate
 from ..sim.metrics import success
@@ -32,21 +33,26 @@ CATCH_T = 10.0
 LOSS = 3
 
 
-def catch_margin(system, law, n: int = CATCH_STATES, seed: int = 0, T: float = CATCH_T) -> float:
+def _catches(job) -> tuple[np.ndarray, np.ndarray]:
+    """(caught (N,) bool, peak (N,) of (E_g − E*)/ΔE along each rollout) of one law from x0."""
+    system, law, x0, T = job
+    governor = SpeedGovernor.of(system)
+    traj = simulate(system, law, x0, T=T)
+    e_g = governor.energy(traj.x.reshape(-1, system.n))[0].reshape(len(x0), -1)
+    return success(traj, system), ((e_g - governor.e_star) / governor.delta_e).max(axis=1)
+
+
+def catch_margin(system, law, n: int = CATCH_STATES, seed: int = 0, T: float = CATCH_T, workers: int = 1) -> float:
     """The energy clause's margin (ΔE above E*) for `law`, a `Controller` with its governor: from `n`
     uniform training-box states, `ENERGY_MARGIN` where the law governed brings at most `LOSS` fewer
     of them to x* than without its governor; else the largest (E_g − E*)/ΔE along the rollouts that
     reach x* without it, rounded up to 0.01. `ENERGY_MARGIN` too where the robot has no energy
-    clause (no governor, or ΔE ≤ 0)."""
+    clause (no governor, or ΔE ≤ 0). `workers`: processes for the two simulations (the time only)."""
     governor = SpeedGovernor.of(system)
     if governor is None or governor.delta_e <= 0:
         return ENERGY_MARGIN
     x0 = uniform_states(system, n, "domain", seed)
-    alone = simulate(system, law.with_governor(False), x0, T=T)
-    caught = success(alone, system)
-    governed = success(simulate(system, law, x0, T=T), system)
+    (caught, peak), (governed, _) = process_map(_catches, [(system, law.with_governor(False), x0, T), (system, law, x0, T)], workers)
     if int(governed.sum()) >= int(caught.sum()) - LOSS:
         return ENERGY_MARGIN
-    e_g = governor.energy(alone.x[caught].reshape(-1, system.n))[0]
-    peak = float(np.max((e_g - governor.e_star) / governor.delta_e))
-    return max(ENERGY_MARGIN, math.ceil(peak * 100.0) / 100.0)
+    return max(ENERGY_MARGIN, math.ceil(float(peak[caught].max()) * 100.0) / 100.0)

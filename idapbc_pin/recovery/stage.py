@@ -425,9 +425,10 @@ def _verdict(gate: dict, config: RecoveryConfig, keep: bool) -> dict:
 def _save_and_tell(run, law: RecoveryLaw, entry: dict, config: RecoveryConfig, progress: bool, start: float) -> dict:
     """Save `law` and `entry` (`save_recovery`), with the governor's margin for a kept law
     (`catch_margin`), and print the gate's line; returns `entry`."""
+    entry = {key: value for key, value in entry.items() if key != "governor_margin"}  # judged afresh (a regate's earlier entry had one)
     save_recovery(run, law, entry)
     if entry["used"]:
-        entry = entry | {"governor_margin": catch_margin(run.system, run.controller, config.gate_states, run.config.seed, config.judge_T)}
+        entry = entry | {"governor_margin": catch_margin(run.system, run.controller, config.gate_states, run.config.seed, config.judge_T, config.workers)}
         run.summary = dict(run.summary) | {"recovery": dict(run.summary["recovery"]) | {"governor_margin": entry["governor_margin"]}}
         write_json(run.path / "summary.json", run.summary)
     if progress:
