@@ -42,6 +42,7 @@ import numpy as np
 import pytest
 
 import idapbc_pin as ip
+from idapbc_pin.control.speed_governor import ENERGY_MARGIN
 from idapbc_pin._io import DamagedFileError
 from idapbc_pin.cli.main import main
 from idapbc_pin.control.baseline import LQRController
@@ -789,11 +790,19 @@ def test_regate_judges_the_saved_law_again_without_fitting_and_keeps_it_exactly_
     assert not ip.load_run(path).uses_recovery
 
     (tmp_path / "margin.toml").write_text("[recovery]\nmargin = 5\n")
+    stale = json.loads((path / "summary.json").read_text())
+    stale["recovery"]["governor_margin"] = 99.0  # an earlier entry's margin: the law kept now is judged afresh
+    (path / "summary.json").write_text(json.dumps(stale))
+    judged = []  # the margin each catch_margin call's law is governed at
+    real = recovery_module.catch_margin
+    monkeypatch.setattr(recovery_module, "catch_margin", lambda system, law, *a: judged.append(law.governor_margin) or real(system, law, *a))
     assert main(["recover", str(path), "--regate", "--config", str(tmp_path / "margin.toml"), "--keep"]) == 0
     assert "kept anyway (--keep)" in capsys.readouterr().out
     entry = json.loads((path / "summary.json").read_text())["recovery"]
     assert entry["used"] and entry["forced"] and entry["gate"]["used"] is False
     assert ip.load_run(path).uses_recovery
+    assert judged == [ENERGY_MARGIN]
+    assert ENERGY_MARGIN <= entry["governor_margin"] < 99.0 and ip.load_run(path).governor_margin == entry["governor_margin"]
 
 
 def test_regate_without_a_saved_law_says_what_to_run_in_one_line(tiny_run, tmp_path, capsys):
