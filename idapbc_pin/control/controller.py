@@ -199,19 +199,24 @@ class Controller:
         nets.H, nets.J, nets.R = self.nets.H, self.nets.J, self.nets.R.with_rho(rho)
         for name, buf in self.nets._buffers.items():  # None buffers too (angle_mask)
             nets.register_buffer(name, buf, persistent=name not in self.nets._non_persistent_buffers_set)
-        return Controller(self.system, nets, self.fallback, self.guard is not None, self.governor is not None, self.governor_margin)
+        return self._variant(nets=nets)
+
+    def _variant(self, **changes) -> "Controller":
+        """This controller with `changes` (nets, fallback, guard, governor) in place of its own."""
+        own = dict(nets=self.nets, fallback=self.fallback, guard=self.guard is not None, governor=self.governor is not None, governor_margin=self.governor_margin)
+        return Controller(self.system, **(own | changes))
 
     def with_fallback(self, fallback: OuterLaw | None) -> "Controller":
         """Same networks, another law where they do not act (None: the learned law everywhere)."""
-        return Controller(self.system, self.nets, fallback, self.guard is not None, self.governor is not None, self.governor_margin)
+        return self._variant(fallback=fallback)
 
     def with_guard(self, guard: bool) -> "Controller":
         """Same laws, with or without the rail guard (`RailGuard`)."""
-        return Controller(self.system, self.nets, self.fallback, guard, self.governor is not None, self.governor_margin)
+        return self._variant(guard=guard)
 
     def with_governor(self, governor: bool) -> "Controller":
         """Same laws, with or without the speed and energy governor (`SpeedGovernor`)."""
-        return Controller(self.system, self.nets, self.fallback, self.guard is not None, governor, self.governor_margin)
+        return self._variant(governor=governor)
 
     def in_float64(self) -> "Controller":
         """Same laws on the same weights, evaluated in float64 (every float32 weight is exactly a
@@ -220,7 +225,7 @@ class Controller:
         if self._dtype == torch.float64:
             return self
         nets = copy.deepcopy(self.nets).to(torch.float64)
-        return Controller(self.system, nets, self.fallback, self.guard is not None, self.governor is not None, self.governor_margin)
+        return self._variant(nets=nets)
 
     @property
     def rho(self) -> float:

@@ -25,7 +25,7 @@ coupling M⁻¹B), and its power into E_g ≤ 0 wherever only the energy clause 
 keeps each sign. Away from both clauses the input is the law's, unchanged: the learned law near x*
 and every swing-up from rest below E* + margin·ΔE and 0.8 of every rating. The margin is
 `ENERGY_MARGIN` unless a run's recovery stage raised it to what its kept law's own catches from the
-training box reach (`evaluation.catch_margin`): a cart that swings its poles up from the box's edge. It is a state
+training box reach (`recovery.catch_margin`): a cart that swings its poles up from the box's edge. It is a state
 feedback, applied by `Controller` after every outer law and before the rail guard, and the exported
 controller applies the same rule (controller.json's "governor").
 """

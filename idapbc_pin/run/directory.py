@@ -86,7 +86,7 @@ class Run:
     @property
     def governor_margin(self) -> float:
         """Where the governor's energy clause starts (ΔE above E*): the kept recovery law's own
-        (summary.json → "recovery" → "governor_margin", `evaluation.catch_margin`), else `ENERGY_MARGIN`."""
+        (summary.json → "recovery" → "governor_margin", `recovery.catch_margin`), else `ENERGY_MARGIN`."""
         entry = self.summary.get("recovery") or {}
         margin = entry.get("governor_margin") if self.uses_recovery else None
         return ENERGY_MARGIN if margin is None else float(margin)
