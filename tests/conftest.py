@@ -102,6 +102,17 @@ def _short_fallback_gate():
         yield
 
 
+@pytest.fixture
+def one_label_chunk(monkeypatch):
+    """A labelling step's starts in one chunk (`stage.LABEL_CHUNKS` = 1) instead of eight: a test's
+    few starts then share one batched simulation instead of one each (the per-step cost dominates
+    there). The labels are the same up to the rounding of a batched matrix product; the tests whose
+    claim is the chunks (resume, worker counts) put the eight back."""
+    from idapbc_pin.recovery import stage
+
+    monkeypatch.setattr(stage, "LABEL_CHUNKS", 1)
+
+
 def pytest_collection_modifyitems(config, items):
     """Run the end-to-end tests (marked slow, a minute or two each) first: with two workers a long
     test that starts last leaves the other worker idle until it ends."""

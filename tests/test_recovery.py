@@ -66,6 +66,10 @@ from idapbc_pin.recovery.trigger import BIND_POINTS, BIND_STATES, ROOM_POINTS, a
 
 from .conftest import cart_out_and_back, sample_domain
 
+#: The labelling steps here take their few starts in one chunk (`one_label_chunk`); the two tests of
+#: the chunks across worker counts put the eight back.
+pytestmark = pytest.mark.usefixtures("one_label_chunk")
+
 
 def random_law(system, inner_scale: float, seed: int = 0, width: int = 16, residual: bool = False) -> RecoveryLaw:
     """A recovery law with random weights (large enough that the output saturates somewhere), in the
@@ -267,6 +271,7 @@ def test_a_trajectory_that_reaches_the_target_off_the_rail_labels_nothing():
 
 
 def test_worker_processes_change_the_time_of_recover_never_its_plans_fits_or_gate(tiny_run, monkeypatch):
+    monkeypatch.setattr(recovery_module, "LABEL_CHUNKS", 8)
     _short_gate(monkeypatch)
     system = tiny_run.system
     small = dict(TINY, steps=60, fits=2, inner_scales=(0.1, 0.5))
@@ -288,10 +293,11 @@ def test_worker_processes_change_the_time_of_recover_never_its_plans_fits_or_gat
     assert RecoveryConfig().workers == 0 and recovery_module.resolve_workers(0) >= 1  # 0: one per core
 
 
-def test_the_labels_do_not_depend_on_the_number_of_worker_processes(weak_pendubot):
+def test_the_labels_do_not_depend_on_the_number_of_worker_processes(weak_pendubot, monkeypatch):
     """The starts are split into the same chunks for one worker or two (chunks that followed the
     workers gave other plans), on the 8 N·m pendubot, whose saturated LQR settles within seconds where
     it settles at all (starts judged over 8 s)."""
+    monkeypatch.setattr(recovery_module, "LABEL_CHUNKS", 8)
     system = planning_system(weak_pendubot)
     x0 = uniform_states(system, 9, "domain", 5)  # more starts than chunks (8): one chunk holds two
     plan = PlanSettings(horizon=1.0, ilqr_iterations=4)
@@ -789,7 +795,7 @@ def test_regate_judges_the_saved_law_again_without_fitting_and_keeps_it_exactly_
     assert not dropped["used"] and not (path / RECOVERY_FILE).exists() and (path / RECOVERY_REFUSED_FILE).is_file()
     assert not ip.load_run(path).uses_recovery
 
-    (tmp_path / "margin.toml").write_text("[recovery]\nmargin = 5\n")
+    (tmp_path / "margin.toml").write_text("[recovery]\nmargin = 5\ngate_states = 4\nnear_states = 2\nconfirm_states = 2\njudge_T = 8.0\n")
     stale = json.loads((path / "summary.json").read_text())
     stale["recovery"]["governor_margin"] = 99.0  # an earlier entry's margin: the law kept now is judged afresh
     (path / "summary.json").write_text(json.dumps(stale))
@@ -913,7 +919,8 @@ def test_refit_in_the_residual_form_fits_corrections_to_the_run_s_own_inputs_and
     x = uniform_states(system, 300, "domain", seed=3)
     energy = networks.flow().energy
     np.testing.assert_allclose(run.controller(x), law.apply(x, networks(x), energy), atol=1e-12)
-    (tmp_path / "direct.toml").write_text('[recovery]\nform = "direct"\nwidth = 8\nsteps = 20\nfits = 1\n')
+    (tmp_path / "direct.toml").write_text('[recovery]\nform = "direct"\nwidth = 8\nsteps = 20\nfits = 1\n'
+                                          'gate_states = 4\nnear_states = 2\nconfirm_states = 2\njudge_T = 8.0\n')
     assert main(["recover", str(path), "--refit", "--config", str(tmp_path / "direct.toml"), "--workers", "1", "--keep"]) == 0
     assert not ip.load_run(path).controller.fallback.residual
     assert json.loads((path / "summary.json").read_text())["recovery"]["config"]["form"] == "direct"

@@ -32,6 +32,9 @@ from idapbc_pin.trajectory.tracks import KNOT
 
 from .test_recovery import TINY, _as_compare, plan_once, random_law
 
+#: The labelling steps here take their few starts in one chunk (`one_label_chunk`).
+pytestmark = pytest.mark.usefixtures("one_label_chunk")
+
 
 @pytest.fixture(scope="module")
 def weak_pendubot():

@@ -231,7 +231,7 @@ def test_cli_commands_write_into_the_run_directory(tiny_run, capsys):
     args = _parser().parse_args(["simulate", run, "--x0", "0.1", "0.2", "--x0", "0", "-0.3", "--T", "0.5", "--workers", "1"])
     assert args.func(args) == 0
     assert json.loads((tiny_run.path / "simulation.json").read_text())["x0"] == [[0.1, 0.2, 0.0, 0.0], [0.0, -0.3, 0.0, 0.0]]
-    args = _parser().parse_args(["certify", run, "--n", "500", "--settle", "0"])
+    args = _parser().parse_args(["certify", run, "--n", "500", "--settle", "0", "--invariant", "8"])
     assert args.func(args) == 0
     assert "sampled certificate, not a proof" in capsys.readouterr().out
 

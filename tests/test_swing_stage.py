@@ -23,6 +23,9 @@ from idapbc_pin.sim.states import resting_states
 
 from .conftest import sample_domain
 
+#: The labelling steps here take their few starts in one chunk (`one_label_chunk`).
+pytestmark = pytest.mark.usefixtures("one_label_chunk")
+
 #: The smallest stage that exercises every step: two starts, half-second plans (two iterations each,
 #: the nominals' too), one DAgger round, the library's starts planned again at 1 s where 0.5 s brings none up.
 TINY = dict(starts=2, horizon=0.5, ilqr_iterations=2, track_iterations=2, dagger=1, dagger_starts=2, width=8, steps=30, gate_states=2, box_states=4,
