@@ -106,8 +106,9 @@ def _short_fallback_gate():
 def one_label_chunk(monkeypatch):
     """A labelling step's starts in one chunk (`stage.LABEL_CHUNKS` = 1) instead of eight: a test's
     few starts then share one batched simulation instead of one each (the per-step cost dominates
-    there). The labels are the same up to the rounding of a batched matrix product; the tests whose
-    claim is the chunks (resume, worker counts) put the eight back."""
+    there). The labels are the same up to the rounding of a batched matrix product. Modules use it
+    where the chunks are not the claim: the resume tests (tests/test_plans.py) keep the eight, and
+    the worker-count tests of tests/test_recovery.py put them back."""
     from idapbc_pin.recovery import stage
 
     monkeypatch.setattr(stage, "LABEL_CHUNKS", 1)
