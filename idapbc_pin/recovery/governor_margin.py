@@ -35,8 +35,8 @@ LOSS = 3
 
 def _catches(job) -> tuple[np.ndarray, np.ndarray]:
     """(caught (N,) bool, peak (N,) of (E_g − E*)/ΔE along each rollout) of one law from x0."""
-    system, law, x0, T = job
-    governor = SpeedGovernor.of(system)
+    governor, law, x0, T = job
+    system = governor.system
     traj = simulate(system, law, x0, T=T)
     e_g = governor.energy(traj.x.reshape(-1, system.n))[0].reshape(len(x0), -1)
     return success(traj, system), ((e_g - governor.e_star) / governor.delta_e).max(axis=1)
@@ -52,7 +52,7 @@ def catch_margin(system, law, n: int = CATCH_STATES, seed: int = 0, T: float = C
     if governor is None or governor.delta_e <= 0:
         return ENERGY_MARGIN
     x0 = uniform_states(system, n, "domain", seed)
-    (caught, peak), (governed, _) = process_map(_catches, [(system, law.with_governor(False), x0, T), (system, law, x0, T)], workers)
+    (caught, peak), (governed, _) = process_map(_catches, [(governor, law.with_governor(False), x0, T), (governor, law, x0, T)], workers)
     if int(governed.sum()) >= int(caught.sum()) - LOSS:
         return ENERGY_MARGIN
     return max(ENERGY_MARGIN, math.ceil(float(peak[caught].max()) * 100.0) / 100.0)
